@@ -1,0 +1,1 @@
+"""Training side of itnet (torch): the IT-Net network, data, training and evaluation."""

@@ -1,0 +1,136 @@
+"""Training and evaluation data: canonical shape sets, random scan batches, fixed scan sets.
+
+* Shapes are loaded once, orientation-checked (``shapes.check_yaw``) and cached as .npz.
+* Training batches are fresh random scans every step (a seeded generator per step, so a resumed
+  run sees the same data).
+* Validation and test scans are fixed (seeded) and cached, in random units (scale 0.01-100), so
+  evaluation also checks that the unit does not matter.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
+from itnet.model.scanner import ScanConfig, scan_shape
+from itnet.model.shapes import Shape, check_yaw, list_shape_files, load_shape
+
+
+@dataclass
+class ScanSet:
+    """Fixed scans: clouds[i] (K_i, 3) in input units, poses (S, 4, 4) T_canonical_from_input,
+    radii (S,) object radius in input units, names (S,)."""
+
+    clouds: list[NDArray[np.float64]]
+    poses: NDArray[np.float64]
+    radii: NDArray[np.float64]
+    names: list[str]
+
+    def save(self, path: Path) -> None:
+        sizes = np.array([len(c) for c in self.clouds])
+        np.savez_compressed(path, points=np.concatenate(self.clouds), sizes=sizes,
+                            poses=self.poses, radii=self.radii, names=np.array(self.names))  # fmt: skip
+
+    @classmethod
+    def load(cls, path: Path) -> ScanSet:
+        z = np.load(path)
+        clouds = np.split(z["points"], np.cumsum(z["sizes"])[:-1])
+        return cls(clouds, z["poses"], z["radii"], [str(n) for n in z["names"]])
+
+
+def _cache_key(*parts: object) -> str:
+    return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def split_files(data: Path, category: str, validation_fraction: float, seed: int) -> dict[str, list[Path]]:
+    """Files for train / val / test. Uses DATA/CATEGORY/{train,test} or DATA/{train,test} when
+    present (ModelNet's layout), otherwise splits DATA's files 80/20 by a seeded permutation.
+    Validation is carved out of train, never out of test."""
+    root = data / category if (data / category).is_dir() else data
+    if (root / "train").is_dir() and (root / "test").is_dir():
+        train, test = list_shape_files(root / "train"), list_shape_files(root / "test")
+    else:
+        files = list_shape_files(root)
+        order = np.random.default_rng(seed).permutation(len(files))
+        cut = int(round(0.8 * len(files)))
+        train, test = [files[i] for i in order[:cut]], [files[i] for i in sorted(order[cut:])]
+    if not train or not test:
+        raise ValueError(f"{root}: found {len(train)} training and {len(test)} test shapes")
+    order = np.random.default_rng(seed + 1).permutation(len(train))
+    n_val = max(1, int(round(validation_fraction * len(train))))
+    val = [train[i] for i in sorted(order[:n_val])]
+    train = [train[i] for i in sorted(order[n_val:])]
+    return {"train": train, "val": val, "test": test}
+
+
+def load_shapes(files: list[Path], frame: str, cache: Path, check_orientation: bool) -> tuple[list[Shape], dict]:
+    """Canonical shapes for files (cached). Returns (shapes, orientation-check counts)."""
+    key = _cache_key([str(f) for f in files], frame, check_orientation)
+    path = cache / f"shapes-{key}.npz"
+    if path.exists():
+        z = np.load(path, allow_pickle=False)
+        report = json.loads(str(z["report"]))
+        shapes = [Shape(str(n), p, t if t.size else None)
+                  for n, p, t in zip(z["names"], np.split(z["points"], z["cuts"]),
+                                     np.split(z["tris"], z["tcuts"]))]  # fmt: skip
+        return shapes, report
+    shapes = [load_shape(f, frame) for f in files]
+    report = {"loaded": len(shapes)}
+    if check_orientation:
+        shapes, counts = check_yaw(shapes)
+        report.update(counts)
+    cache.mkdir(parents=True, exist_ok=True)
+    tris = [s.triangles if s.triangles is not None else np.zeros((0, 3), np.int64) for s in shapes]
+    np.savez_compressed(
+        path, names=np.array([s.name for s in shapes]), points=np.concatenate([s.points for s in shapes]),
+        cuts=np.cumsum([len(s.points) for s in shapes])[:-1], tris=np.concatenate(tris),
+        tcuts=np.cumsum([len(t) for t in tris])[:-1], report=json.dumps(report),
+    )  # fmt: skip
+    return shapes, report
+
+
+def make_scan_set(shapes: list[Shape], views: int, seed: int, config: ScanConfig) -> ScanSet:
+    """``views`` seeded random scans of every shape, each in a random unit (scale 1e-2..1e2)."""
+    rng = np.random.default_rng(seed)
+    clouds, poses, radii, names = [], [], [], []
+    for shape in shapes:
+        for _ in range(views):
+            cloud, pose = scan_shape(shape.points, rng, config, shape.triangles)
+            unit = 10 ** rng.uniform(-2, 2)
+            pose = pose.copy()
+            pose[:3, 3] *= unit
+            clouds.append(cloud * unit)
+            poses.append(pose)
+            radii.append(unit)
+            names.append(shape.name)
+    return ScanSet(clouds, np.array(poses), np.array(radii), names)
+
+
+def cached_scan_set(shapes: list[Shape], views: int, seed: int, config: ScanConfig, cache: Path) -> ScanSet:
+    path = cache / f"scans-{_cache_key([s.name for s in shapes], views, seed, config)}.npz"
+    if path.exists():
+        return ScanSet.load(path)
+    scans = make_scan_set(shapes, views, seed, config)
+    cache.mkdir(parents=True, exist_ok=True)
+    scans.save(path)
+    return scans
+
+
+def training_batch(
+    shapes: list[Shape], batch: int, points: int, rng: np.random.Generator, config: ScanConfig
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4), normalised
+    frame), normalised exactly as the runtime does it."""
+    xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
+    for b, i in enumerate(rng.integers(len(shapes), size=batch)):
+        cloud, pose = scan_shape(shapes[i].points, rng, config, shapes[i].triangles)
+        norm = estimate_normalization(cloud)
+        xs[b] = resample(norm.apply(cloud), points, rng)
+        targets[b] = pose_to_normalized(pose, norm)
+    return xs, targets

@@ -1,0 +1,86 @@
+"""Anytime evaluation: accuracy after every iteration 0..K on a fixed scan set.
+
+Any ``step`` callable can be evaluated — the torch network or the shipped ONNX graph — because
+both see exactly the runtime's input: the cloud normalised by ``itnet.preprocess`` and resampled
+to the model's point count with a seeded generator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel
+
+from itnet.metrics import is_correct, pose_errors
+from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
+from itnet.model.data import ScanSet
+
+# (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
+StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]
+
+
+class AnytimeReport(BaseModel):
+    """Accuracy per iteration (index 0 = before any step) and error summaries."""
+
+    iterations: list[int]
+    accuracy: list[float]
+    rotation_accuracy: list[float]
+    translation_accuracy: list[float]
+    median_rotation_deg: list[float]
+    median_translation: list[float]
+    scans: int
+
+    def at(self, iteration: int) -> float:
+        return self.accuracy[self.iterations.index(iteration)]
+
+
+def anytime_poses(
+    step: StepFn, scans: ScanSet, iterations: int, points: int, seed: int = 0, batch: int = 50
+) -> NDArray[np.float64]:
+    """Poses T_canonical_from_input (S, iterations + 1, 4, 4), in the scans' own units."""
+    rng = np.random.default_rng(seed)
+    norms = [estimate_normalization(c) for c in scans.clouds]
+    inputs = np.stack([resample(n.apply(c), points, rng) for n, c in zip(norms, scans.clouds)])
+    out = np.empty((len(inputs), iterations + 1, 4, 4))
+    for start in range(0, len(inputs), batch):
+        x = inputs[start : start + batch]
+        pose = np.tile(np.eye(4, dtype=np.float32), (len(x), 1, 1))
+        trail = [pose]
+        for _ in range(iterations):
+            pose = step(x, pose)
+            trail.append(pose)
+        out[start : start + len(x)] = np.stack(trail, axis=1)
+    for i, norm in enumerate(norms):
+        out[i] = pose_from_normalized(out[i], norm)
+    return out
+
+
+def report(poses: NDArray, scans: ScanSet) -> tuple[AnytimeReport, NDArray, NDArray]:
+    """Poses (S, K+1, 4, 4) -> (report, rotation errors (S, K+1), translation errors (S, K+1))."""
+    rot, trans = pose_errors(poses, scans.poses[:, None], scans.radii[:, None])
+    ok = is_correct(rot, trans)
+    rep = AnytimeReport(
+        iterations=list(range(poses.shape[1])),
+        accuracy=[round(float(v), 4) for v in ok.mean(0)],
+        rotation_accuracy=[round(float(v), 4) for v in (rot < 10).mean(0)],
+        translation_accuracy=[round(float(v), 4) for v in (trans < 0.1).mean(0)],
+        median_rotation_deg=[round(float(v), 3) for v in np.median(rot, 0)],
+        median_translation=[round(float(v), 4) for v in np.median(trans, 0)],
+        scans=len(scans.clouds),
+    )
+    return rep, rot, trans
+
+
+def torch_step(net) -> StepFn:  # type: ignore[no-untyped-def]
+    """A StepFn running an ITNet in eval mode (fp32)."""
+    import torch
+
+    def step(points: NDArray[np.float32], pose: NDArray[np.float32]) -> NDArray[np.float32]:
+        net.eval()
+        with torch.no_grad():
+            nxt, _ = net.step(torch.from_numpy(points), torch.from_numpy(pose))
+        return nxt.numpy()
+
+    return step

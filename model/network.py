@@ -1,0 +1,120 @@
+"""IT-Net (Yuan et al., ICCV 2019): one PointNet step that predicts a rigid update, iterated.
+
+Shapes: B = batch, N = points. Poses are (B, 4, 4) homogeneous matrices in the normalised frame
+of ``itnet.preprocess``; quaternions are WXYZ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+IDENTITY_OUTPUT = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # quaternion WXYZ, translation xyz
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Architecture switches. The defaults are the paper's; the flags rerun its ablations."""
+
+    point_channels: tuple[int, ...] = (64, 128, 1024)
+    head_channels: tuple[int, ...] = (512, 256)
+    identity_init: bool = True
+
+
+def quat_wxyz_translation_to_pose(output: Tensor) -> Tensor:
+    """(B, 7) = quaternion WXYZ (normalised here) + translation -> rigid pose (B, 4, 4)."""
+    q = output[:, :4] / output[:, :4].norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    w, x, y, z = q.unbind(-1)
+    rotation = torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(-1, 3, 3)  # fmt: skip
+    top = torch.cat([rotation, output[:, 4:7, None]], dim=-1)
+    bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=output.dtype, device=output.device)
+    return torch.cat([top, bottom.expand(len(output), 1, 4)], dim=1)
+
+
+def apply_pose(pose: Tensor, points: Tensor) -> Tensor:
+    """Pose (B, 4, 4) applied to points (B, N, 3) -> (B, N, 3)."""
+    return points @ pose[:, :3, :3].transpose(1, 2) + pose[:, None, :3, 3]
+
+
+def _mlp(channels: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for c_in, c_out in zip(channels[:-1], channels[1:]):
+        layers += [nn.Linear(c_in, c_out, bias=False), nn.BatchNorm1d(c_out), nn.ReLU()]
+    return nn.Sequential(*layers)
+
+
+class PoseRegressor(nn.Module):
+    """PointNet: shared MLP 3->64->128->1024, max-pool, MLP 1024->512->256, linear 256->7."""
+
+    def __init__(self, config: NetworkConfig) -> None:
+        super().__init__()
+        self.point_mlp = _mlp([3, *config.point_channels])
+        self.head = _mlp([config.point_channels[-1], *config.head_channels])
+        self.out = nn.Linear(config.head_channels[-1], 7)
+        if config.identity_init:
+            nn.init.zeros_(self.out.weight)
+            with torch.no_grad():
+                self.out.bias.copy_(torch.tensor(IDENTITY_OUTPUT))
+
+    def forward(self, points: Tensor) -> Tensor:
+        """Points (B, N, 3) -> (B, 7): quaternion WXYZ (unnormalised) + translation."""
+        b, n, _ = points.shape
+        features = self.point_mlp(points.reshape(b * n, 3)).reshape(b, n, -1)
+        hidden = self.head(features.amax(dim=1))
+        with torch.autocast(points.device.type, enabled=False):  # full precision for the pose
+            return self.out(hidden.float())
+
+
+class ITNet(nn.Module):
+    """The iterative transformer: one regressor, shared by every iteration."""
+
+    def __init__(self, config: NetworkConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or NetworkConfig()
+        self.regressor = PoseRegressor(self.config)
+
+    def step(self, points: Tensor, pose: Tensor, stop_gradient: bool = True) -> tuple[Tensor, Tensor]:
+        """One iteration: points (B, N, 3), pose so far (B, 4, 4) -> (next pose, update), each B x4x4.
+
+        The input is moved by the pose so far, the regressor predicts the update dT, and
+        ``next = dT @ pose``. With ``stop_gradient`` the moved input is detached, so the gradient
+        flows only through the composition (the paper's choice).
+        """
+        moving = pose.detach() if stop_gradient else pose
+        delta = quat_wxyz_translation_to_pose(self.regressor(apply_pose(moving, points)))
+        return delta @ pose, delta
+
+    def forward(self, points: Tensor, iterations: int, stop_gradient: bool = True) -> list[Tensor]:
+        """Points (B, N, 3) -> the poses after iterations 1..K, each (B, 4, 4)."""
+        pose = torch.eye(4, dtype=points.dtype, device=points.device).expand(len(points), 4, 4)
+        poses = []
+        for _ in range(iterations):
+            pose, _ = self.step(points, pose, stop_gradient)
+            poses.append(pose)
+        return poses
+
+
+class ExportableStep(nn.Module):
+    """The graph exported to ONNX: (points B x N x 3, pose B x4x4) -> (next pose, update)."""
+
+    def __init__(self, net: ITNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, points: Tensor, pose: Tensor) -> tuple[Tensor, Tensor]:
+        return self.net.step(points, pose)
+
+
+def point_loss(pose_estimate: Tensor, pose_target: Tensor, points: Tensor) -> Tensor:
+    """PLoss: mean over batch and points of ||T_est x - T_gt x||^2. Poses (B,4,4), points (B,N,3)."""
+    diff = apply_pose(pose_estimate, points) - apply_pose(pose_target, points)
+    return diff.square().sum(-1).mean()

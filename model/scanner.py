@@ -1,0 +1,131 @@
+"""Virtual depth-camera scans: what one viewpoint sees of a complete canonical shape.
+
+Camera frame (OpenCV): x right, y down, z forward along the optical axis. A scan is expressed in
+the camera frame and labelled with ``T_canonical_from_input`` (= inverse of the camera pose that
+maps canonical points into the camera).
+
+Two scanners:
+
+* ``zbuffer_scan``: for point sets (the paper's z-buffer projection). Points are projected into a
+  pixel grid; a point is kept when it is within ``tolerance`` of the nearest depth in its
+  3x3 pixel neighbourhood (so a surface hides the points behind it, even through the gaps
+  between projected points).
+* ``raycast_scan``: for meshes, open3d ray casting through a pinhole camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.geometry import apply_rigid, invert_rigid, random_rotation, rigid_from_rotation_translation
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """Ranges the viewpoints and sensor effects are drawn from (object radius = 1)."""
+
+    distance: tuple[float, float] = (1.8, 4.0)  # camera to object centre
+    off_axis: float = 0.25  # object centre off the optical axis, as a fraction of the distance
+    pixel: tuple[float, float] = (0.035, 0.07)  # z-buffer pixel size at the object's distance
+    tolerance: float = 0.06  # z-buffer: depth slack behind the nearest surface
+    depth_noise: tuple[float, float] = (0.0, 0.01)  # sigma along the ray, per unit of distance
+    jitter: tuple[float, float] = (0.0, 0.005)  # isotropic sigma
+    outlier_fraction: tuple[float, float] = (0.0, 0.01)
+    raycast_resolution: tuple[int, int] = (96, 160)  # image width range for mesh ray casting
+    min_points: int = 64
+
+
+def random_camera_pose(rng: np.random.Generator, config: ScanConfig) -> NDArray[np.float64]:
+    """T_camera_from_canonical: any rotation (direction and roll), random distance and offset."""
+    distance = rng.uniform(*config.distance)
+    offset = rng.uniform(-config.off_axis, config.off_axis, size=2) * distance
+    return rigid_from_rotation_translation(random_rotation(rng), [*offset, distance])
+
+
+def zbuffer_visible(camera_points: NDArray, pixel: float, tolerance: float) -> NDArray[np.bool_]:
+    """Visibility mask (M,) of camera-frame points (M, 3) under a z-buffer with 3x3 occlusion."""
+    z = camera_points[:, 2]
+    angular = pixel / np.median(z)
+    uv = np.floor(camera_points[:, :2] / z[:, None] / angular).astype(np.int64)
+    uv -= uv.min(0) - 1  # one pixel of margin for the neighbourhood
+    h, w = uv.max(0) + 2
+    zbuf = np.full((h, w), np.inf)
+    np.minimum.at(zbuf, (uv[:, 0], uv[:, 1]), z)
+    near = zbuf.copy()
+    for du in (-1, 0, 1):
+        for dv in (-1, 0, 1):
+            near[1:-1, 1:-1] = np.minimum(near[1:-1, 1:-1], zbuf[1 + du : h - 1 + du, 1 + dv : w - 1 + dv])
+    return z <= near[uv[:, 0], uv[:, 1]] + tolerance
+
+
+def add_sensor_effects(
+    camera_points: NDArray, rng: np.random.Generator, config: ScanConfig
+) -> NDArray[np.float64]:
+    """Depth noise along each ray, isotropic jitter, and a few outliers near the object."""
+    p = camera_points.copy()
+    depth = np.linalg.norm(p, axis=1, keepdims=True)
+    sigma = rng.uniform(*config.depth_noise) * depth
+    p *= 1 + sigma * rng.normal(size=(len(p), 1)) / depth
+    p += rng.normal(scale=rng.uniform(*config.jitter), size=p.shape)
+    n_out = int(rng.uniform(*config.outlier_fraction) * len(p))
+    if n_out:
+        lo, hi = p.min(0), p.max(0)
+        p[rng.choice(len(p), n_out, replace=False)] = rng.uniform(lo, hi, size=(n_out, 3))
+    return p
+
+
+def zbuffer_scan(
+    points: NDArray, camera_from_canonical: NDArray, pixel: float, tolerance: float
+) -> NDArray[np.float64]:
+    """Canonical points (M, 3) -> the visible ones in the camera frame (K, 3)."""
+    camera_points = apply_rigid(camera_from_canonical, points)
+    return camera_points[zbuffer_visible(camera_points, pixel, tolerance)]
+
+
+def raycast_scan(
+    vertices: NDArray, triangles: NDArray, camera_from_canonical: NDArray, width: int
+) -> NDArray[np.float64]:
+    """Mesh (V, 3), (F, 3) in canonical -> ray hits in the camera frame (K, 3), pinhole camera.
+
+    The field of view is fitted to the unit sphere at the camera's distance, with ``width``
+    pixels across.
+    """
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    camera_vertices = apply_rigid(camera_from_canonical, vertices).astype(np.float32)
+    scene.add_triangles(camera_vertices, np.asarray(triangles, dtype=np.uint32))
+    centre = camera_from_canonical[:3, 3]
+    half = (np.abs(centre[:2]).max() + 1.05) / centre[2]  # tan of the half field of view
+    axis = np.linspace(-half, half, width)
+    u, v = np.meshgrid(axis, axis)
+    directions = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    rays = np.concatenate([np.zeros_like(directions), directions], 1).astype(np.float32)
+    hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    ok = np.isfinite(hit)
+    return directions[ok] * hit[ok, None]
+
+
+def scan_shape(
+    points: NDArray,
+    rng: np.random.Generator,
+    config: ScanConfig,
+    triangles: NDArray | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One random partial scan of a canonical shape -> (camera-frame points (K, 3),
+    T_canonical_from_input (4, 4)). Retries viewpoints until at least ``min_points`` are seen."""
+    for _ in range(20):
+        camera_from_canonical = random_camera_pose(rng, config)
+        if triangles is None:
+            seen = zbuffer_scan(points, camera_from_canonical, rng.uniform(*config.pixel),
+                                config.tolerance)  # fmt: skip
+        else:
+            width = int(rng.integers(*config.raycast_resolution))
+            seen = raycast_scan(points, triangles, camera_from_canonical, width)
+        if len(seen) >= config.min_points:
+            return add_sensor_effects(seen, rng, config), invert_rigid(camera_from_canonical)
+    raise ValueError("no viewpoint saw enough of the shape")

@@ -1,0 +1,130 @@
+"""Complete shapes in the canonical frame: loading, frame mapping, orientation checks.
+
+Canonical frame (SPEC.md, ShapeNetCore v2): +y up, the object's front toward -z (a chair's back
+on +z), origin at the bounding-box centre, bounding-sphere radius 1 about that centre.
+
+Source frames a folder can be in (``--frame``):
+
+* ``canonical``: already +y up, front -z (only centred and scaled here).
+* ``modelnet``: ModelNet's +z up, back on +y. ``(x, y, z) -> (-x, z, y)`` maps it (det +1).
+* ``z-up``: +z up, front toward -y (common in robotics/CAD): ``(x, y, z) -> (x, z, -y)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.cloud_io import SUFFIXES as CLOUD_SUFFIXES
+from itnet.cloud_io import read_cloud
+from itnet.geometry import axis_angle_to_matrix
+
+MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
+FRAME_ROTATIONS: dict[str, NDArray[np.float64]] = {
+    "canonical": np.eye(3),
+    "modelnet": np.array([[-1.0, 0, 0], [0, 0, 1], [0, 1, 0]]),
+    "z-up": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+}
+
+
+@dataclass
+class Shape:
+    """A complete object in the canonical frame (unit bounding sphere about the bbox centre).
+
+    ``points`` (M, 3) always; ``triangles`` (F, 3) when the source was a mesh.
+    """
+
+    name: str
+    points: NDArray[np.float64]
+    triangles: NDArray[np.int64] | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def to_canonical(points: NDArray, frame: str) -> tuple[NDArray[np.float64], float]:
+    """Points (M, 3) in a named source frame -> (canonical points (M, 3), source radius)."""
+    p = np.asarray(points, dtype=np.float64) @ FRAME_ROTATIONS[frame].T
+    center = (p.min(0) + p.max(0)) / 2
+    radius = float(np.linalg.norm(p - center, axis=1).max())
+    if radius <= 0:
+        raise ValueError("the shape has no extent")
+    return (p - center) / radius, radius
+
+
+def load_shape(path: Path, frame: str) -> Shape:
+    """Read a mesh (ray-castable) or a point cloud file as a canonical Shape."""
+    if path.suffix.lower() in MESH_SUFFIXES or _is_mesh_ply(path):
+        import open3d as o3d
+
+        mesh = o3d.io.read_triangle_mesh(str(path))
+        vertices = np.asarray(mesh.vertices)
+        if len(mesh.triangles) == 0:
+            raise ValueError(f"{path}: a mesh without triangles")
+        canonical, _ = to_canonical(vertices, frame)
+        return Shape(path.stem, canonical, np.asarray(mesh.triangles, dtype=np.int64))
+    canonical, _ = to_canonical(read_cloud(path), frame)
+    return Shape(path.stem, canonical)
+
+
+def _is_mesh_ply(path: Path) -> bool:
+    if path.suffix.lower() != ".ply":
+        return False
+    with path.open("rb") as f:
+        head = f.read(4096)
+    return b"element face" in head and b"element face 0" not in head
+
+
+def list_shape_files(folder: Path) -> list[Path]:
+    """Mesh and cloud files below a folder, sorted (so a seed gives the same split everywhere)."""
+    suffixes = set(MESH_SUFFIXES) | set(CLOUD_SUFFIXES)
+    return sorted(p for p in folder.rglob("*") if p.suffix.lower() in suffixes and p.is_file())
+
+
+def yaw_rotation(quarter_turns: int) -> NDArray[np.float64]:
+    """Rotation by a multiple of 90 degrees about the canonical up axis (+y)."""
+    return axis_angle_to_matrix([0.0, 1.0, 0.0], quarter_turns * np.pi / 2)
+
+
+def _chamfer(a: NDArray, b: NDArray) -> float:
+    d = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2 * a @ b.T
+    return float(np.sqrt(np.maximum(d.min(1), 0)).mean() + np.sqrt(np.maximum(d.min(0), 0)).mean())
+
+
+def check_yaw(
+    shapes: list[Shape], seed: int = 0, references: int = 24, sample: int = 256, margin: float = 0.05
+) -> tuple[list[Shape], dict[str, int]]:
+    """Find shapes turned by a multiple of 90 degrees about up, against the rest of their class.
+
+    For each shape, the four quarter-turns are scored by the median Chamfer distance to a random
+    set of reference shapes of the class (most of which are right). A shape whose best turn is not
+    0 is turned back; a shape whose best turn is not clearly better than the other ones
+    (relative ``margin``) cannot be told apart and is dropped (it is near-symmetric, and its label
+    would contradict itself). Returns (kept shapes, counts).
+    """
+    rng = np.random.default_rng(seed)
+    subsample = [s.points[rng.choice(len(s.points), min(sample, len(s.points)), replace=False)]
+                 for s in shapes]  # fmt: skip
+    refs = rng.choice(len(shapes), size=min(references, len(shapes)), replace=False)
+    kept, counts = [], {"kept": 0, "turned": 0, "dropped": 0}
+    turns = [yaw_rotation(k) for k in range(4)]
+    for i, shape in enumerate(shapes):
+        scores = []
+        for r in turns:
+            moved = subsample[i] @ r.T
+            scores.append(np.median([_chamfer(moved, subsample[j]) for j in refs if j != i]))
+        order = np.argsort(scores)
+        best, second = scores[order[0]], scores[order[1]]
+        if second - best < margin * best:
+            counts["dropped"] += 1
+            continue
+        k = int(order[0])
+        if k != 0:
+            shape = Shape(shape.name, shape.points @ turns[k].T,
+                          shape.triangles, [*shape.notes, f"turned {90 * k} deg about up"])  # fmt: skip
+            counts["turned"] += 1
+        else:
+            counts["kept"] += 1
+        kept.append(shape)
+    return kept, counts

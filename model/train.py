@@ -1,0 +1,151 @@
+"""Training IT-Net: unrolled iterations, PLoss on the final pose, validation, checkpoints, resume.
+
+Run it through ``itnet train``. A run folder holds ``config.json``, ``log.jsonl`` (one line per
+logged step, validation lines included), ``last.pt`` (for resume) and ``best.pt`` (best
+validation accuracy, the one to ship).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydantic import BaseModel
+
+from itnet.model.data import cached_scan_set, load_shapes, split_files, training_batch
+from itnet.model.evaluate import anytime_poses, report, torch_step
+from itnet.model.network import ITNet, NetworkConfig, point_loss
+from itnet.model.scanner import ScanConfig
+
+
+class TrainConfig(BaseModel):
+    """Everything a run depends on; dumped to config.json and stored in every checkpoint."""
+
+    data: Path = Path("../shared/data/modelnet10")
+    category: str = "chair"
+    frame: str = "modelnet"
+    check_orientation: bool = True
+    out: Path = Path("runs/chair")
+    cache: Path = Path("cache")
+    steps: int = 10000
+    batch: int = 32
+    points: int = 256
+    eval_points: int = 1024
+    iterations: int = 5
+    eval_iterations: int = 10
+    lr: float = 1e-3
+    lr_decay: float = 0.7
+    decay_every: int = 1250
+    bn_momentum: tuple[float, float] = (0.5, 0.01)  # torch momentum, start -> end (TF decay 0.5 -> 0.99)
+    bn_decay_every: int = 1250
+    stop_gradient: bool = True
+    identity_init: bool = True
+    validation_fraction: float = 0.1
+    val_views: int = 4
+    test_views: int = 5
+    eval_every: int = 500
+    log_every: int = 25
+    seed: int = 0
+    device: str = "cpu"
+    bf16: bool = True  # autocast matmuls to bfloat16 (AMX on CPU), keep the pose math in fp32
+    threads: int = 0  # 0: torch's default
+
+
+def _bn_momentum(config: TrainConfig, step: int) -> float:
+    start, end = config.bn_momentum
+    return max(end, start * 0.5 ** (step / config.bn_decay_every))
+
+
+def _save(path: Path, net: ITNet, opt: torch.optim.Optimizer, step: int, config: TrainConfig,
+          metrics: dict) -> None:  # fmt: skip
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                "config": config.model_dump(mode="json"), "network": vars(net.config),
+                "metrics": metrics}, tmp)  # fmt: skip
+    tmp.replace(path)
+
+
+def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> dict:
+    """Train (or resume) a run; returns the best validation metrics."""
+    from tqdm import tqdm
+
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    config.out.mkdir(parents=True, exist_ok=True)
+    (config.out / "config.json").write_text(config.model_dump_json(indent=2))
+    files = split_files(config.data, config.category, config.validation_fraction, config.seed)
+    train_shapes, orient = load_shapes(files["train"], config.frame, config.cache, config.check_orientation)
+    val_shapes, _ = load_shapes(files["val"], config.frame, config.cache, config.check_orientation)
+    scan_config = ScanConfig()
+    val_scans = cached_scan_set(val_shapes, config.val_views, config.seed + 7, scan_config, config.cache)
+
+    torch.manual_seed(config.seed)
+    net = ITNet(NetworkConfig(identity_init=config.identity_init)).to(config.device)
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    step, best = 0, {"val_accuracy": -1.0}
+    last = config.out / "last.pt"
+    if resume and last.exists():
+        state = torch.load(last, map_location=config.device, weights_only=False)
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        step, best = state["step"], state["metrics"].get("best", best)
+    log = (config.out / "log.jsonl").open("a")
+    log.write(json.dumps({"event": "start", "step": step, "train_shapes": len(train_shapes),
+                          "val_scans": len(val_scans.clouds), "orientation": orient}) + "\n")  # fmt: skip
+    bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
+    losses: list[float] = []
+    started = time.time()
+    while step < config.steps:
+        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
+        x, target = training_batch(train_shapes, config.batch, config.points, rng, scan_config)
+        x_t = torch.from_numpy(x).to(config.device)
+        target_t = torch.from_numpy(target).to(config.device)
+        lr = config.lr * config.lr_decay ** (step / config.decay_every)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):
+                module.momentum = _bn_momentum(config, step)
+        net.train()
+        with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
+            poses = net(x_t, config.iterations, stop_gradient=config.stop_gradient)
+        loss = point_loss(poses[-1].float(), target_t, x_t)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        losses.append(float(loss.detach()))
+        bar.update(1)
+        if step % config.log_every == 0:
+            mean = float(np.mean(losses[-config.log_every :]))
+            bar.set_postfix(loss=f"{mean:.4f}", lr=f"{lr:.1e}", val=f"{best['val_accuracy']:.3f}")
+            log.write(json.dumps({"step": step, "loss": mean, "lr": lr,
+                                  "seconds": round(time.time() - started, 1)}) + "\n")  # fmt: skip
+        if step % config.eval_every == 0 or step == config.steps:
+            poses_val = anytime_poses(torch_step(net), val_scans, config.eval_iterations, config.eval_points)
+            rep, _, _ = report(poses_val, val_scans)
+            metrics = {"step": step, "val_accuracy": rep.accuracy[-1], "val_curve": rep.accuracy}
+            if metrics["val_accuracy"] > best["val_accuracy"]:
+                best = metrics
+                _save(config.out / "best.pt", net, opt, step, config, {"best": best, **metrics})
+            _save(last, net, opt, step, config, {"best": best, **metrics})
+            log.write(json.dumps({"event": "val", **metrics}) + "\n")
+            log.flush()
+            if not math.isfinite(float(np.mean(losses[-config.log_every :]))):
+                raise FloatingPointError(f"loss is not finite at step {step}")
+    bar.close()
+    log.close()
+    return best
+
+
+def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
+    """A trained network (eval mode, CPU) and its checkpoint dict."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    net = ITNet(NetworkConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in state["network"].items()}))  # fmt: skip
+    net.load_state_dict(state["model"])
+    return net.eval(), state
