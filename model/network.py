@@ -37,7 +37,7 @@ def quat_wxyz_translation_to_pose(output: Tensor) -> Tensor:
     ).reshape(-1, 3, 3)  # fmt: skip
     top = torch.cat([rotation, output[:, 4:7, None]], dim=-1)
     bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=output.dtype, device=output.device)
-    return torch.cat([top, bottom.expand(len(output), 1, 4)], dim=1)
+    return torch.cat([top, bottom.expand(output.shape[0], 1, 4)], dim=1)
 
 
 def apply_pose(pose: Tensor, points: Tensor) -> Tensor:

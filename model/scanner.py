@@ -7,9 +7,10 @@ maps canonical points into the camera).
 Two scanners:
 
 * ``zbuffer_scan``: for point sets (the paper's z-buffer projection). Points are projected into a
-  pixel grid; a point is kept when it is within ``tolerance`` of the nearest depth in its
-  3x3 pixel neighbourhood (so a surface hides the points behind it, even through the gaps
-  between projected points).
+  pixel grid; a point is kept when it is within ``tolerance`` of the nearest depth in its own
+  pixel (the paper's rule) AND within ``occlusion_tolerance`` of the nearest depth in its 3x3
+  neighbourhood. The second test stops far surfaces from showing through the holes between the
+  projected points of a near surface; its larger slack keeps sloped surfaces up to ~60 degrees.
 * ``raycast_scan``: for meshes, open3d ray casting through a pinhole camera.
 """
 
@@ -30,7 +31,8 @@ class ScanConfig:
     distance: tuple[float, float] = (1.8, 4.0)  # camera to object centre
     off_axis: float = 0.25  # object centre off the optical axis, as a fraction of the distance
     pixel: tuple[float, float] = (0.035, 0.07)  # z-buffer pixel size at the object's distance
-    tolerance: float = 0.06  # z-buffer: depth slack behind the nearest surface
+    tolerance: float = 0.08  # z-buffer: depth slack behind the nearest point of the same pixel
+    occlusion_tolerance: float = 0.3  # ... and behind the nearest point of the 3x3 neighbourhood
     depth_noise: tuple[float, float] = (0.0, 0.01)  # sigma along the ray, per unit of distance
     jitter: tuple[float, float] = (0.0, 0.005)  # isotropic sigma
     outlier_fraction: tuple[float, float] = (0.0, 0.01)
@@ -45,8 +47,10 @@ def random_camera_pose(rng: np.random.Generator, config: ScanConfig) -> NDArray[
     return rigid_from_rotation_translation(random_rotation(rng), [*offset, distance])
 
 
-def zbuffer_visible(camera_points: NDArray, pixel: float, tolerance: float) -> NDArray[np.bool_]:
-    """Visibility mask (M,) of camera-frame points (M, 3) under a z-buffer with 3x3 occlusion."""
+def zbuffer_visible(
+    camera_points: NDArray, pixel: float, tolerance: float, occlusion_tolerance: float
+) -> NDArray[np.bool_]:
+    """Visibility mask (M,) of camera-frame points (M, 3) under a z-buffer (see module doc)."""
     z = camera_points[:, 2]
     angular = pixel / np.median(z)
     uv = np.floor(camera_points[:, :2] / z[:, None] / angular).astype(np.int64)
@@ -58,7 +62,8 @@ def zbuffer_visible(camera_points: NDArray, pixel: float, tolerance: float) -> N
     for du in (-1, 0, 1):
         for dv in (-1, 0, 1):
             near[1:-1, 1:-1] = np.minimum(near[1:-1, 1:-1], zbuf[1 + du : h - 1 + du, 1 + dv : w - 1 + dv])
-    return z <= near[uv[:, 0], uv[:, 1]] + tolerance
+    own, neighbourhood = zbuf[uv[:, 0], uv[:, 1]], near[uv[:, 0], uv[:, 1]]
+    return (z <= own + tolerance) & (z <= neighbourhood + occlusion_tolerance)
 
 
 def add_sensor_effects(
@@ -78,11 +83,15 @@ def add_sensor_effects(
 
 
 def zbuffer_scan(
-    points: NDArray, camera_from_canonical: NDArray, pixel: float, tolerance: float
+    points: NDArray,
+    camera_from_canonical: NDArray,
+    pixel: float,
+    tolerance: float = 0.08,
+    occlusion_tolerance: float = 0.3,
 ) -> NDArray[np.float64]:
     """Canonical points (M, 3) -> the visible ones in the camera frame (K, 3)."""
     camera_points = apply_rigid(camera_from_canonical, points)
-    return camera_points[zbuffer_visible(camera_points, pixel, tolerance)]
+    return camera_points[zbuffer_visible(camera_points, pixel, tolerance, occlusion_tolerance)]
 
 
 def raycast_scan(
@@ -122,7 +131,7 @@ def scan_shape(
         camera_from_canonical = random_camera_pose(rng, config)
         if triangles is None:
             seen = zbuffer_scan(points, camera_from_canonical, rng.uniform(*config.pixel),
-                                config.tolerance)  # fmt: skip
+                                config.tolerance, config.occlusion_tolerance)  # fmt: skip
         else:
             width = int(rng.integers(*config.raycast_resolution))
             seen = raycast_scan(points, triangles, camera_from_canonical, width)

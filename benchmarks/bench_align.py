@@ -1,0 +1,166 @@
+"""Benchmark: itnet-align against registration baselines on pairs of partial scans.
+
+    .venv/bin/python -m benchmarks.bench_align --pairs 100
+
+Pairs: two partial scans of the same held-out object (ModelNet10 *test* chairs, mapped to the
+canonical frame by ``itnet.model.shapes``, radius 1), each from an independent random viewpoint
+(full SO(3), ``itnet.model.scanner``), in its own camera frame; seeded, so every method sees the
+same pairs. Truth: T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a of the scans.
+Metric (SPEC.md, ``itnet.metrics.alignment_errors``): rotation error and the distance between
+where the estimate and the truth put A's centroid, over the object radius; success at
+(10 deg, 0.1). Writes docs/align_benchmark.{md,png,json}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchmarks import baselines
+from benchmarks.report import write_report
+from itnet.align import relative_pose
+from itnet.alignment import AlignOptions, align_clouds
+from itnet.estimators import in_process_estimator
+from itnet.metrics import alignment_errors, is_correct
+from itnet.model.scanner import ScanConfig, scan_shape
+from itnet.model.shapes import list_shape_files, load_shape
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class Pair:
+    """Clouds A (N, 3) and B (M, 3) in their camera frames, the true T_b_from_a, the radius."""
+
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
+    truth: NDArray[np.float64]
+    radius: float
+    name: str
+
+
+@dataclass
+class Outcome:
+    """Per-pair errors and times of one method (pairs it ran on, in order)."""
+
+    rotation_deg: list[float] = field(default_factory=list)
+    translation: list[float] = field(default_factory=list)
+    ms: list[float] = field(default_factory=list)
+    info: list[dict] = field(default_factory=list)
+
+    def success(self) -> NDArray[np.bool_]:
+        return is_correct(np.array(self.rotation_deg), np.array(self.translation))
+
+
+def make_pairs(folder: Path, count: int, seed: int) -> list[Pair]:
+    """``count`` scan pairs cycling over the shapes in ``folder`` (ModelNet frame)."""
+    shapes = [load_shape(p, "modelnet") for p in list_shape_files(folder)]
+    rng = np.random.default_rng(seed)
+    config = ScanConfig()
+    pairs = []
+    for i in range(count):
+        shape = shapes[i % len(shapes)]
+        a, pose_a = scan_shape(shape.points, rng, config)
+        b, pose_b = scan_shape(shape.points, rng, config)
+        pairs.append(Pair(a, b, relative_pose(pose_a, pose_b), 1.0, shape.name))
+    return pairs
+
+
+def itnet_methods(model_name: str, model_dir: Path | None, budget_ms: float) -> dict:
+    """itnet-align variants, each returning (T_b_from_a, info)."""
+    from itnet.service.runtime import default_model_dir, load_models
+
+    model = load_models(model_dir or default_model_dir())[model_name]
+    estimate = in_process_estimator(model, budget_ms)
+
+    def variant(options: AlignOptions):  # type: ignore[no-untyped-def]
+        def method(a: NDArray, b: NDArray) -> tuple[NDArray, dict]:
+            result = align_clouds(a, b, estimate, options)
+            chosen = result.hypotheses[result.chosen].source
+            return result.T_b_from_a, {**result.confidence, "hypothesis": chosen,
+                                       "iterations": result.iterations}  # fmt: skip
+
+        return method
+
+    return {
+        "itnet-align, IT-Net only": variant(AlignOptions(symmetry="none")),
+        "itnet-align": variant(AlignOptions()),
+        "itnet-align --refine": variant(AlignOptions(refine=True)),
+        "itnet-align --refine --samples 3": variant(AlignOptions(refine=True, samples=3)),
+    }, model
+
+
+def run_method(method, pairs: list[Pair], seconds: float) -> Outcome:  # type: ignore[no-untyped-def]
+    """Run a method on the pairs (one warm-up call first) until done or ``seconds`` spent."""
+    method(pairs[0].a, pairs[0].b)
+    out, spent = Outcome(), 0.0
+    for pair in pairs:
+        start = time.perf_counter()
+        reply = method(pair.a, pair.b)
+        ms = (time.perf_counter() - start) * 1e3
+        estimate, info = reply if isinstance(reply, tuple) else (reply, {})
+        rot, trans = alignment_errors(estimate, pair.truth, pair.a.mean(0), pair.radius)
+        out.rotation_deg.append(float(rot))
+        out.translation.append(float(trans))
+        out.ms.append(ms)
+        out.info.append(info)
+        spent += ms / 1e3
+        if spent > seconds:
+            break
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path,
+                        default=ROOT.parent / "shared/data/modelnet10/chair/test")  # fmt: skip
+    parser.add_argument("--pairs", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=2024)
+    parser.add_argument("--model", default="chair")
+    parser.add_argument("--model-dir", type=Path, default=None)
+    parser.add_argument("--budget-ms", type=float, default=1000.0)
+    parser.add_argument("--seconds-per-method", type=float, default=120.0)
+    parser.add_argument("--only", nargs="*", default=None, help="method names to run")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs")
+    args = parser.parse_args()
+
+    pairs = make_pairs(args.data, args.pairs, args.seed)
+    methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms)
+    methods.update(baselines.available())
+    results = {}
+    for name, method in methods.items():
+        if args.only and name not in args.only:
+            continue
+        results[name] = run_method(method, pairs, args.seconds_per_method)
+        ok = results[name].success()
+        print(f"{name:36s} {ok.mean():6.1%} of {len(ok)}  median "
+              f"{np.median(results[name].ms):7.1f} ms", flush=True)  # fmt: skip
+    model_stat = model.path.stat()
+    modified = time.strftime("%Y-%m-%d %H:%M", time.localtime(model_stat.st_mtime))
+    meta = {
+        "pairs": len(pairs),
+        "seed": args.seed,
+        "data": str(args.data),
+        "model": f"`{model.card.name}` ({model.path.name}, {model_stat.st_size // 1024} KB, "
+        f"modified {modified})",
+        "budget_ms": args.budget_ms,
+        "command": " ".join(["python -m benchmarks.bench_align", *sys.argv[1:]]),
+        "points": [int(np.median([len(p.a) for p in pairs])),
+                   int(np.median([len(p.b) for p in pairs]))],
+    }  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_report(results, meta, args.out / "align_benchmark")
+    dump = {name: {"rotation_deg": o.rotation_deg, "translation": o.translation, "ms": o.ms,
+                   "info": o.info} for name, o in results.items()}  # fmt: skip
+    (args.out / "align_benchmark.json").write_text(json.dumps({"meta": meta, "results": dump}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,170 @@
+"""Blocking client of the itnet service: ``POST /v1/estimate`` and ``WS /v1/estimate/stream``.
+
+with ItnetClient("http://127.0.0.1:8000") as client:
+    result = client.estimate(points, budget_ms=50)          # EstimateResult
+    with client.stream(points, budget_ms=200) as stream:
+        for estimate in stream:                             # one per iteration, as it comes
+            if estimate.update_rotation_deg < 0.1:
+                stream.cancel()                             # the server answers with the result
+    stream.result                                           # EstimateResult
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Iterator
+from types import TracebackType
+from typing import Any
+
+import httpx
+from numpy.typing import ArrayLike
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+from websockets.sync.client import ClientConnection, connect
+
+from itnet.clients.wire import (
+    BINARY,
+    ESTIMATE_PATH,
+    Estimate,
+    EstimateResult,
+    ItnetClientError,
+    ItnetConnectionError,
+    binary_body,
+    json_request,
+    parse_message,
+    reply_json,
+    request_fields,
+    websocket_url,
+)
+
+
+class EstimateStream(Iterator[Estimate]):
+    """The estimates of one streamed request, in order; ``result`` once the final message came."""
+
+    def __init__(self, connection: ClientConnection, timeout: float) -> None:
+        self._ws, self._timeout = connection, timeout
+        self.estimates: list[Estimate] = []
+        self.result: EstimateResult | None = None
+
+    def __next__(self) -> Estimate:
+        while self.result is None:
+            kind, message = self._receive()
+            if kind == "estimate":
+                self.estimates.append(Estimate.from_dict(message))
+                return self.estimates[-1]
+            if kind == "result":
+                self.result = EstimateResult.from_dict(message, self.estimates)
+                self.close()
+            # any other message type is one this client does not know: skip it
+        raise StopIteration
+
+    def _receive(self) -> tuple[str, dict[str, Any]]:
+        try:
+            return parse_message(self._ws.recv(timeout=self._timeout))
+        except TimeoutError:
+            self.close()
+            raise ItnetConnectionError(f"no stream message within {self._timeout} s") from None
+        except ConnectionClosed as err:
+            raise ItnetConnectionError(f"the stream closed before the result ({err})") from None
+        except ItnetClientError:
+            self.close()
+            raise
+
+    def cancel(self) -> None:
+        """Ask the server to stop; iteration goes on until its final message (the best so far)."""
+        with contextlib.suppress(ConnectionClosed):
+            self._ws.send(json.dumps({"type": "cancel"}))
+
+    def run_to_end(self) -> EstimateResult:
+        """Consume the remaining estimates; the final result."""
+        for _ in self:
+            pass
+        assert self.result is not None
+        return self.result
+
+    def close(self) -> None:
+        """Leave (a server stops the work of a client that leaves)."""
+        self._ws.close()
+
+    def __enter__(self) -> EstimateStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ItnetClient:
+    """HTTP and WebSocket client for one itnet service (``base_url`` like http://host:8000)."""
+
+    def __init__(self, base_url: str, timeout: float = 30.0) -> None:
+        self.base_url = base_url.rstrip("/")
+        self.timeout = timeout
+        self._http = httpx.Client(base_url=self.base_url, timeout=timeout)
+
+    def estimate(
+        self,
+        points: ArrayLike,
+        budget_ms: float = 50.0,
+        max_iterations: int | None = None,
+        model: str = "chair",
+        binary: bool = False,
+    ) -> EstimateResult:
+        """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
+        point) instead of JSON. Raises ItnetRequestError (refused), ItnetConnectionError."""
+        fields = request_fields(budget_ms, max_iterations, model)
+        try:
+            if binary:
+                reply = self._http.post(
+                    ESTIMATE_PATH, content=binary_body(points), params=fields, headers=BINARY
+                )
+            else:
+                reply = self._http.post(ESTIMATE_PATH, json=json_request(points, fields))
+        except httpx.TransportError as err:
+            raise ItnetConnectionError(f"{self.base_url}: {err}") from None
+        return EstimateResult.from_dict(_json(reply))
+
+    def stream(
+        self,
+        points: ArrayLike,
+        budget_ms: float = 50.0,
+        max_iterations: int | None = None,
+        model: str = "chair",
+    ) -> EstimateStream:
+        """Open the WebSocket and send the request; iterate the returned stream for estimates."""
+        request = json_request(points, request_fields(budget_ms, max_iterations, model))
+        try:
+            url = websocket_url(self.base_url)
+            connection = connect(url, open_timeout=self.timeout, max_size=None)
+        except (OSError, InvalidHandshake, InvalidURI, TimeoutError) as err:
+            raise ItnetConnectionError(f"{self.base_url}: cannot open the stream ({err})") from None
+        connection.send(json.dumps(request))
+        return EstimateStream(connection, self.timeout)
+
+    def models(self) -> Any:
+        """``GET /v1/models``: what the service has loaded."""
+        return self._get("/v1/models")
+
+    def health(self) -> Any:
+        """``GET /healthz``."""
+        return self._get("/healthz")
+
+    def _get(self, path: str) -> Any:
+        try:
+            return _json(self._http.get(path))
+        except httpx.TransportError as err:
+            raise ItnetConnectionError(f"{self.base_url}: {err}") from None
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> ItnetClient:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, err: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def _json(reply: httpx.Response) -> Any:
+    return reply_json(reply.status_code, reply.text)

@@ -1,0 +1,168 @@
+"""What travels between a client and the itnet service: request encoding, replies, errors.
+
+Shared by the sync and async clients; numpy and the standard library only (no service, no torch).
+
+Requests (SPEC.md):
+
+* JSON: ``{"points": [[x, y, z], ...], "budget_ms": ..., "max_iterations": ..., "model": ...}``;
+* binary: the body is little-endian float32 N x 3 (``Content-Type: application/octet-stream``)
+  and the other fields are query parameters.
+
+Replies: every pose is T_canonical_from_input (4x4, the cloud's units), with ``quat_wxyz`` and
+``quat_xyzw`` (the same rotation, scalar first / last) and ``translation``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import urlsplit, urlunsplit
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+ESTIMATE_PATH = "/v1/estimate"
+STREAM_PATH = "/v1/estimate/stream"
+BINARY = {"Content-Type": "application/octet-stream"}
+
+
+class ItnetClientError(Exception):
+    """Base of the client's errors."""
+
+
+class ItnetRequestError(ItnetClientError):
+    """The service refused the request (4xx/5xx, or an ``error`` message on the stream)."""
+
+    def __init__(self, status: int | None, detail: object, kind: str | None = None) -> None:
+        self.status, self.detail, self.kind = status, detail, kind  # kind: the service's label
+        where = f"HTTP {status}" if status is not None else "stream error"
+        super().__init__(f"{where}: {detail}")
+
+
+class ItnetConnectionError(ItnetClientError):
+    """The service could not be reached, or the connection ended before the result."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The pose after ``iteration`` steps, as the service reported it."""
+
+    iteration: int
+    T_canonical_from_input: NDArray[np.float64]  # 4x4
+    quat_wxyz: NDArray[np.float64]  # (4,)
+    quat_xyzw: NDArray[np.float64]  # (4,)
+    translation: NDArray[np.float64]  # (3,)
+    elapsed_ms: float
+    update_rotation_deg: float
+    update_translation: float  # the cloud's units
+    raw: dict[str, Any] = field(repr=False, default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Estimate:
+        return cls(int(data["iteration"]), *_pose_arrays(data), float(data["elapsed_ms"]),
+                   float(data["update_rotation_deg"]), float(data["update_translation"]),
+                   data)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class EstimateResult:
+    """The final answer: pose, iterations run, why it stopped (``budget``, ``max_iterations``,
+    ``converged``, ``cancelled``), total time, model name, and every per-iteration estimate
+    (those of the reply, or those a stream delivered)."""
+
+    T_canonical_from_input: NDArray[np.float64]  # 4x4
+    quat_wxyz: NDArray[np.float64]
+    quat_xyzw: NDArray[np.float64]
+    translation: NDArray[np.float64]
+    iterations: int
+    stopped_by: str
+    elapsed_ms: float
+    model: str
+    estimates: list[Estimate]
+    raw: dict[str, Any] = field(repr=False, default_factory=dict)
+
+    @classmethod
+    def from_dict(
+        cls, data: dict[str, Any], estimates: list[Estimate] | None = None
+    ) -> EstimateResult:
+        if estimates is None:
+            estimates = [Estimate.from_dict(e) for e in data.get("estimates", [])]
+        return cls(*_pose_arrays(data), int(data["iterations"]), str(data["stopped_by"]),
+                   float(data["elapsed_ms"]), str(data.get("model", "")), estimates,
+                   data)  # fmt: skip
+
+
+def _pose_arrays(data: dict[str, Any]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    try:
+        pose = np.asarray(data["T_canonical_from_input"], dtype=np.float64).reshape(4, 4)
+        quats = [np.asarray(data[k], np.float64).reshape(4) for k in ("quat_wxyz", "quat_xyzw")]
+        return pose, quats[0], quats[1], np.asarray(data["translation"], np.float64).reshape(3)
+    except (KeyError, ValueError, TypeError) as err:
+        raise ItnetClientError(f"malformed reply from the service: {err!r}") from None
+
+
+def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
+    """Any (N, 3) array-like -> float64 array; the service checks everything else."""
+    cloud = np.asarray(points, dtype=np.float64)
+    if cloud.ndim != 2 or cloud.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {cloud.shape}")
+    return cloud
+
+
+def request_fields(budget_ms: float, max_iterations: int | None, model: str) -> dict[str, Any]:
+    """The request's non-point fields (max_iterations only when given)."""
+    out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
+    if max_iterations is not None:
+        out["max_iterations"] = max_iterations
+    return out
+
+
+def json_request(points: ArrayLike, fields: dict[str, Any]) -> dict[str, Any]:
+    return {"points": as_cloud(points).tolist(), **fields}
+
+
+def binary_body(points: ArrayLike) -> bytes:
+    """(N, 3) -> little-endian float32 bytes, row after row (12 bytes a point)."""
+    return np.ascontiguousarray(as_cloud(points), dtype="<f4").tobytes()
+
+
+def error_detail(text: str) -> tuple[object, str | None]:
+    """An error body -> (its ``detail``, its ``kind``), or (the body, None) when it is not JSON
+    of that shape."""
+    try:
+        body = json.loads(text)
+    except ValueError:
+        return text, None
+    if not isinstance(body, dict):
+        return body, None
+    return body.get("detail", body), body.get("kind")
+
+
+def reply_json(status: int, text: str) -> Any:
+    """An HTTP reply's JSON body, or ItnetRequestError (status >= 400) / ItnetClientError."""
+    if status >= 400:
+        raise ItnetRequestError(status, *error_detail(text))
+    try:
+        return json.loads(text)
+    except ValueError:
+        raise ItnetClientError(f"the service did not answer JSON: {text[:200]!r}") from None
+
+
+def websocket_url(base_url: str) -> str:
+    """http(s)://host:port/prefix -> ws(s)://host:port/prefix/v1/estimate/stream."""
+    parts = urlsplit(base_url)
+    scheme = {"http": "ws", "https": "wss"}.get(parts.scheme, parts.scheme)
+    return urlunsplit((scheme, parts.netloc, parts.path.rstrip("/") + STREAM_PATH, "", ""))
+
+
+def parse_message(text: str | bytes) -> tuple[str, dict[str, Any]]:
+    """A stream message -> (type, body). Raises ItnetRequestError for ``error`` messages."""
+    try:
+        message = json.loads(text)
+        kind = message["type"]
+    except (ValueError, KeyError, TypeError):
+        raise ItnetClientError(f"malformed stream message: {str(text)[:200]!r}") from None
+    if kind == "error":
+        raise ItnetRequestError(None, message.get("detail"), message.get("kind"))
+    return kind, message

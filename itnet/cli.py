@@ -1,0 +1,41 @@
+"""The ``itnet`` command line (typer). ``itnet-align`` is ``itnet align`` on its own."""
+
+from __future__ import annotations
+
+import typer
+
+from itnet import __version__
+from itnet.commands import align, bench, evaluate, export, pose, serve, train
+
+app = typer.Typer(
+    help="Anytime pose estimation and alignment of partial point clouds (IT-Net).",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"itnet {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),  # fmt: skip
+) -> None:
+    """itnet: poses of partial scans in their category's canonical frame, refined anytime."""
+
+
+app.command("pose")(pose.pose)
+app.command("align")(align.align)
+app.command("serve")(serve.serve)
+app.command("train")(train.train)
+app.command("eval")(evaluate.evaluate)
+app.command("export")(export.export)
+app.command("bench")(bench.bench)
+
+align_app = typer.Typer(add_completion=False)
+align_app.command()(align.align)

@@ -1,0 +1,105 @@
+"""ICP refinement of an alignment with open3d (point-to-plane), for ``itnet-align --refine``.
+
+open3d is the optional extra ``refine`` (``pip install itnet[refine]``): it is imported inside
+the functions, so the rest of itnet works without it, and ``RefineUnavailable`` says how to get it.
+
+Frames: ``source`` is cloud A (N, 3), ``target`` is cloud B (M, 3); every transform is
+T_target_from_source = T_b_from_a (4x4, B's units).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+class RefineUnavailable(RuntimeError):
+    """open3d is not installed."""
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """A refined T_b_from_a (4x4) and open3d's own measures at the last stage's distance:
+    fitness = share of A's points with a B point within it, rmse = RMS distance of those pairs."""
+
+    T_b_from_a: NDArray[np.float64]
+    fitness: float
+    rmse: float
+
+
+def require_open3d() -> None:
+    """Import open3d now (about half a second), or raise RefineUnavailable saying how to get it."""
+    _open3d()
+
+
+def _open3d():  # type: ignore[no-untyped-def]
+    try:
+        import open3d as o3d
+    except ImportError as err:  # also raised when libusb-1.0 is missing
+        raise RefineUnavailable(
+            f"ICP refinement needs open3d: pip install 'itnet[refine]' ({err})"
+        ) from None
+    return o3d
+
+
+def _prepared(points: ArrayLike, voxel: float, normal_radius: float):  # type: ignore[no-untyped-def]
+    """An open3d cloud, voxel-downsampled when ``voxel`` > 0, with normals for point-to-plane."""
+    o3d = _open3d()
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    if voxel > 0:
+        cloud = cloud.voxel_down_sample(voxel)
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
+    return cloud
+
+
+class IcpRefiner:
+    """Point-to-plane ICP of A onto B, prepared once (downsampling, normals) for many starts.
+
+    ``max_distance`` (B's units) is the correspondence cut-off of the final stage; a first stage
+    runs at twice that distance to pull in estimates that are further off. A Tukey kernel at the
+    stage's distance keeps the points of A that B never saw from dragging the pose.
+    """
+
+    def __init__(
+        self,
+        source: ArrayLike,
+        target: ArrayLike,
+        max_distance: float,
+        voxel: float = 0.0,
+        iterations: int = 30,
+    ) -> None:
+        if max_distance <= 0:
+            raise ValueError(f"max_distance must be positive, got {max_distance}")
+        self.source = _prepared(source, voxel, 2.0 * max_distance)
+        self.target = _prepared(target, voxel, 2.0 * max_distance)
+        self.stages = (2.0 * max_distance, max_distance)
+        self.iterations = iterations
+
+    def refine(self, b_from_a: ArrayLike) -> RefineResult:
+        """Start at T_b_from_a (4x4) -> the refined one, with fitness and rmse."""
+        reg = _open3d().pipelines.registration
+        pose = np.asarray(b_from_a, dtype=np.float64).copy()
+        result = None
+        for distance in self.stages:
+            method = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
+            criteria = reg.ICPConvergenceCriteria(max_iteration=self.iterations)
+            result = reg.registration_icp(
+                self.source, self.target, distance, pose, method, criteria
+            )
+            pose = np.asarray(result.transformation, dtype=np.float64).copy()
+        assert result is not None
+        return RefineResult(pose, float(result.fitness), float(result.inlier_rmse))
+
+
+def icp_point_to_plane(
+    source: ArrayLike,
+    target: ArrayLike,
+    b_from_a: ArrayLike,
+    max_distance: float,
+    voxel: float = 0.0,
+    iterations: int = 30,
+) -> RefineResult:
+    """One ICP run: A (N, 3) onto B (M, 3) from T_b_from_a (4x4); see ``IcpRefiner``."""
+    return IcpRefiner(source, target, max_distance, voxel, iterations).refine(b_from_a)

@@ -1,0 +1,93 @@
+"""``POST /v1/estimate``: one cloud in, the anytime estimate out (final pose + every iteration)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import anyio
+from fastapi import APIRouter, Request
+
+from itnet.service.api.deps import BodyDep, StateDep
+from itnet.service.decode import decode_http
+from itnet.service.engine import AnytimeRun, Estimate
+from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
+from itnet.service.state import ServiceState
+
+router = APIRouter(prefix="/v1", tags=["estimate"])
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorResponse, "description": "malformed JSON or truncated binary body"},
+    404: {"model": ErrorResponse, "description": "unknown model"},
+    413: {"model": ErrorResponse, "description": "body over the size limit"},
+    415: {"model": ErrorResponse, "description": "neither JSON nor octet-stream"},
+    422: {"model": ErrorResponse, "description": "bad cloud or parameters"},
+    503: {"model": ErrorResponse, "description": "not ready, or busy (see Retry-After)"},
+}
+
+_QUERY = [
+    {"name": "budget_ms", "in": "query", "required": False,
+     "schema": {"type": "number", "exclusiveMinimum": 0, "default": 50},
+     "description": "binary bodies only: time budget, milliseconds"},
+    {"name": "max_iterations", "in": "query", "required": False,
+     "schema": {"type": "integer", "minimum": 1},
+     "description": "binary bodies only: iteration cap (default: the model's)"},
+    {"name": "model", "in": "query", "required": False, "schema": {"type": "string"},
+     "description": "binary bodies only: model name (default: 'chair' or the only model)"},
+]  # fmt: skip
+
+OPENAPI_EXTRA = {
+    "parameters": _QUERY,
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {
+                "schema": EstimateRequest.model_json_schema(
+                    ref_template="#/components/schemas/{model}"
+                ),
+                "example": EXAMPLE_REQUEST,
+            },
+            "application/octet-stream": {
+                "schema": {
+                    "type": "string",
+                    "format": "binary",
+                    "description": (
+                        "little-endian float32, N x 3 row-major (12 bytes a point); "
+                        "parameters in the query string"
+                    ),
+                },
+            },
+        },
+    },
+}
+
+
+@router.post(
+    "/estimate",
+    response_model=EstimateResponse,
+    responses=ERRORS,
+    openapi_extra=OPENAPI_EXTRA,
+    summary="Estimate T_canonical_from_input of one cloud within a time budget",
+)
+async def estimate(request: Request, body: BodyDep, state: StateDep) -> dict[str, Any]:
+    """Send the cloud as JSON, or as raw float32 (``Content-Type: application/octet-stream``)
+    with the parameters in the query string. The reply is the final pose in the input's units,
+    every per-iteration estimate, the iteration count and why the loop stopped (``budget``,
+    ``max_iterations``, ``converged``). ``elapsed_ms`` stays within ``budget_ms`` up to
+    scheduling noise."""
+    content_type, query = request.headers.get("content-type"), dict(request.query_params)
+    with state.gate.slot():
+        # Decoding, validation and every step are CPU work: one worker thread per request.
+        run, estimates = await anyio.to_thread.run_sync(
+            _decode_and_run, state, body, content_type, query
+        )
+    state.metrics.observe_run(run.model.card.name, run.iteration, str(run.stopped_by))
+    return {**run.result(), "estimates": [e.to_dict() for e in estimates]}
+
+
+def _decode_and_run(
+    state: ServiceState, body: bytes, content_type: str | None, query: Mapping[str, str]
+) -> tuple[AnytimeRun, list[Estimate]]:
+    points, params = decode_http(body, content_type, query)
+    run = state.start_run(points, params)
+    return run, list(run)

@@ -1,0 +1,61 @@
+"""``GET /v1/models``, ``/healthz`` (alive), ``/readyz`` (a model is loaded), ``/metrics``."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+from fastapi.responses import JSONResponse
+
+from itnet.service.api.deps import StateDep
+from itnet.service.schemas import Health, ModelInfo, ModelsResponse, Readiness
+
+router = APIRouter(tags=["system"])
+
+
+@router.get("/v1/models", response_model=ModelsResponse, summary="The loaded models")
+async def models(state: StateDep) -> ModelsResponse:
+    """Each loaded model with its category, point count, trained iterations and measured accuracy
+    (from the card inside the model file), and this server's measured step time."""
+    default = state.default_model_name()
+    infos = [
+        ModelInfo(
+            name=name,
+            category=m.card.category,
+            points=m.card.points,
+            trained_iterations=m.card.trained_iterations,
+            recommended_iterations=m.card.recommended_iterations,
+            accuracy=m.card.accuracy,
+            evaluation=m.card.evaluation,
+            normalization=m.card.normalization,
+            canonical_frame=m.card.canonical_frame,
+            step_ms=round(m.step_ms, 3),
+            default=name == default,
+        )
+        for name, m in sorted(state.models.items())
+    ]
+    return ModelsResponse(models=infos, default_model=default if state.ready else None)
+
+
+@router.get("/healthz", response_model=Health, summary="Liveness: the process serves HTTP")
+async def healthz() -> Health:
+    return Health()
+
+
+@router.get(
+    "/readyz",
+    response_model=Readiness,
+    responses={503: {"model": Readiness, "description": "no model loaded"}},
+    summary="Readiness: a model is loaded and estimates can be served",
+)
+async def readyz(state: StateDep) -> JSONResponse:
+    body = Readiness(ready=state.ready, models=sorted(state.models), detail=state.load_error)
+    return JSONResponse(body.model_dump(), status_code=200 if state.ready else 503)
+
+
+@router.get(
+    "/metrics",
+    summary="Prometheus metrics (text exposition format)",
+    response_class=Response,
+    responses={200: {"content": {"text/plain": {}}}},
+)
+async def metrics(state: StateDep) -> Response:
+    return Response(state.metrics.render(), media_type=state.metrics.content_type)

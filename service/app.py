@@ -1,0 +1,82 @@
+"""The FastAPI app: wiring only (state, routes, error handlers, metrics middleware)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from itnet import __version__
+from itnet.service.api.routes import estimate, stream, system
+from itnet.service.errors import ServiceError, describe_errors
+from itnet.service.metrics import Metrics, RequestMetricsMiddleware
+from itnet.service.runtime import LoadedModel
+from itnet.service.settings import Settings
+from itnet.service.state import ServiceState
+
+log = logging.getLogger("itnet.service")
+
+DESCRIPTION = """Anytime pose estimation of partial point clouds with IT-Net.
+
+Send a cloud of an object of a known category; get `T_canonical_from_input` (4x4, row-major,
+translation in the input's units), refined one iteration at a time within `budget_ms`.
+`POST /v1/estimate` answers once; `WS /v1/estimate/stream` sends every iteration as it exists.
+"""
+
+
+def create_app(
+    settings: Settings | None = None, models: dict[str, LoadedModel] | None = None
+) -> FastAPI:
+    """The service. Models load at start-up (lifespan) from ``settings.model_dir`` unless
+    ``models`` are given; if none load, the app still answers /healthz and /readyz says why."""
+    settings = settings or Settings()
+    metrics = Metrics()
+    state = ServiceState(settings, metrics, models=dict(models or {}))
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        state.load()
+        log.info("models loaded: %s", ", ".join(state.models) or "none")
+        yield
+
+    app = FastAPI(title="itnet", version=__version__, description=DESCRIPTION, lifespan=lifespan)
+    app.state.service = state
+    app.include_router(estimate.router)
+    app.include_router(stream.router)
+    app.include_router(system.router)
+    app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
+    _add_error_handlers(app, metrics)
+    return app
+
+
+def _add_error_handlers(app: FastAPI, metrics: Metrics) -> None:
+    """Every error body is ``{"detail": <one sentence>, "kind": <label>}``, counted by kind."""
+
+    def reply(
+        status: int, kind: str, detail: str, headers: dict[str, str] | None = None
+    ) -> JSONResponse:
+        metrics.observe_error(kind)
+        return JSONResponse({"detail": detail, "kind": kind}, status_code=status, headers=headers)
+
+    @app.exception_handler(ServiceError)
+    async def service_error(request: Request, err: ServiceError) -> JSONResponse:
+        return reply(err.status, err.kind, err.detail, err.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request: Request, err: RequestValidationError) -> JSONResponse:
+        return reply(422, "invalid_request", describe_errors(err.errors()))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, err: StarletteHTTPException) -> JSONResponse:
+        kind = {404: "not_found", 405: "method_not_allowed"}.get(err.status_code, "http")
+        return reply(err.status_code, kind, str(err.detail), dict(err.headers or {}))
+
+    @app.exception_handler(Exception)
+    async def internal(request: Request, err: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s", request.url.path)
+        return reply(500, "internal", "internal error")

@@ -1,0 +1,177 @@
+"""The anytime loop: the only place that iterates IT-Net steps. CLI, HTTP and WebSocket consume it.
+
+    run = AnytimeRun(model, cloud, budget_ms=50)
+    for estimate in run:          # one Estimate per iteration, as soon as it exists
+        ...
+    run.stopped_by                # 'budget' | 'max_iterations' | 'converged' | 'cancelled'
+
+Per request: validate the cloud, normalise it (``itnet.preprocess``: centroid, RMS radius),
+resample it to the model's point count (seeded, so the same cloud gives the same answer), then
+loop: predict the next step's time, stop if it would overrun the budget, run the step, compose,
+and yield the pose in the input's units.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw, rotation_angle_deg
+from itnet.preprocess import DegenerateCloudError, estimate_normalization, pose_from_normalized, resample
+from itnet.service.runtime import LoadedModel
+
+STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
+
+
+class BadCloudError(ValueError):
+    """The cloud cannot be used: wrong shape, non-finite values, too few/many points, degenerate."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    min_points: int = 32
+    max_points: int = 1_000_000
+    max_budget_ms: float = 60_000.0
+    max_iterations: int = 200
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The pose after ``iteration`` steps. ``pose`` is T_canonical_from_input (4x4, input units)."""
+
+    iteration: int
+    pose: NDArray[np.float64]
+    elapsed_ms: float
+    update_rotation_deg: float  # size of this iteration's update
+    update_translation: float  # in the input's units
+
+    def to_dict(self) -> dict:
+        return {"iteration": self.iteration, **pose_fields(self.pose),
+                "elapsed_ms": round(self.elapsed_ms, 3),
+                "update_rotation_deg": round(self.update_rotation_deg, 5),
+                "update_translation": self.update_translation}  # fmt: skip
+
+
+def pose_fields(pose: NDArray[np.float64]) -> dict:
+    """The JSON form of a pose: matrix, both quaternion orders, translation."""
+    quat = matrix_to_quat_wxyz(pose[:3, :3])
+    return {
+        "T_canonical_from_input": pose.tolist(),
+        "quat_wxyz": quat.tolist(),
+        "quat_xyzw": quat_wxyz_to_xyzw(quat).tolist(),
+        "translation": pose[:3, 3].tolist(),
+    }
+
+
+def validate_cloud(points: ArrayLike, limits: Limits) -> NDArray[np.float64]:
+    """Any array-like -> (N, 3) float64, or BadCloudError saying what is wrong."""
+    try:
+        cloud = np.asarray(points, dtype=np.float64)
+    except (ValueError, TypeError) as err:
+        raise BadCloudError(f"points must be a list of [x, y, z] numbers ({err})") from None
+    if cloud.ndim != 2 or cloud.shape[1] != 3:
+        raise BadCloudError(f"points must have shape (N, 3), got {cloud.shape}")
+    if not np.isfinite(cloud).all():
+        bad = int((~np.isfinite(cloud)).any(axis=1).sum())
+        raise BadCloudError(f"{bad} point(s) have NaN or infinite coordinates")
+    if len(cloud) < limits.min_points:
+        raise BadCloudError(f"{len(cloud)} points is too few (the minimum is {limits.min_points})")
+    if len(cloud) > limits.max_points:
+        raise BadCloudError(f"{len(cloud)} points is too many (the maximum is {limits.max_points})")
+    return cloud
+
+
+class AnytimeRun(Iterator[Estimate]):
+    """One request's anytime estimation; iterate it for the estimates. Thread-safe ``cancel``."""
+
+    def __init__(
+        self,
+        model: LoadedModel,
+        points: ArrayLike,
+        budget_ms: float = 50.0,
+        max_iterations: int | None = None,
+        converge_rotation_deg: float = 0.01,
+        converge_translation: float = 1e-4,
+        limits: Limits = Limits(),
+        seed: int = 0,
+    ) -> None:
+        self.started = time.perf_counter()
+        if not (0 < budget_ms <= limits.max_budget_ms):
+            raise BadCloudError(f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {budget_ms}")
+        max_iterations = model.card.recommended_iterations if max_iterations is None else max_iterations
+        if not (1 <= max_iterations <= limits.max_iterations):
+            raise BadCloudError(f"max_iterations must be in [1, {limits.max_iterations}], got {max_iterations}")
+        cloud = validate_cloud(points, limits)
+        try:
+            self.normalization = estimate_normalization(cloud)
+        except DegenerateCloudError as err:
+            raise BadCloudError(str(err)) from None
+        x = self.normalization.apply(cloud)
+        self.points = resample(x, model.card.points, np.random.default_rng(seed))[None]
+        self.model = model
+        self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
+        self.converge = (converge_rotation_deg, converge_translation)
+        self.pose_normalized = np.eye(4, dtype=np.float32)[None]
+        self.iteration = 0
+        self.stopped_by: str | None = None
+        self.last: Estimate = self._estimate(self.pose_normalized[0], 0.0, 0.0)
+        self._cancel = threading.Event()
+        self._last_step_ms = 0.0
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    def elapsed_ms(self) -> float:
+        return (time.perf_counter() - self.started) * 1e3
+
+    def __next__(self) -> Estimate:
+        if self.stopped_by is not None:
+            raise StopIteration
+        self.stopped_by = self._stop_reason_before_step()
+        if self.stopped_by is not None:
+            raise StopIteration
+        start = time.perf_counter()
+        # Move the cloud by the pose so far, predict the update, compose: all inside the graph.
+        self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
+        self._last_step_ms = (time.perf_counter() - start) * 1e3
+        self.model.record_step_ms(self._last_step_ms)
+        self.iteration += 1
+        update_rotation = float(rotation_angle_deg(delta[0, :3, :3]))
+        update_translation = float(np.linalg.norm(delta[0, :3, 3]))  # normalised units
+        self.last = self._estimate(self.pose_normalized[0], update_rotation, update_translation)
+        if (update_rotation < self.converge[0] and update_translation < self.converge[1]
+                and self.iteration < self.max_iterations):  # fmt: skip
+            self.stopped_by = "converged"
+        return self.last
+
+    def _stop_reason_before_step(self) -> str | None:
+        if self._cancel.is_set():
+            return "cancelled"
+        if self.iteration >= self.max_iterations:
+            return "max_iterations"
+        predicted = max(self.model.step_ms, self._last_step_ms)
+        if self.elapsed_ms() + predicted > self.budget_ms:
+            return "budget"
+        return None
+
+    def _estimate(self, pose_normalized: NDArray, rotation_deg: float, translation: float) -> Estimate:
+        pose = pose_from_normalized(pose_normalized.astype(np.float64), self.normalization)
+        return Estimate(self.iteration, pose, self.elapsed_ms(), rotation_deg,
+                        translation * self.normalization.scale)  # fmt: skip
+
+    def run_to_end(self) -> Estimate:
+        """Consume the run; the final estimate (iteration 0 = centred cloud, identity rotation)."""
+        for _ in self:
+            pass
+        return self.last
+
+    def result(self) -> dict:
+        """The final reply: pose fields, iterations, stop reason, elapsed time."""
+        return {**pose_fields(self.last.pose), "iterations": self.iteration,
+                "stopped_by": self.stopped_by, "elapsed_ms": round(self.elapsed_ms(), 3),
+                "model": self.model.card.name}  # fmt: skip

@@ -1,0 +1,122 @@
+"""Prometheus metrics of one app (its own registry, so several apps can live in one process).
+
+* ``itnet_requests_total{endpoint,status}``: HTTP requests by route and status; WebSocket streams
+  by route and close code.
+* ``itnet_request_duration_seconds{endpoint}``: wall time per request/stream (histogram).
+* ``itnet_iterations{model}``: network steps per estimate (histogram).
+* ``itnet_runs_total{model,stopped_by}``: finished runs by stop reason (``disconnected`` when a
+  WebSocket client left).
+* ``itnet_errors_total{kind}``: refused or failed requests by error kind.
+* ``itnet_in_flight``: estimates running now.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Awaitable, Callable, MutableMapping
+from typing import Any
+
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    generate_latest,
+)
+
+Scope = MutableMapping[str, Any]
+Message = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
+ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+
+LATENCY_BUCKETS = (
+    0.002,
+    0.005,
+    0.01,
+    0.02,
+    0.035,
+    0.05,
+    0.075,
+    0.1,
+    0.15,
+    0.25,
+    0.5,
+    1,
+    2.5,
+    5,
+    10,
+)
+ITERATION_BUCKETS = (0, 1, 2, 3, 5, 8, 10, 15, 20, 30, 50, 100, 200)
+
+
+class Metrics:
+    """The service's counters and histograms, in a private registry."""
+
+    content_type = CONTENT_TYPE_LATEST
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        r = self.registry
+        self.requests = Counter(
+            "itnet_requests", "Requests by endpoint and status", ["endpoint", "status"], registry=r
+        )
+        self.latency = Histogram(
+            "itnet_request_duration_seconds", "Request wall time", ["endpoint"],
+            buckets=LATENCY_BUCKETS, registry=r,
+        )  # fmt: skip
+        self.iterations = Histogram(
+            "itnet_iterations", "Network steps per estimate", ["model"],
+            buckets=ITERATION_BUCKETS, registry=r,
+        )  # fmt: skip
+        self.runs = Counter(
+            "itnet_runs", "Finished runs by stop reason", ["model", "stopped_by"], registry=r
+        )
+        self.errors = Counter("itnet_errors", "Errors by kind", ["kind"], registry=r)
+        self.in_flight = Gauge("itnet_in_flight", "Estimates running now", registry=r)
+
+    def observe_request(self, endpoint: str, status: int | str, seconds: float) -> None:
+        self.requests.labels(endpoint, str(status)).inc()
+        self.latency.labels(endpoint).observe(seconds)
+
+    def observe_run(self, model: str, iterations: int, stopped_by: str) -> None:
+        self.iterations.labels(model).observe(iterations)
+        self.runs.labels(model, stopped_by).inc()
+
+    def observe_error(self, kind: str) -> None:
+        self.errors.labels(kind).inc()
+
+    def render(self) -> bytes:
+        """The Prometheus text exposition format (version 0.0.4)."""
+        return generate_latest(self.registry)
+
+
+class RequestMetricsMiddleware:
+    """ASGI middleware: counts every HTTP request by route template and status, and times it.
+
+    Unrouted paths share the label ``unmatched`` so that scanners cannot blow up the label set.
+    WebSocket streams are counted by their own handler (their "status" is the close code).
+    """
+
+    def __init__(self, app: ASGIApp, metrics: Metrics) -> None:
+        self.app, self.metrics = app, metrics
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        start, status = time.perf_counter(), 500
+
+        async def send_recording_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_recording_status)
+        finally:
+            route = scope.get("route")
+            endpoint = getattr(route, "path", None) or "unmatched"
+            self.metrics.observe_request(endpoint, status, time.perf_counter() - start)

@@ -1,0 +1,127 @@
+"""Request and response bodies of the HTTP and WebSocket API (pydantic; they drive /docs).
+
+Frames and units: ``T_canonical_from_input`` is a 4x4 row-major matrix that maps a point ``p`` of
+the cloud as sent to ``R p + t`` in the model category's canonical frame; ``translation`` is ``t``
+in the input's own units. Quaternions are given in both orders, ``quat_wxyz`` and ``quat_xyzw``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+# fail_fast: a million bad points give one error, not a million.
+Point = Annotated[
+    list[float], Field(min_length=3, max_length=3, fail_fast=True, description="[x, y, z]")
+]
+Matrix4 = Annotated[list[list[float]], Field(description="4x4 row-major rigid transform")]
+StopReason = Literal["budget", "max_iterations", "converged", "cancelled"]
+
+EXAMPLE_POINTS = [[0.1, 0.2, 0.3], [0.4, -0.1, 0.2], [-0.3, 0.5, 0.1], [0.0, -0.4, -0.2]]
+EXAMPLE_POSE = [[1.0, 0.0, 0.0, -0.05], [0.0, 1.0, 0.0, -0.05], [0.0, 0.0, 1.0, -0.1],
+                [0.0, 0.0, 0.0, 1.0]]  # fmt: skip
+EXAMPLE_REQUEST: dict[str, Any] = {"points": EXAMPLE_POINTS * 8, "budget_ms": 50, "model": "chair"}
+
+
+class EstimateParams(BaseModel):
+    """How long and with which model to estimate. Query string of a binary request."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+
+    budget_ms: float = Field(
+        default=50.0,
+        gt=0,
+        description="time budget in milliseconds; the engine stops before overrunning",
+    )
+    max_iterations: int | None = Field(
+        default=None, ge=1, description="iteration cap (default: the model's recommended count)"
+    )
+    model: str | None = Field(
+        default=None,
+        description="model name, see GET /v1/models (default: 'chair' or the only model)",
+    )
+
+
+class EstimateRequest(EstimateParams):
+    """JSON body of POST /v1/estimate, and the first message of the WebSocket stream."""
+
+    points: list[Point] = Field(
+        fail_fast=True, description="the cloud, N x 3, any unit (metres, say)"
+    )
+
+    model_config = ConfigDict(json_schema_extra={"examples": [EXAMPLE_REQUEST]})
+
+
+class StreamRequest(EstimateRequest):
+    """The WebSocket's first message: an EstimateRequest, may be tagged ``"type": "estimate"``."""
+
+    type: Literal["estimate"] | None = None
+
+
+class Pose(BaseModel):
+    T_canonical_from_input: Matrix4 = Field(examples=[EXAMPLE_POSE])
+    quat_wxyz: list[float] = Field(description="rotation as w, x, y, z", examples=[[1, 0, 0, 0]])
+    quat_xyzw: list[float] = Field(description="rotation as x, y, z, w", examples=[[0, 0, 0, 1]])
+    translation: list[float] = Field(description="t, input units", examples=[[-0.05, -0.05, -0.1]])
+
+
+class EstimateOut(Pose):
+    """The pose after ``iteration`` steps (iteration 1 is the first network step)."""
+
+    iteration: int
+    elapsed_ms: float = Field(description="since the request's run started, milliseconds")
+    update_rotation_deg: float = Field(description="rotation of this iteration's update, degrees")
+    update_translation: float = Field(description="translation of this update, input units")
+
+
+class EstimateResponse(Pose):
+    """The final pose, how it was reached, and every per-iteration estimate."""
+
+    iterations: int = Field(description="network steps run (0: none fit the budget)")
+    stopped_by: StopReason
+    elapsed_ms: float = Field(description="engine time for the whole run, milliseconds")
+    model: str
+    estimates: list[EstimateOut]
+
+
+class ModelInfo(BaseModel):
+    """One loaded model and what its card says about it."""
+
+    model_config = ConfigDict(protected_namespaces=())
+
+    name: str
+    category: str
+    points: int = Field(description="points every cloud is resampled to")
+    trained_iterations: int
+    recommended_iterations: int
+    accuracy: dict[str, float] = Field(
+        description="fraction correct (< 10 deg and < 0.1 radius) by iteration count"
+    )
+    evaluation: str = Field(description="how the accuracy was measured")
+    normalization: str
+    canonical_frame: str
+    step_ms: float = Field(description="measured time of one step on this server, milliseconds")
+    default: bool = Field(description="used when a request names no model")
+
+
+class ModelsResponse(BaseModel):
+    models: list[ModelInfo]
+    default_model: str | None
+
+
+class Health(BaseModel):
+    status: Literal["ok"] = "ok"
+
+
+class Readiness(BaseModel):
+    ready: bool
+    models: list[str]
+    detail: str | None = None
+
+
+class ErrorResponse(BaseModel):
+    """Every 4xx/5xx body: ``detail`` says what is wrong in one sentence."""
+
+    detail: str = Field(examples=["3 point(s) have NaN or infinite coordinates"])
+    kind: str = Field(description="machine-readable error class", examples=["bad_cloud"])

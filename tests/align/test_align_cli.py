@@ -1,0 +1,114 @@
+"""``itnet-align`` / ``itnet align`` end to end, in-process, with the tiny random model."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from itnet.align import overlap_score, relative_pose
+from itnet.cli import align_app, app
+from itnet.cloud_io import read_cloud, write_ply
+from itnet.geometry import apply_rigid
+from itnet.preprocess import estimate_normalization
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
+A, B = EXAMPLES / "chair_a.ply", EXAMPLES / "chair_b.ply"
+runner = CliRunner()
+
+
+def run(tiny_model_dir, *args, main=False):
+    argv = [*(["align"] if main else []), *map(str, args), "--model", "tiny",
+            "--model-dir", str(tiny_model_dir)]  # fmt: skip
+    return runner.invoke(app if main else align_app, argv)
+
+
+def test_json_reply(tiny_model_dir):
+    result = run(tiny_model_dir, A, B, "--json", "--symmetry", "none")
+    assert result.exit_code == 0, result.output
+    reply = json.loads(result.stdout)
+    t = np.array(reply["T_b_from_a"])
+    assert t.shape == (4, 4) and np.allclose(t[3], [0, 0, 0, 1])
+    assert np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-5)  # float32 network poses
+    assert reply["iterations"] == 10  # 5 (the tiny model's) for each cloud
+    assert reply["elapsed_ms"] > 0 and 0 <= reply["confidence"] <= 1
+    # No symmetry hypotheses, no refinement: the answer is exactly inv(T_cb) . T_ca.
+    assert reply["hypothesis"] == "itnet" and reply["refined"] is False
+    t_ca = reply["T_canonical_from_a"]["T_canonical_from_input"]
+    t_cb = reply["T_canonical_from_b"]["T_canonical_from_input"]
+    assert np.allclose(t, relative_pose(t_ca, t_cb), atol=1e-12)
+    assert reply["T_canonical_from_a"]["stopped_by"] == "max_iterations"
+
+
+def test_text_output_and_the_subcommand_agree(tiny_model_dir):
+    alias = run(tiny_model_dir, A, B)
+    sub = run(tiny_model_dir, A, B, main=True)
+    assert alias.exit_code == sub.exit_code == 0, alias.output + sub.output
+    assert alias.stdout.startswith("T_b_from_a (moves A onto B):")
+    matrix = [line for line in alias.stdout.splitlines()[1:5]]
+    assert matrix == sub.stdout.splitlines()[1:5]
+    assert "rotation" in alias.stdout and "10 iterations" in alias.stdout
+
+
+def test_output_writes_a_moved_onto_b(tiny_model_dir, tmp_path):
+    out = tmp_path / "aligned.ply"
+    result = run(tiny_model_dir, A, B, "--json", "--output", out)
+    assert result.exit_code == 0, result.output
+    reply = json.loads(result.stdout)
+    moved = read_cloud(out)
+    expected = apply_rigid(np.array(reply["T_b_from_a"]), read_cloud(A))
+    assert moved.shape == expected.shape
+    assert np.allclose(moved, expected, atol=1e-5)
+    assert reply["output"] == str(out)
+
+
+def test_refine_reports_fit(tiny_model_dir):
+    result = run(tiny_model_dir, A, B, "--json", "--refine")
+    assert result.exit_code == 0, result.output
+    reply = json.loads(result.stdout)
+    assert reply["refined"] is True and reply["hypothesis"].endswith("+icp")
+    assert {h["source"] for h in reply["hypotheses"]} == {"itnet+icp", "itnet+yaw180+icp"}
+    assert 0 <= reply["fitness"] <= 1 and reply["timings_ms"]["refine"] > 0
+
+
+@pytest.mark.parametrize("which", ["a", "b"])
+def test_missing_file_exits_2_with_its_name(tiny_model_dir, tmp_path, which):
+    missing = tmp_path / "nope.ply"
+    args = (missing, B) if which == "a" else (A, missing)
+    result = run(tiny_model_dir, *args)
+    assert result.exit_code == 2
+    assert "error:" in result.stderr and str(missing) in result.stderr
+    assert "no such file" in result.stderr
+    assert result.stdout == ""
+
+
+def test_unreadable_and_unusable_clouds_exit_2(tiny_model_dir, tmp_path):
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"this is not a point cloud")
+    result = run(tiny_model_dir, A, garbage)
+    assert result.exit_code == 2 and str(garbage) in result.stderr
+    tiny_cloud = tmp_path / "five.ply"
+    write_ply(tiny_cloud, np.random.default_rng(0).normal(size=(5, 3)))
+    result = run(tiny_model_dir, tiny_cloud, B)
+    assert result.exit_code == 2
+    assert str(tiny_cloud) in result.stderr and "too few" in result.stderr
+
+
+def test_bad_options_exit_2(tiny_model_dir, tmp_path):
+    assert run(tiny_model_dir, A, B, "--output", tmp_path / "x.pcd").exit_code == 2
+    result = run(tiny_model_dir, A, B, "--symmetry", "mirror")
+    assert result.exit_code == 2 and "--symmetry" in result.stderr
+
+
+def test_shipped_examples_are_small_scans_of_one_chair():
+    truth = json.loads((EXAMPLES / "chair_truth.json").read_text())
+    a, b = read_cloud(A), read_cloud(B)
+    assert A.stat().st_size < 20_000 and B.stat().st_size < 20_000
+    assert [len(a), len(b)] == truth["points"]
+    # The true T_b_from_a puts A on B where the two views overlap.
+    scale = estimate_normalization(b).scale
+    fitness, rmse = overlap_score(a, b, np.array(truth["T_b_from_a"]), 0.1 * scale)
+    wrong, _ = overlap_score(a, b, np.eye(4), 0.1 * scale)
+    assert fitness > 0.3 > wrong
+    assert rmse < 0.05 * scale

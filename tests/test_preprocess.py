@@ -1,0 +1,45 @@
+import numpy as np
+import pytest
+
+from itnet.geometry import apply_rigid, random_rotation, rigid_from_rotation_translation
+from itnet.preprocess import (
+    DegenerateCloudError,
+    estimate_normalization,
+    pose_from_normalized,
+    pose_to_normalized,
+    resample,
+)
+
+
+def test_normalised_cloud_has_zero_mean_and_unit_rms(rng):
+    cloud = rng.normal(size=(300, 3)) * 7 + 100
+    x = estimate_normalization(cloud).apply(cloud)
+    assert np.allclose(x.mean(0), 0, atol=1e-5)
+    assert np.isclose(np.sqrt((x**2).sum(1).mean()), 1, atol=1e-5)
+
+
+def test_pose_round_trip_and_meaning(rng):
+    """A pose in the normalised frame maps normalised points exactly as the input-unit pose maps
+    the input points, up to the scale s."""
+    cloud = rng.normal(size=(200, 3)) * 3 + 5
+    norm = estimate_normalization(cloud)
+    pose = rigid_from_rotation_translation(random_rotation(rng), rng.normal(size=3))
+    pose_n = pose_to_normalized(pose, norm)
+    assert np.allclose(pose_from_normalized(pose_n, norm), pose)
+    assert np.allclose(apply_rigid(pose_n, norm.apply(cloud)) * norm.scale, apply_rigid(pose, cloud),
+                       atol=1e-4)  # fmt: skip
+
+
+@pytest.mark.parametrize("cloud", [np.zeros((50, 3)), np.full((50, 3), 1e6)])
+def test_degenerate_cloud_is_refused(cloud):
+    with pytest.raises(DegenerateCloudError, match="degenerate"):
+        estimate_normalization(cloud)
+
+
+def test_resample_exact_count_without_inventing_points(rng):
+    cloud = rng.normal(size=(100, 3))
+    for n in (10, 100, 1000):
+        out = resample(cloud, n, rng)
+        assert out.shape == (n, 3)
+        assert {tuple(p) for p in out} <= {tuple(p) for p in cloud}
+    assert len({tuple(p) for p in resample(cloud, 1000, rng)}) == 100  # every point kept

@@ -1,0 +1,87 @@
+"""Tiny end-to-end training runs on synthetic shapes (seconds, not minutes)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from itnet.model.data import split_files
+from itnet.model.shapes import Shape, check_yaw, yaw_rotation
+
+
+def _chair_like(rng: np.random.Generator, n: int = 400) -> np.ndarray:
+    """A seat (box) and a back (box on +z, rising along +y): clearly not symmetric about up."""
+    seat = rng.uniform([-0.5, -0.05, -0.5], [0.5, 0.05, 0.5], size=(n // 2, 3))
+    back = rng.uniform([-0.5, 0.05, 0.4], [0.5, 0.9, 0.5], size=(n - n // 2, 3))
+    return np.concatenate([seat, back]) * rng.uniform(0.8, 1.2, size=3)
+
+
+@pytest.fixture(scope="module")
+def shape_folder(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    root = tmp_path_factory.mktemp("shapes")
+    for split, count in (("train", 12), ("test", 3)):
+        (root / split).mkdir()
+        for i in range(count):
+            np.save(root / split / f"s{i:02d}.npy", _chair_like(rng))
+    return root
+
+
+def test_check_yaw_turns_back_a_rotated_shape():
+    rng = np.random.default_rng(1)
+    shapes = [Shape(f"s{i}", _chair_like(rng)) for i in range(12)]
+    shapes[3] = Shape("s3", shapes[3].points @ yaw_rotation(1).T)
+    kept, counts = check_yaw(shapes, references=8, sample=128)
+    assert counts["turned"] == 1 and "turned" in kept[3].notes[0]
+    assert np.allclose(kept[3].points, shapes[3].points @ yaw_rotation(3).T)
+
+
+def test_split_keeps_test_apart_and_validation_from_train(shape_folder):
+    files = split_files(shape_folder, "none", 0.2, seed=0)
+    assert len(files["test"]) == 3 and len(files["val"]) >= 1
+    assert not set(files["val"]) & set(files["train"])
+    assert all("test" in str(f) for f in files["test"])
+
+
+def test_train_resume_eval_export_pose(shape_folder, tmp_path):
+    """itnet train (resume) -> eval (torch and onnx agree) -> export -> pose, on tiny data."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+
+    runner = CliRunner()
+    common = ["--data", str(shape_folder), "--category", "x", "--frame", "canonical",
+              "--cache", str(tmp_path / "cache")]  # fmt: skip
+    run = tmp_path / "run"
+    train = ["train", *common, "--out", str(run), "--batch", "8", "--points", "64",
+             "--iterations", "2", "--eval-every", "10"]  # fmt: skip
+    assert runner.invoke(app, [*train, "--steps", "10"]).exit_code == 0
+    result = runner.invoke(app, [*train, "--steps", "20"])  # resumes at step 10
+    assert result.exit_code == 0, result.output
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [e["step"] for e in log if e.get("event") == "start"] == [0, 10]
+    assert [e["step"] for e in log if e.get("event") == "val"] == [10, 20]
+    assert (run / "best.pt").exists() and json.loads((run / "config.json").read_text())["steps"] == 20
+
+    ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "128"]
+    torch_eval = runner.invoke(app, [*ev, "--checkpoint", str(run / "best.pt"), "--out", str(tmp_path / "e1")])
+    assert torch_eval.exit_code == 0, torch_eval.output
+    onnx_path = tmp_path / "models" / "x.onnx"
+    exported = runner.invoke(app, ["export", str(run / "best.pt"), "--out", str(onnx_path), "--name", "x",
+                                   "--points", "128", "--report", str(tmp_path / "e1" / "report.json")])  # fmt: skip
+    assert exported.exit_code == 0, exported.output
+    diff = float(exported.output.split("max |diff|")[1].split()[0])
+    assert diff < 1e-4
+    onnx_eval = runner.invoke(app, [*ev, "--onnx", str(onnx_path), "--out", str(tmp_path / "e2"),
+                                    "--dump-scans", str(tmp_path / "scans")])  # fmt: skip
+    assert onnx_eval.exit_code == 0, onnx_eval.output
+    r1, r2 = (json.loads((tmp_path / e / "report.json").read_text()) for e in ("e1", "e2"))
+    assert np.allclose(r1["median_rotation_deg"], r2["median_rotation_deg"], atol=0.05)
+    assert (tmp_path / "e1" / "anytime.png").stat().st_size > 10_000
+
+    scans = sorted((tmp_path / "scans").glob("*.npy"))
+    assert len(scans) == 6
+    posed = runner.invoke(app, ["pose", *map(str, scans[:2]), "--model", "x", "--model-dir",
+                                str(onnx_path.parent), "--json", "--max-iterations", "3"])  # fmt: skip
+    assert posed.exit_code == 0, posed.output
+    assert len(posed.stdout.splitlines()) == 2
