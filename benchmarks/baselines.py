@@ -103,7 +103,25 @@ def icp_identity(a: NDArray, b: NDArray) -> NDArray[np.float64]:
     return IcpRefiner(a, b, 0.25 * _scale(b)).refine(np.eye(4)).T_b_from_a
 
 
-def available() -> dict[str, Method]:
+def go_icp(a: NDArray, b: NDArray) -> NDArray[np.float64]:
+    """Go-ICP (globally optimal ICP by branch and bound over SO(3) x translations), trimmed 30%,
+    on 300 random points of A. GPL: run through ``py-simple-go-icp-interface`` (which compiles
+    the original C++ with g++ on first use and runs it as a separate program); never a
+    dependency of itnet. A run that fails counts as the identity."""
+    from py_simple_go_icp_interface.main import go_icp_match_raw
+
+    try:
+        rotation, translation = go_icp_match_raw(
+            b, a, random_seed=0, random_downsample=min(300, len(a)), trimFraction=0.3
+        )
+    except RuntimeError:
+        return np.eye(4)
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation, translation
+    return pose
+
+
+def available(go_icp_too: bool = False) -> dict[str, Method]:
     """The baselines whose packages import here, by display name."""
     methods: dict[str, Method] = {}
     try:
@@ -126,4 +144,11 @@ def available() -> dict[str, Method]:
         methods["small_gicp GICP from identity"] = small_gicp_identity
     except ImportError:
         pass
+    if go_icp_too:
+        try:
+            import py_simple_go_icp_interface  # noqa: F401
+
+            methods["Go-ICP (trimmed 30%)"] = go_icp
+        except ImportError:
+            pass
     return methods

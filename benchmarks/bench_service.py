@@ -192,7 +192,7 @@ def main(
     requests: int = typer.Option(20, min=1, help="Sequential requests per latency row."),
     duration_s: float = typer.Option(3.0, min=0.1, help="Seconds per throughput row."),
     max_requests: int = typer.Option(2000, min=1, help="Request cap per throughput row."),
-    threads: int = typer.Option(1, min=1, help="onnxruntime threads per model (ITNET_THREADS)."),
+    threads: int = typer.Option(2, min=1, help="onnxruntime threads per model (ITNET_THREADS)."),
 ) -> None:
     """Measure the service over loopback and print markdown tables."""
     budget_list = [float(b) for b in budgets.split(",")]

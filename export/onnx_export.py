@@ -12,8 +12,8 @@ from pathlib import Path
 import onnx
 import torch
 
-from itnet.model_card import METADATA_KEY, ModelCard
 from itnet.model.network import ExportableStep, ITNet
+from itnet.model_card import METADATA_KEY, ModelCard
 
 INPUT_NAMES = ["points", "pose"]
 OUTPUT_NAMES = ["pose_next", "delta"]

@@ -28,7 +28,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import apply_rigid, axis_angle_to_matrix, invert_rigid, rotation_error_deg
+from itnet.geometry import (
+    apply_rigid,
+    axis_angle_to_matrix,
+    invert_rigid,
+    rotation_angle_deg,
+    rotation_error_deg,
+)
 
 # Rotations about the canonical origin under which a category often looks alike (+y is up).
 SYMMETRIES: dict[str, tuple[float, ...]] = {
@@ -43,7 +49,7 @@ CATEGORY_SYMMETRY = {"chair": "yaw180", "sofa": "yaw180", "bed": "yaw180", "toil
 
 def relative_pose(canonical_from_a: ArrayLike, canonical_from_b: ArrayLike) -> NDArray[np.float64]:
     """T_canonical_from_a, T_canonical_from_b (...x4x4) -> T_b_from_a (...x4x4)."""
-    return invert_rigid(canonical_from_b) @ np.asarray(canonical_from_a, dtype=np.float64)
+    return np.asarray(invert_rigid(canonical_from_b) @ np.asarray(canonical_from_a, np.float64))
 
 
 def symmetry_rotations(name: str) -> NDArray[np.float64]:
@@ -91,9 +97,8 @@ def build_hypotheses(
     pa, pb = np.asarray(poses_a, dtype=np.float64), np.asarray(poses_b, dtype=np.float64)
     main = relative_pose(pa[0], pb[0])
     found = [Hypothesis(main, "itnet")]
-    for k, sym in enumerate(np.asarray(symmetries, dtype=np.float64)):
-        angle = round(float(np.degrees(np.arccos(np.clip((np.trace(sym[:3, :3]) - 1) / 2, -1, 1)))))
-        name = f"itnet+yaw{angle}" if len(symmetries) > 1 or angle == 180 else f"itnet+sym{k}"
+    for sym in np.asarray(symmetries, dtype=np.float64):
+        name = f"itnet+yaw{round(float(rotation_angle_deg(sym[:3, :3])))}"
         found.append(Hypothesis(invert_rigid(pb[0]) @ sym @ pa[0], name))
     for i in range(1, min(len(pa), len(pb))):
         candidate = relative_pose(pa[i], pb[i])

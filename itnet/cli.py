@@ -24,7 +24,7 @@ def _version(value: bool) -> None:
 def main(
     version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
-    ),  # fmt: skip
+    ),
 ) -> None:
     """itnet: poses of partial scans in their category's canonical frame, refined anytime."""
 

@@ -8,6 +8,7 @@ problem, so callers can report it and move on.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,10 +17,23 @@ SUFFIXES = (".ply", ".pcd", ".xyz", ".pts", ".txt", ".npy")
 MAX_HEADER_BYTES = 64 * 1024
 
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}  # fmt: skip
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
 
 
 class CloudReadError(ValueError):
@@ -68,11 +82,12 @@ def _split_header(data: bytes, end_marker: bytes) -> tuple[list[str], bytes]:
     return data[:end].decode("ascii").splitlines(), data[body_start:]
 
 
-def _read_ply(data: bytes) -> NDArray:
+def _read_ply(data: bytes) -> NDArray[Any]:
     if not data.startswith(b"ply"):
         raise CloudReadError("not a PLY file (no 'ply' magic)")
     lines, body = _split_header(data, b"end_header")
-    fmt, elements = "", []  # elements: [name, count, [(prop, dtype | None)]]
+    fmt = ""
+    elements: list[tuple[str, int, list[tuple[str, str | None]]]] = []  # name, count, properties
     for line in lines[1:]:
         words = line.split()
         if not words or words[0] in ("comment", "obj_info"):
@@ -80,7 +95,7 @@ def _read_ply(data: bytes) -> NDArray:
         if words[0] == "format":
             fmt = words[1]
         elif words[0] == "element":
-            elements.append([words[1], int(words[2]), []])
+            elements.append((words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
             if words[1] == "list":
                 elements[-1][2].append((words[-1], None))
@@ -102,11 +117,11 @@ def _read_ply(data: bytes) -> NDArray:
     order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt)
     if order is None:
         raise CloudReadError(f"unknown PLY format {fmt!r}")
-    dtype = np.dtype([(n, order + t) for n, t in props])
+    dtype = np.dtype([(n, order + str(t)) for n, t in props])
     if len(body) < count * dtype.itemsize:
         raise CloudReadError(f"truncated: {count} vertices need {count * dtype.itemsize} bytes")
-    table = np.frombuffer(body, dtype=dtype, count=count)
-    return np.stack([table[a].astype(np.float64) for a in "xyz"], axis=-1)
+    records: Any = np.frombuffer(body, dtype=dtype, count=count)
+    return np.stack([records[a].astype(np.float64) for a in "xyz"], axis=-1)
 
 
 def _read_pcd(data: bytes) -> NDArray:
@@ -125,7 +140,9 @@ def _read_pcd(data: bytes) -> NDArray:
     n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0])
     if not {"x", "y", "z"} <= set(fields) or n < 0:
         raise CloudReadError("PCD lacks x, y, z fields")
-    dtypes = [f"{ {'F': 'f', 'I': 'i', 'U': 'u'}[t]}{s}".replace(" ", "") for t, s in zip(types, sizes)]
+    dtypes = [
+        f"{ {'F': 'f', 'I': 'i', 'U': 'u'}[t] }{s}".replace(" ", "") for t, s in zip(types, sizes)
+    ]
     if kind == "ascii":
         table = np.loadtxt(body.decode("ascii").splitlines()[:n], ndmin=2)
         col = np.cumsum([0, *counts])
@@ -134,8 +151,8 @@ def _read_pcd(data: bytes) -> NDArray:
         dtype = np.dtype([(f, "<" + d, (c,)) for f, d, c in zip(fields, dtypes, counts)])
         if len(body) < n * dtype.itemsize:
             raise CloudReadError(f"truncated: {n} points need {n * dtype.itemsize} bytes")
-        table = np.frombuffer(body, dtype=dtype, count=n)
-        return np.stack([table[a][:, 0].astype(np.float64) for a in "xyz"], axis=-1)
+        records: Any = np.frombuffer(body, dtype=dtype, count=n)
+        return np.stack([records[a][:, 0].astype(np.float64) for a in "xyz"], axis=-1)
     if kind == "binary_compressed":
         compressed, raw_size = np.frombuffer(body[:8], dtype="<u4")
         raw = _lzf_decompress(body[8 : 8 + int(compressed)], int(raw_size))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import invert_rigid, rotation_error_deg
+from itnet.geometry import FloatArray, invert_rigid, rotation_error_deg
 
 ROTATION_THRESHOLD_DEG = 10.0
 TRANSLATION_THRESHOLD = 0.1
@@ -17,7 +17,7 @@ TRANSLATION_THRESHOLD = 0.1
 
 def pose_errors(
     estimate: ArrayLike, truth: ArrayLike, radius: ArrayLike
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[FloatArray, FloatArray]:
     """T_canonical_from_input estimates and truths (...x4x4), object radius (...) ->
     (rotation error in degrees (...), object-centre distance in the input frame / radius (...)).
 
@@ -32,7 +32,7 @@ def pose_errors(
 
 def alignment_errors(
     estimate: ArrayLike, truth: ArrayLike, centroid_a: ArrayLike, radius: ArrayLike
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[FloatArray, FloatArray]:
     """T_b_from_a estimates and truths (...x4x4), centroid of cloud A (...x3), radius (...) ->
     (rotation error in degrees, distance between where the two put A's centroid / radius)."""
     est, gt = np.asarray(estimate), np.asarray(truth)

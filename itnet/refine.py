@@ -10,6 +10,7 @@ T_target_from_source = T_b_from_a (4x4, B's units).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -34,7 +35,7 @@ def require_open3d() -> None:
     _open3d()
 
 
-def _open3d():  # type: ignore[no-untyped-def]
+def _open3d() -> Any:
     try:
         import open3d as o3d
     except ImportError as err:  # also raised when libusb-1.0 is missing
@@ -44,7 +45,7 @@ def _open3d():  # type: ignore[no-untyped-def]
     return o3d
 
 
-def _prepared(points: ArrayLike, voxel: float, normal_radius: float):  # type: ignore[no-untyped-def]
+def _prepared(points: ArrayLike, voxel: float, normal_radius: float) -> Any:
     """An open3d cloud, voxel-downsampled when ``voxel`` > 0, with normals for point-to-plane."""
     o3d = _open3d()
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))

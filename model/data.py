@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import Shape, check_yaw, list_shape_files, load_shape
+from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
 
 
 @dataclass
@@ -34,8 +34,14 @@ class ScanSet:
 
     def save(self, path: Path) -> None:
         sizes = np.array([len(c) for c in self.clouds])
-        np.savez_compressed(path, points=np.concatenate(self.clouds), sizes=sizes,
-                            poses=self.poses, radii=self.radii, names=np.array(self.names))  # fmt: skip
+        np.savez_compressed(
+            path,
+            points=np.concatenate(self.clouds),
+            sizes=sizes,
+            poses=self.poses,
+            radii=self.radii,
+            names=np.array(self.names),
+        )
 
     @classmethod
     def load(cls, path: Path) -> ScanSet:
@@ -48,7 +54,9 @@ def _cache_key(*parts: object) -> str:
     return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
-def split_files(data: Path, category: str, validation_fraction: float, seed: int) -> dict[str, list[Path]]:
+def split_files(
+    data: Path, category: str, validation_fraction: float, seed: int
+) -> dict[str, list[Path]]:
     """Files for train / val / test. Uses DATA/CATEGORY/{train,test} or DATA/{train,test} when
     present (ModelNet's layout), otherwise splits DATA's files 80/20 by a seeded permutation.
     Validation is carved out of train, never out of test."""
@@ -69,16 +77,21 @@ def split_files(data: Path, category: str, validation_fraction: float, seed: int
     return {"train": train, "val": val, "test": test}
 
 
-def load_shapes(files: list[Path], frame: str, cache: Path, check_orientation: bool) -> tuple[list[Shape], dict]:
+def load_shapes(
+    files: list[Path], frame: str, cache: Path, check_orientation: bool
+) -> tuple[list[Shape], dict]:
     """Canonical shapes for files (cached). Returns (shapes, orientation-check counts)."""
     key = _cache_key([str(f) for f in files], frame, check_orientation)
     path = cache / f"shapes-{key}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
         report = json.loads(str(z["report"]))
-        shapes = [Shape(str(n), p, t if t.size else None)
-                  for n, p, t in zip(z["names"], np.split(z["points"], z["cuts"]),
-                                     np.split(z["tris"], z["tcuts"]))]  # fmt: skip
+        shapes = [
+            Shape(str(n), p, t if t.size else None)
+            for n, p, t in zip(
+                z["names"], np.split(z["points"], z["cuts"]), np.split(z["tris"], z["tcuts"])
+            )
+        ]
         return shapes, report
     shapes = [load_shape(f, frame) for f in files]
     report = {"loaded": len(shapes)}
@@ -88,10 +101,14 @@ def load_shapes(files: list[Path], frame: str, cache: Path, check_orientation: b
     cache.mkdir(parents=True, exist_ok=True)
     tris = [s.triangles if s.triangles is not None else np.zeros((0, 3), np.int64) for s in shapes]
     np.savez_compressed(
-        path, names=np.array([s.name for s in shapes]), points=np.concatenate([s.points for s in shapes]),
-        cuts=np.cumsum([len(s.points) for s in shapes])[:-1], tris=np.concatenate(tris),
-        tcuts=np.cumsum([len(t) for t in tris])[:-1], report=json.dumps(report),
-    )  # fmt: skip
+        path,
+        names=np.array([s.name for s in shapes]),
+        points=np.concatenate([s.points for s in shapes]),
+        cuts=np.cumsum([len(s.points) for s in shapes])[:-1],
+        tris=np.concatenate(tris),
+        tcuts=np.cumsum([len(t) for t in tris])[:-1],
+        report=json.dumps(report),
+    )
     return shapes, report
 
 
@@ -112,7 +129,9 @@ def make_scan_set(shapes: list[Shape], views: int, seed: int, config: ScanConfig
     return ScanSet(clouds, np.array(poses), np.array(radii), names)
 
 
-def cached_scan_set(shapes: list[Shape], views: int, seed: int, config: ScanConfig, cache: Path) -> ScanSet:
+def cached_scan_set(
+    shapes: list[Shape], views: int, seed: int, config: ScanConfig, cache: Path
+) -> ScanSet:
     path = cache / f"scans-{_cache_key([s.name for s in shapes], views, seed, config)}.npz"
     if path.exists():
         return ScanSet.load(path)

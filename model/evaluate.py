@@ -14,8 +14,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel
 
 from itnet.metrics import is_correct, pose_errors
-from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
 from itnet.model.data import ScanSet
+from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
 
 # (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
 StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]

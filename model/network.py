@@ -29,12 +29,18 @@ def quat_wxyz_translation_to_pose(output: Tensor) -> Tensor:
     w, x, y, z = q.unbind(-1)
     rotation = torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
-    ).reshape(-1, 3, 3)  # fmt: skip
+    ).reshape(-1, 3, 3)
     top = torch.cat([rotation, output[:, 4:7, None]], dim=-1)
     bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=output.dtype, device=output.device)
     return torch.cat([top, bottom.expand(output.shape[0], 1, 4)], dim=1)
@@ -82,7 +88,9 @@ class ITNet(nn.Module):
         self.config = config or NetworkConfig()
         self.regressor = PoseRegressor(self.config)
 
-    def step(self, points: Tensor, pose: Tensor, stop_gradient: bool = True) -> tuple[Tensor, Tensor]:
+    def step(
+        self, points: Tensor, pose: Tensor, stop_gradient: bool = True
+    ) -> tuple[Tensor, Tensor]:
         """One iteration: points (B, N, 3), pose so far (B, 4, 4) -> (next pose, update), each B x4x4.
 
         The input is moved by the pose so far, the regressor predicts the update dT, and

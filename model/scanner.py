@@ -21,7 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.geometry import apply_rigid, invert_rigid, random_rotation, rigid_from_rotation_translation
+from itnet.geometry import (
+    apply_rigid,
+    invert_rigid,
+    random_rotation,
+    rigid_from_rotation_translation,
+)
 
 
 @dataclass(frozen=True)
@@ -61,7 +66,9 @@ def zbuffer_visible(
     near = zbuf.copy()
     for du in (-1, 0, 1):
         for dv in (-1, 0, 1):
-            near[1:-1, 1:-1] = np.minimum(near[1:-1, 1:-1], zbuf[1 + du : h - 1 + du, 1 + dv : w - 1 + dv])
+            near[1:-1, 1:-1] = np.minimum(
+                near[1:-1, 1:-1], zbuf[1 + du : h - 1 + du, 1 + dv : w - 1 + dv]
+            )
     own, neighbourhood = zbuf[uv[:, 0], uv[:, 1]], near[uv[:, 0], uv[:, 1]]
     return (z <= own + tolerance) & (z <= neighbourhood + occlusion_tolerance)
 
@@ -130,8 +137,13 @@ def scan_shape(
     for _ in range(20):
         camera_from_canonical = random_camera_pose(rng, config)
         if triangles is None:
-            seen = zbuffer_scan(points, camera_from_canonical, rng.uniform(*config.pixel),
-                                config.tolerance, config.occlusion_tolerance)  # fmt: skip
+            seen = zbuffer_scan(
+                points,
+                camera_from_canonical,
+                rng.uniform(*config.pixel),
+                config.tolerance,
+                config.occlusion_tolerance,
+            )
         else:
             width = int(rng.integers(*config.raycast_resolution))
             seen = raycast_scan(points, triangles, camera_from_canonical, width)

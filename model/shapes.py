@@ -93,7 +93,11 @@ def _chamfer(a: NDArray, b: NDArray) -> float:
 
 
 def check_yaw(
-    shapes: list[Shape], seed: int = 0, references: int = 24, sample: int = 256, margin: float = 0.05
+    shapes: list[Shape],
+    seed: int = 0,
+    references: int = 24,
+    sample: int = 256,
+    margin: float = 0.05,
 ) -> tuple[list[Shape], dict[str, int]]:
     """Find shapes turned by a multiple of 90 degrees about up, against the rest of their class.
 
@@ -104,8 +108,10 @@ def check_yaw(
     would contradict itself). Returns (kept shapes, counts).
     """
     rng = np.random.default_rng(seed)
-    subsample = [s.points[rng.choice(len(s.points), min(sample, len(s.points)), replace=False)]
-                 for s in shapes]  # fmt: skip
+    subsample = [
+        s.points[rng.choice(len(s.points), min(sample, len(s.points)), replace=False)]
+        for s in shapes
+    ]
     refs = rng.choice(len(shapes), size=min(references, len(shapes)), replace=False)
     kept, counts = [], {"kept": 0, "turned": 0, "dropped": 0}
     turns = [yaw_rotation(k) for k in range(4)]
@@ -121,8 +127,12 @@ def check_yaw(
             continue
         k = int(order[0])
         if k != 0:
-            shape = Shape(shape.name, shape.points @ turns[k].T,
-                          shape.triangles, [*shape.notes, f"turned {90 * k} deg about up"])  # fmt: skip
+            shape = Shape(
+                shape.name,
+                shape.points @ turns[k].T,
+                shape.triangles,
+                [*shape.notes, f"turned {90 * k} deg about up"],
+            )
             counts["turned"] += 1
         else:
             counts["kept"] += 1

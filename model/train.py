@@ -40,7 +40,10 @@ class TrainConfig(BaseModel):
     lr: float = 1e-3
     lr_decay: float = 0.7
     decay_every: int = 1250
-    bn_momentum: tuple[float, float] = (0.5, 0.01)  # torch momentum, start -> end (TF decay 0.5 -> 0.99)
+    bn_momentum: tuple[float, float] = (
+        0.5,
+        0.01,
+    )  # torch momentum, start -> end (TF decay 0.5 -> 0.99)
     bn_decay_every: int = 1250
     stop_gradient: bool = True
     identity_init: bool = True
@@ -60,12 +63,26 @@ def _bn_momentum(config: TrainConfig, step: int) -> float:
     return max(end, start * 0.5 ** (step / config.bn_decay_every))
 
 
-def _save(path: Path, net: ITNet, opt: torch.optim.Optimizer, step: int, config: TrainConfig,
-          metrics: dict) -> None:  # fmt: skip
+def _save(
+    path: Path,
+    net: ITNet,
+    opt: torch.optim.Optimizer,
+    step: int,
+    config: TrainConfig,
+    metrics: dict,
+) -> None:
     tmp = path.with_suffix(".tmp")
-    torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "step": step,
-                "config": config.model_dump(mode="json"), "network": vars(net.config),
-                "metrics": metrics}, tmp)  # fmt: skip
+    torch.save(
+        {
+            "model": net.state_dict(),
+            "optimizer": opt.state_dict(),
+            "step": step,
+            "config": config.model_dump(mode="json"),
+            "network": vars(net.config),
+            "metrics": metrics,
+        },
+        tmp,
+    )
     tmp.replace(path)
 
 
@@ -78,10 +95,14 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     files = split_files(config.data, config.category, config.validation_fraction, config.seed)
-    train_shapes, orient = load_shapes(files["train"], config.frame, config.cache, config.check_orientation)
+    train_shapes, orient = load_shapes(
+        files["train"], config.frame, config.cache, config.check_orientation
+    )
     val_shapes, _ = load_shapes(files["val"], config.frame, config.cache, config.check_orientation)
     scan_config = ScanConfig()
-    val_scans = cached_scan_set(val_shapes, config.val_views, config.seed + 7, scan_config, config.cache)
+    val_scans = cached_scan_set(
+        val_shapes, config.val_views, config.seed + 7, scan_config, config.cache
+    )
 
     torch.manual_seed(config.seed)
     net = ITNet(NetworkConfig(identity_init=config.identity_init)).to(config.device)
@@ -94,8 +115,18 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         opt.load_state_dict(state["optimizer"])
         step, best = state["step"], state["metrics"].get("best", best)
     log = (config.out / "log.jsonl").open("a")
-    log.write(json.dumps({"event": "start", "step": step, "train_shapes": len(train_shapes),
-                          "val_scans": len(val_scans.clouds), "orientation": orient}) + "\n")  # fmt: skip
+    log.write(
+        json.dumps(
+            {
+                "event": "start",
+                "step": step,
+                "train_shapes": len(train_shapes),
+                "val_scans": len(val_scans.clouds),
+                "orientation": orient,
+            }
+        )
+        + "\n"
+    )
     bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
     losses: list[float] = []
     started = time.time()
@@ -123,10 +154,21 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         if step % config.log_every == 0:
             mean = float(np.mean(losses[-config.log_every :]))
             bar.set_postfix(loss=f"{mean:.4f}", lr=f"{lr:.1e}", val=f"{best['val_accuracy']:.3f}")
-            log.write(json.dumps({"step": step, "loss": mean, "lr": lr,
-                                  "seconds": round(time.time() - started, 1)}) + "\n")  # fmt: skip
+            log.write(
+                json.dumps(
+                    {
+                        "step": step,
+                        "loss": mean,
+                        "lr": lr,
+                        "seconds": round(time.time() - started, 1),
+                    }
+                )
+                + "\n"
+            )
         if step % config.eval_every == 0 or step == config.steps:
-            poses_val = anytime_poses(torch_step(net), val_scans, config.eval_iterations, config.eval_points)
+            poses_val = anytime_poses(
+                torch_step(net), val_scans, config.eval_iterations, config.eval_points
+            )
             rep, _, _ = report(poses_val, val_scans)
             metrics = {"step": step, "val_accuracy": rep.accuracy[-1], "val_curve": rep.accuracy}
             if metrics["val_accuracy"] > best["val_accuracy"]:
@@ -145,7 +187,10 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
 def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
     """A trained network (eval mode, CPU) and its checkpoint dict."""
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = ITNet(NetworkConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in state["network"].items()}))  # fmt: skip
+    net = ITNet(
+        NetworkConfig(
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in state["network"].items()}
+        )
+    )
     net.load_state_dict(state["model"])
     return net.eval(), state

@@ -39,13 +39,23 @@ def loop_overhead(
     cloud = np.random.default_rng(1).normal(size=(model.card.points, 3))
     per_iteration, setup = [], []
     for _ in range(repeats):
-        run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=iterations,
-                         converge_rotation_deg=0.0, converge_translation=0.0)  # fmt: skip
+        run = AnytimeRun(
+            model,
+            cloud,
+            budget_ms=10_000,
+            max_iterations=iterations,
+            converge_rotation_deg=0.0,
+            converge_translation=0.0,
+        )
         setup.append(run.elapsed_ms())
         estimates = list(run)
         first, last = estimates[0], estimates[-1]
         per_iteration.append((last.elapsed_ms - first.elapsed_ms) / (len(estimates) - 1))
     raw = time_step_ms(path, 1, model.card.points, threads)
     loop = float(np.median(per_iteration))
-    return {"raw_step_ms": raw, "loop_iteration_ms": loop, "overhead_pct": 100 * (loop / raw - 1),
-            "setup_ms": float(np.median(setup))}  # fmt: skip
+    return {
+        "raw_step_ms": raw,
+        "loop_iteration_ms": loop,
+        "overhead_pct": 100 * (loop / raw - 1),
+        "setup_ms": float(np.median(setup)),
+    }

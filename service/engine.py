@@ -22,7 +22,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw, rotation_angle_deg
-from itnet.preprocess import DegenerateCloudError, estimate_normalization, pose_from_normalized, resample
+from itnet.preprocess import (
+    DegenerateCloudError,
+    estimate_normalization,
+    pose_from_normalized,
+    resample,
+)
 from itnet.service.runtime import LoadedModel
 
 STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
@@ -51,10 +56,13 @@ class Estimate:
     update_translation: float  # in the input's units
 
     def to_dict(self) -> dict:
-        return {"iteration": self.iteration, **pose_fields(self.pose),
-                "elapsed_ms": round(self.elapsed_ms, 3),
-                "update_rotation_deg": round(self.update_rotation_deg, 5),
-                "update_translation": self.update_translation}  # fmt: skip
+        return {
+            "iteration": self.iteration,
+            **pose_fields(self.pose),
+            "elapsed_ms": round(self.elapsed_ms, 3),
+            "update_rotation_deg": round(self.update_rotation_deg, 5),
+            "update_translation": self.update_translation,
+        }
 
 
 def pose_fields(pose: NDArray[np.float64]) -> dict:
@@ -102,10 +110,16 @@ class AnytimeRun(Iterator[Estimate]):
     ) -> None:
         self.started = time.perf_counter()
         if not (0 < budget_ms <= limits.max_budget_ms):
-            raise BadCloudError(f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {budget_ms}")
-        max_iterations = model.card.recommended_iterations if max_iterations is None else max_iterations
+            raise BadCloudError(
+                f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {budget_ms}"
+            )
+        max_iterations = (
+            model.card.recommended_iterations if max_iterations is None else max_iterations
+        )
         if not (1 <= max_iterations <= limits.max_iterations):
-            raise BadCloudError(f"max_iterations must be in [1, {limits.max_iterations}], got {max_iterations}")
+            raise BadCloudError(
+                f"max_iterations must be in [1, {limits.max_iterations}], got {max_iterations}"
+            )
         cloud = validate_cloud(points, limits)
         try:
             self.normalization = estimate_normalization(cloud)
@@ -144,8 +158,11 @@ class AnytimeRun(Iterator[Estimate]):
         update_rotation = float(rotation_angle_deg(delta[0, :3, :3]))
         update_translation = float(np.linalg.norm(delta[0, :3, 3]))  # normalised units
         self.last = self._estimate(self.pose_normalized[0], update_rotation, update_translation)
-        if (update_rotation < self.converge[0] and update_translation < self.converge[1]
-                and self.iteration < self.max_iterations):  # fmt: skip
+        if (
+            update_rotation < self.converge[0]
+            and update_translation < self.converge[1]
+            and self.iteration < self.max_iterations
+        ):
             self.stopped_by = "converged"
         return self.last
 
@@ -159,10 +176,17 @@ class AnytimeRun(Iterator[Estimate]):
             return "budget"
         return None
 
-    def _estimate(self, pose_normalized: NDArray, rotation_deg: float, translation: float) -> Estimate:
+    def _estimate(
+        self, pose_normalized: NDArray, rotation_deg: float, translation: float
+    ) -> Estimate:
         pose = pose_from_normalized(pose_normalized.astype(np.float64), self.normalization)
-        return Estimate(self.iteration, pose, self.elapsed_ms(), rotation_deg,
-                        translation * self.normalization.scale)  # fmt: skip
+        return Estimate(
+            self.iteration,
+            pose,
+            self.elapsed_ms(),
+            rotation_deg,
+            translation * self.normalization.scale,
+        )
 
     def run_to_end(self) -> Estimate:
         """Consume the run; the final estimate (iteration 0 = centred cloud, identity rotation)."""
@@ -172,6 +196,10 @@ class AnytimeRun(Iterator[Estimate]):
 
     def result(self) -> dict:
         """The final reply: pose fields, iterations, stop reason, elapsed time."""
-        return {**pose_fields(self.last.pose), "iterations": self.iteration,
-                "stopped_by": self.stopped_by, "elapsed_ms": round(self.elapsed_ms(), 3),
-                "model": self.model.card.name}  # fmt: skip
+        return {
+            **pose_fields(self.last.pose),
+            "iterations": self.iteration,
+            "stopped_by": self.stopped_by,
+            "elapsed_ms": round(self.elapsed_ms(), 3),
+            "model": self.model.card.name,
+        }

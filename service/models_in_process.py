@@ -24,6 +24,8 @@ def get_model(name: str, model_dir: Path | None = None) -> LoadedModel:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     if name not in models:
-        typer.echo(f"error: unknown model {name!r} (available: {', '.join(sorted(models))})", err=True)
+        typer.echo(
+            f"error: unknown model {name!r} (available: {', '.join(sorted(models))})", err=True
+        )
         raise typer.Exit(2)
     return models[name]

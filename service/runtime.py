@@ -52,7 +52,9 @@ class LoadedModel:
     baseline_ms: float = 0.0  # fastest warm-up step: the step time without contention
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
 
-    def step(self, points: NDArray[np.float32], pose: NDArray[np.float32]) -> tuple[NDArray, NDArray]:
+    def step(
+        self, points: NDArray[np.float32], pose: NDArray[np.float32]
+    ) -> tuple[NDArray, NDArray]:
         """points (B, N, 3), pose (B, 4, 4) float32 -> (pose_next, delta), each (B, 4, 4)."""
         pose_next, delta = self.session.run(None, {"points": points, "pose": pose})
         return pose_next, delta
@@ -102,7 +104,9 @@ def load_model(path: Path, threads: int = 2, warm_up: bool = True) -> LoadedMode
     if not path.is_file():
         raise ModelLoadError(f"{path}: model file not found")
     try:
-        session = ort.InferenceSession(str(path), session_options(threads), providers=["CPUExecutionProvider"])
+        session = ort.InferenceSession(
+            str(path), session_options(threads), providers=["CPUExecutionProvider"]
+        )
     except Exception as err:  # onnxruntime raises its own exception types for corrupt graphs
         raise ModelLoadError(f"{path}: cannot load the ONNX graph ({err})") from err
     names = [i.name for i in session.get_inputs()]

@@ -19,16 +19,33 @@ def test_pose_json_lines_and_bad_files_do_not_stop_the_others(tmp_path, tiny_mod
     write_ply(tmp_path / "a.ply", cloud)
     np.save(tmp_path / "b.npy", cloud * 100)
     (tmp_path / "bad.ply").write_bytes(b"ply\ngarbage")
-    args = ["pose", str(tmp_path / "a.ply"), str(tmp_path / "missing.pcd"), str(tmp_path / "bad.ply"),
-            str(tmp_path / "b.npy"), "--model", "tiny", "--model-dir", str(tiny_model_dir),
-            "--json", "--max-iterations", "3"]  # fmt: skip
+    args = [
+        "pose",
+        str(tmp_path / "a.ply"),
+        str(tmp_path / "missing.pcd"),
+        str(tmp_path / "bad.ply"),
+        str(tmp_path / "b.npy"),
+        "--model",
+        "tiny",
+        "--model-dir",
+        str(tiny_model_dir),
+        "--json",
+        "--max-iterations",
+        "3",
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == 2
     lines = [json.loads(line) for line in result.stdout.splitlines()]
     assert [line["file"] for line in lines] == [str(tmp_path / "a.ply"), str(tmp_path / "b.npy")]
     for line in lines:
-        assert {"T_canonical_from_input", "quat_wxyz", "quat_xyzw", "translation", "iterations",
-                "stopped_by"} <= set(line)  # fmt: skip
+        assert {
+            "T_canonical_from_input",
+            "quat_wxyz",
+            "quat_xyzw",
+            "translation",
+            "iterations",
+            "stopped_by",
+        } <= set(line)
         assert line["iterations"] == 3 and line["stopped_by"] == "max_iterations"
         assert np.allclose(line["quat_xyzw"], np.roll(line["quat_wxyz"], -1))
     # same cloud in another unit: same rotation, translation scaled
@@ -41,6 +58,12 @@ def test_pose_json_lines_and_bad_files_do_not_stop_the_others(tmp_path, tiny_mod
 
 def test_pose_unknown_model_is_a_clear_error(tmp_path, tiny_model_dir, rng):
     write_ply(tmp_path / "a.ply", rng.normal(size=(100, 3)))
-    result = runner.invoke(app, ["pose", str(tmp_path / "a.ply"), "--model", "sofa",
-                                 "--model-dir", str(tiny_model_dir)])  # fmt: skip
-    assert result.exit_code == 2 and "unknown model 'sofa'" in result.stderr and "tiny" in result.stderr
+    result = runner.invoke(
+        app,
+        ["pose", str(tmp_path / "a.ply"), "--model", "sofa", "--model-dir", str(tiny_model_dir)],
+    )
+    assert (
+        result.exit_code == 2
+        and "unknown model 'sofa'" in result.stderr
+        and "tiny" in result.stderr
+    )

@@ -4,7 +4,12 @@ import threading
 import numpy as np
 import pytest
 
-from itnet.geometry import apply_rigid, random_rotation, rigid_from_rotation_translation, rotation_error_deg
+from itnet.geometry import (
+    apply_rigid,
+    random_rotation,
+    rigid_from_rotation_translation,
+    rotation_error_deg,
+)
 from itnet.service.engine import AnytimeRun, BadCloudError, Limits
 from itnet.service.runtime import ModelLoadError, load_model, load_models
 
@@ -32,7 +37,9 @@ def test_budget_is_honoured_and_stops_before_overrunning(model, cloud):
     for budget in (0.5, 3.0, 8.0):
         overruns = []
         for _ in range(20):
-            run = AnytimeRun(model, cloud, budget_ms=budget, max_iterations=200, converge_rotation_deg=0)
+            run = AnytimeRun(
+                model, cloud, budget_ms=budget, max_iterations=200, converge_rotation_deg=0
+            )
             run.run_to_end()
             assert run.stopped_by == "budget"
             overruns.append(run.elapsed_ms() - budget)
@@ -63,8 +70,14 @@ def test_cancel_from_another_thread_stops_the_run(model, cloud):
 
 
 def test_converges_when_updates_vanish(tiny_model_dir, cloud):
-    run = AnytimeRun(load_model(tiny_model_dir / "tiny.onnx"), cloud, budget_ms=10_000,
-                     max_iterations=50, converge_rotation_deg=180, converge_translation=1e9)  # fmt: skip
+    run = AnytimeRun(
+        load_model(tiny_model_dir / "tiny.onnx"),
+        cloud,
+        budget_ms=10_000,
+        max_iterations=50,
+        converge_rotation_deg=180,
+        converge_translation=1e9,
+    )
     assert len(list(run)) == 1 and run.stopped_by == "converged"
 
 
@@ -76,7 +89,11 @@ def test_pose_is_in_input_units_and_equivariant(model, cloud, rng):
     assert np.allclose(scaled[:3, :3], base[:3, :3], atol=1e-4)
     assert np.allclose(scaled[:3, 3], base[:3, 3] * 1000.0, rtol=1e-3, atol=1e-3)
     shift = rigid_from_rotation_translation(np.eye(3), [5.0, -2.0, 7.0])
-    moved = AnytimeRun(model, apply_rigid(shift, cloud), budget_ms=10_000, max_iterations=4).run_to_end().pose
+    moved = (
+        AnytimeRun(model, apply_rigid(shift, cloud), budget_ms=10_000, max_iterations=4)
+        .run_to_end()
+        .pose
+    )
     assert np.allclose(moved, base @ np.linalg.inv(shift), atol=1e-4)
 
 
@@ -95,7 +112,11 @@ def test_same_cloud_same_answer(model, cloud):
         ([[1, 2, "x"]] * 40, {}, "numbers"),
         (np.r_[np.random.default_rng(0).normal(size=(50, 3)), [[np.nan, 0, 0]]], {}, "NaN"),
         (np.random.default_rng(0).normal(size=(10, 3)), {}, "too few"),
-        (np.random.default_rng(0).normal(size=(40, 3)), {"limits": Limits(max_points=39)}, "too many"),
+        (
+            np.random.default_rng(0).normal(size=(40, 3)),
+            {"limits": Limits(max_points=39)},
+            "too many",
+        ),
         (np.random.default_rng(0).normal(size=(40, 3)), {"budget_ms": 0}, "budget_ms"),
         (np.random.default_rng(0).normal(size=(40, 3)), {"budget_ms": 1e9}, "budget_ms"),
         (np.random.default_rng(0).normal(size=(40, 3)), {"max_iterations": 0}, "max_iterations"),

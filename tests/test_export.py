@@ -29,6 +29,8 @@ def test_onnx_matches_torch_on_random_weights(tiny_model_dir, batch, points, rng
 
 def test_model_card_travels_in_the_file(tiny_model_dir):
     model = load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
-    assert model.card == ModelCard(name="tiny", category="chair", points=256, recommended_iterations=5)
+    assert model.card == ModelCard(
+        name="tiny", category="chair", points=256, recommended_iterations=5
+    )
     assert (tiny_model_dir / "tiny.onnx").stat().st_size < 1_000_000  # a single small file
     assert list(tiny_model_dir.iterdir()) == [tiny_model_dir / "tiny.onnx"]  # no external data

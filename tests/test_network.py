@@ -30,7 +30,9 @@ def test_without_identity_init_the_first_step_is_not_the_identity():
 
 def _trainable_net(seed: int = 0) -> ITNet:
     torch.manual_seed(seed)
-    net = ITNet(NetworkConfig(point_channels=(8, 16, 32), head_channels=(16, 8), identity_init=False))
+    net = ITNet(
+        NetworkConfig(point_channels=(8, 16, 32), head_channels=(16, 8), identity_init=False)
+    )
     return net.train()
 
 

@@ -26,8 +26,9 @@ def test_pose_round_trip_and_meaning(rng):
     pose = rigid_from_rotation_translation(random_rotation(rng), rng.normal(size=3))
     pose_n = pose_to_normalized(pose, norm)
     assert np.allclose(pose_from_normalized(pose_n, norm), pose)
-    assert np.allclose(apply_rigid(pose_n, norm.apply(cloud)) * norm.scale, apply_rigid(pose, cloud),
-                       atol=1e-4)  # fmt: skip
+    assert np.allclose(
+        apply_rigid(pose_n, norm.apply(cloud)) * norm.scale, apply_rigid(pose, cloud), atol=1e-4
+    )
 
 
 @pytest.mark.parametrize("cloud", [np.zeros((50, 3)), np.full((50, 3), 1e6)])

@@ -21,7 +21,7 @@ def evaluate(
     out: Path = typer.Option(Path("runs/eval"), help="Folder for report.json and anytime.png."),
     dump_scans: Path | None = typer.Option(
         None, help="Also write the test scans as .npy files plus labels.json (for `itnet pose`)."
-    ),  # fmt: skip
+    ),
     cache: Path = typer.Option(Path("cache")),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
@@ -51,24 +51,45 @@ def evaluate(
     poses = anytime_poses(step, scans, iterations, points)
     rep, rot, trans = report(poses, scans)
     out.mkdir(parents=True, exist_ok=True)
-    summary = {"source": str(checkpoint or onnx), "category": category, "orientation": orientation,
-               "views": views, "seed": seed, "points": points, **rep.model_dump()}  # fmt: skip
+    summary = {
+        "source": str(checkpoint or onnx),
+        "category": category,
+        "orientation": orientation,
+        "views": views,
+        "seed": seed,
+        "points": points,
+        **rep.model_dump(),
+    }
     (out / "report.json").write_text(json.dumps(summary, indent=1))
-    plot_anytime(rep, rot, trans, trained, out / "anytime.png",
-                 f"{category}: {rep.scans} partial scans of held-out objects")  # fmt: skip
+    np.savez_compressed(out / "poses.npz", poses=poses, truth=scans.poses, radii=scans.radii)
+    plot_anytime(
+        rep,
+        rot,
+        trans,
+        trained,
+        out / "anytime.png",
+        f"{category}: {rep.scans} partial scans of held-out objects",
+    )
     if dump_scans is not None:
         dump_scans.mkdir(parents=True, exist_ok=True)
         labels = {}
         for i, cloud in enumerate(scans.clouds):
             name = f"scan_{i:04d}.npy"
             np.save(dump_scans / name, cloud.astype(np.float32))
-            labels[name] = {"T_canonical_from_input": scans.poses[i].tolist(),
-                            "radius": float(scans.radii[i]), "object": scans.names[i]}  # fmt: skip
+            labels[name] = {
+                "T_canonical_from_input": scans.poses[i].tolist(),
+                "radius": float(scans.radii[i]),
+                "object": scans.names[i],
+            }
         (dump_scans / "labels.json").write_text(json.dumps(labels))
     typer.echo("iteration  accuracy  rot<10°  trans<0.1  median rot°  median trans")
     for k in rep.iterations:
-        typer.echo(f"{k:9d}  {rep.accuracy[k]:8.3f}  {rep.rotation_accuracy[k]:7.3f}  "
-                   f"{rep.translation_accuracy[k]:9.3f}  {rep.median_rotation_deg[k]:11.2f}  "
-                   f"{rep.median_translation[k]:12.4f}")  # fmt: skip
-    typer.echo(f"{rep.scans} scans of {len(shapes)} test objects ({orientation}); "
-               f"wrote {out / 'report.json'} and {out / 'anytime.png'}")  # fmt: skip
+        typer.echo(
+            f"{k:9d}  {rep.accuracy[k]:8.3f}  {rep.rotation_accuracy[k]:7.3f}  "
+            f"{rep.translation_accuracy[k]:9.3f}  {rep.median_rotation_deg[k]:11.2f}  "
+            f"{rep.median_translation[k]:12.4f}"
+        )
+    typer.echo(
+        f"{rep.scans} scans of {len(shapes)} test objects ({orientation}); "
+        f"wrote {out / 'report.json'} and {out / 'anytime.png'}"
+    )

@@ -32,16 +32,29 @@ def export(
     if report is not None:
         rep = json.loads(report.read_text())
         accuracy = {str(k): v for k, v in zip(rep["iterations"], rep["accuracy"])}
-        evaluation = (f"{rep['scans']} partial scans ({rep['views']} random views, full SO(3), "
-                      f"random units) of the {rep['category']} test split, {rep['points']} points")  # fmt: skip
+        evaluation = (
+            f"{rep['scans']} partial scans ({rep['views']} random views, full SO(3), "
+            f"random units) of the {rep['category']} test split, {rep['points']} points"
+        )
     card = ModelCard(
-        name=name, category=config["category"], version=version, points=points,
-        trained_points=config["points"], trained_iterations=config["iterations"],
-        recommended_iterations=recommended_iterations, accuracy=accuracy, evaluation=evaluation,
-        training={"steps": state["step"], "batch": config["batch"], "lr": config["lr"],
-                  "decay_every": config["decay_every"], "bf16": config["bf16"],
-                  "validation": state["metrics"].get("val_accuracy")},
-    )  # fmt: skip
+        name=name,
+        category=config["category"],
+        version=version,
+        points=points,
+        trained_points=config["points"],
+        trained_iterations=config["iterations"],
+        recommended_iterations=recommended_iterations,
+        accuracy=accuracy,
+        evaluation=evaluation,
+        training={
+            "steps": state["step"],
+            "batch": config["batch"],
+            "lr": config["lr"],
+            "decay_every": config["decay_every"],
+            "bf16": config["bf16"],
+            "validation": state["metrics"].get("val_accuracy"),
+        },
+    )
     export_step(net, card, out)
     model = load_model(out, warm_up=False)
     rng = np.random.default_rng(0)

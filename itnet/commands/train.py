@@ -42,12 +42,28 @@ def train(
     from itnet.model.train import train as run_training
 
     config = TrainConfig(
-        data=data, category=category, frame=frame, out=out, steps=steps, batch=batch,
-        points=points, iterations=iterations, lr=lr, decay_every=decay_every,
-        bn_decay_every=decay_every, eval_every=eval_every, seed=seed, device=device, bf16=bf16,
-        stop_gradient=stop_gradient, identity_init=identity_init,
-        check_orientation=check_orientation, cache=cache,
-    )  # fmt: skip
+        data=data,
+        category=category,
+        frame=frame,
+        out=out,
+        steps=steps,
+        batch=batch,
+        points=points,
+        iterations=iterations,
+        lr=lr,
+        decay_every=decay_every,
+        bn_decay_every=decay_every,
+        eval_every=eval_every,
+        seed=seed,
+        device=device,
+        bf16=bf16,
+        stop_gradient=stop_gradient,
+        identity_init=identity_init,
+        check_orientation=check_orientation,
+        cache=cache,
+    )
     best = run_training(config, resume=resume)
-    typer.echo(f"best validation accuracy {best['val_accuracy']:.3f} at step {best.get('step')}; "
-               f"checkpoint {out / 'best.pt'}")  # fmt: skip
+    typer.echo(
+        f"best validation accuracy {best['val_accuracy']:.3f} at step {best.get('step')}; "
+        f"checkpoint {out / 'best.pt'}"
+    )

@@ -169,3 +169,10 @@ def test_busy_server_refuses_with_1013_and_http_503(
         running.send_json({"type": "cancel"})
         assert receive_until_result(running)[1]["stopped_by"] == "cancelled"
     assert app.state.service.gate.active == 0
+
+
+def test_a_silent_client_is_closed_after_the_request_timeout(tiny_model_dir: Path) -> None:
+    limits = LimitSettings(ws_request_timeout_s=0.2)
+    settings = Settings(model_dir=tiny_model_dir, warm_up=False, limits=limits)
+    with TestClient(create_app(settings)) as client, client.websocket_connect(PATH) as ws:
+        assert "no request within 0.2 s" in expect_error(ws, "timeout", 1008)

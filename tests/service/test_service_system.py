@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,3 +155,20 @@ def tiny_models(settings: Settings) -> Callable[[list[str]], dict[str, LoadedMod
 
     (model,) = load_models(settings.model_dir, warm_up=False).values()
     return lambda names: dict.fromkeys(names, model)
+
+
+def test_the_serving_side_never_imports_torch() -> None:
+    code = (
+        "import sys, itnet.service.app, itnet.service.server, itnet.cli\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_docs_list_every_setting() -> None:
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "service.md").read_text()
+    for name in settings_to_env(Settings(default_model="x")):
+        assert f"`{name}`" in docs, f"{name} is not documented in docs/service.md"

@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Set up (if needed) and run every check: lint, format, types of the pure modules, tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ ! -x .venv/bin/pytest ] || [ ! -x .venv/bin/ruff ]; then
+  bash scripts/setup.sh dev
+fi
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
+.venv/bin/mypy itnet/geometry.py itnet/preprocess.py itnet/metrics.py itnet/cloud_io.py
+.venv/bin/itnet --version
+.venv/bin/python -m pytest -q "$@"
