@@ -55,6 +55,7 @@ class TrainConfig(BaseModel):
     seed: int = 0
     device: str = "cpu"
     bf16: bool = True  # autocast matmuls to bfloat16 (AMX on CPU), keep the pose math in fp32
+    sensor_noise: bool = True  # depth noise, jitter and outliers in the training scans
     threads: int = 0  # 0: torch's default
 
 
@@ -100,6 +101,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     )
     val_shapes, _ = load_shapes(files["val"], config.frame, config.cache, config.check_orientation)
     scan_config = ScanConfig()
+    train_scan_config = scan_config if config.sensor_noise else ScanConfig(
+        depth_noise=(0.0, 0.0), jitter=(0.0, 0.0), outlier_fraction=(0.0, 0.0)
+    )
     val_scans = cached_scan_set(
         val_shapes, config.val_views, config.seed + 7, scan_config, config.cache
     )
@@ -132,7 +136,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     started = time.time()
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
-        x, target = training_batch(train_shapes, config.batch, config.points, rng, scan_config)
+        x, target = training_batch(train_shapes, config.batch, config.points, rng, train_scan_config)
         x_t = torch.from_numpy(x).to(config.device)
         target_t = torch.from_numpy(target).to(config.device)
         lr = config.lr * config.lr_decay ** (step / config.decay_every)
