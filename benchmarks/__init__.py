@@ -1,1 +1,1 @@
-"""Benchmarks (not shipped): alignment against registration baselines."""
+"""Benchmarks (not shipped with the package); run them from the repository root."""

@@ -93,7 +93,7 @@ def small_gicp_identity(a: NDArray, b: NDArray) -> NDArray[np.float64]:
 
     scale = _scale(b)
     result = small_gicp.align(b, a, registration_type="GICP", downsampling_resolution=0.05 * scale,
-                              max_correspondence_distance=0.5 * scale, num_threads=2)  # fmt: skip
+                              max_correspondence_distance=0.5 * scale, num_threads=1)  # fmt: skip
     return np.asarray(result.T_target_source, dtype=np.float64)
 
 
@@ -103,25 +103,7 @@ def icp_identity(a: NDArray, b: NDArray) -> NDArray[np.float64]:
     return IcpRefiner(a, b, 0.25 * _scale(b)).refine(np.eye(4)).T_b_from_a
 
 
-def go_icp(a: NDArray, b: NDArray) -> NDArray[np.float64]:
-    """Go-ICP (globally optimal ICP by branch and bound over SO(3) x translations), trimmed 30%,
-    on 300 random points of A. GPL: run through ``py-simple-go-icp-interface`` (which compiles
-    the original C++ with g++ on first use and runs it as a separate program); never a
-    dependency of itnet. A run that fails counts as the identity."""
-    from py_simple_go_icp_interface.main import go_icp_match_raw
-
-    try:
-        rotation, translation = go_icp_match_raw(
-            b, a, random_seed=0, random_downsample=min(300, len(a)), trimFraction=0.3
-        )
-    except RuntimeError:
-        return np.eye(4)
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = rotation, translation
-    return pose
-
-
-def available(go_icp_too: bool = False) -> dict[str, Method]:
+def available() -> dict[str, Method]:
     """The baselines whose packages import here, by display name."""
     methods: dict[str, Method] = {}
     try:
@@ -144,11 +126,4 @@ def available(go_icp_too: bool = False) -> dict[str, Method]:
         methods["small_gicp GICP from identity"] = small_gicp_identity
     except ImportError:
         pass
-    if go_icp_too:
-        try:
-            import py_simple_go_icp_interface  # noqa: F401
-
-            methods["Go-ICP (trimmed 30%)"] = go_icp
-        except ImportError:
-            pass
     return methods

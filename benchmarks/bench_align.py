@@ -17,6 +17,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,12 +26,13 @@ from numpy.typing import NDArray
 
 from benchmarks import baselines
 from benchmarks.report import write_report
-from itnet.align import relative_pose
-from itnet.alignment import AlignOptions, align_clouds
+from itnet.align import category_symmetry, relative_pose
+from itnet.alignment import AlignOptions, PoseEstimator, align_clouds
 from itnet.estimators import in_process_estimator
 from itnet.metrics import alignment_errors, is_correct
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import list_shape_files, load_shape
+from itnet.service.runtime import LoadedModel, default_model_dir, load_models
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,48 +75,72 @@ def make_pairs(folder: Path, count: int, seed: int) -> list[Pair]:
     return pairs
 
 
-def itnet_methods(model_name: str, model_dir: Path | None, budget_ms: float) -> dict:
-    """itnet-align variants, each returning (T_b_from_a, info)."""
-    from itnet.service.runtime import default_model_dir, load_models
-
+def itnet_methods(
+    model_name: str, model_dir: Path | None, budget_ms: float
+) -> tuple[dict[str, Callable], LoadedModel]:
+    """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info)."""
     model = load_models(model_dir or default_model_dir())[model_name]
-    estimate = in_process_estimator(model, budget_ms)
+    full = in_process_estimator(model, budget_ms)
+    fast = in_process_estimator(model, budget_ms, max_iterations=5)
+    symmetry = category_symmetry(model.card.category)
+    variants = {
+        "itnet-align": (full, AlignOptions(symmetry=symmetry)),
+        "itnet-align --refine --symmetry none": (full, AlignOptions(symmetry="none", refine=True)),
+        "itnet-align --refine": (full, AlignOptions(symmetry=symmetry, refine=True)),
+        "itnet-align --refine --max-iterations 5": (
+            fast,
+            AlignOptions(symmetry=symmetry, refine=True),
+        ),
+        "itnet-align --refine --samples 3": (
+            full,
+            AlignOptions(symmetry=symmetry, refine=True, samples=3),
+        ),
+    }
 
-    def variant(options: AlignOptions):  # type: ignore[no-untyped-def]
-        def method(a: NDArray, b: NDArray) -> tuple[NDArray, dict]:
+    def method(estimate: PoseEstimator, options: AlignOptions) -> Callable:
+        def align(a: NDArray, b: NDArray) -> tuple[NDArray, dict]:
             result = align_clouds(a, b, estimate, options)
             chosen = result.hypotheses[result.chosen].source
-            return result.T_b_from_a, {**result.confidence, "hypothesis": chosen,
-                                       "iterations": result.iterations}  # fmt: skip
+            info = {**result.confidence, "hypothesis": chosen, "iterations": result.iterations,
+                    **{f"{k}_ms": v for k, v in result.timings_ms.items()}}  # fmt: skip
+            return result.T_b_from_a, info
 
-        return method
+        return align
 
-    return {
-        "itnet-align, IT-Net only": variant(AlignOptions(symmetry="none")),
-        "itnet-align": variant(AlignOptions()),
-        "itnet-align --refine": variant(AlignOptions(refine=True)),
-        "itnet-align --refine --samples 3": variant(AlignOptions(refine=True, samples=3)),
-    }, model
+    return {name: method(*args) for name, args in variants.items()}, model
 
 
-def run_method(method, pairs: list[Pair], seconds: float, warm_up: bool = True) -> Outcome:  # type: ignore[no-untyped-def]
-    """Run a method on the pairs (one warm-up call first) until done or ``seconds`` spent."""
-    if warm_up:
+def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float) -> dict:
+    """Every method on every pair, interleaved pair by pair (so a change in the machine's load
+    hits all methods alike), after one warm-up call each; a method stops once it has spent
+    ``seconds``. Returns {name: Outcome}."""
+    for method in methods.values():
         method(pairs[0].a, pairs[0].b)
-    out, spent = Outcome(), 0.0
+    outcomes = {name: Outcome() for name in methods}
     for pair in pairs:
-        start = time.perf_counter()
-        reply = method(pair.a, pair.b)
-        ms = (time.perf_counter() - start) * 1e3
-        estimate, info = reply if isinstance(reply, tuple) else (reply, {})
-        rot, trans = alignment_errors(estimate, pair.truth, pair.a.mean(0), pair.radius)
-        out.rotation_deg.append(float(rot))
-        out.translation.append(float(trans))
-        out.ms.append(ms)
-        out.info.append(info)
-        spent += ms / 1e3
-        if spent > seconds:
-            break
+        for name, method in methods.items():
+            out = outcomes[name]
+            if sum(out.ms) / 1e3 > seconds:
+                continue
+            start = time.perf_counter()
+            reply = method(pair.a, pair.b)
+            out.ms.append((time.perf_counter() - start) * 1e3)
+            estimate, info = reply if isinstance(reply, tuple) else (reply, {})
+            rot, trans = alignment_errors(estimate, pair.truth, pair.a.mean(0), pair.radius)
+            out.rotation_deg.append(float(rot))
+            out.translation.append(float(trans))
+            out.info.append(info)
+    return outcomes
+
+
+def _without_notes(argv: list[str]) -> list[str]:
+    """The command line without ``--note TEXT`` pairs (the notes are printed apart)."""
+    out, skip = [], False
+    for arg in argv:
+        if skip or arg == "--note":
+            skip = arg == "--note"
+            continue
+        out.append(arg)
     return out
 
 
@@ -129,41 +155,47 @@ def main() -> None:
     parser.add_argument("--budget-ms", type=float, default=1000.0)
     parser.add_argument("--seconds-per-method", type=float, default=120.0)
     parser.add_argument("--only", nargs="*", default=None, help="method names to run")
-    parser.add_argument(
-        "--go-icp-seconds",
-        type=float,
-        default=0.0,
-        help="run Go-ICP (GPL, installed apart) for this long, on the first pairs",
-    )
     parser.add_argument("--out", type=Path, default=ROOT / "docs")
+    parser.add_argument("--note", action="append", default=[], help="a line for the report")
+    parser.add_argument(
+        "--from-json",
+        type=Path,
+        default=None,
+        help="only re-render the .md and .png from a saved align_benchmark.json",
+    )
     args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.from_json is not None:
+        saved = json.loads(args.from_json.read_text())
+        results = {name: Outcome(**r) for name, r in saved["results"].items()}
+        write_report(results, saved["meta"], args.out / "align_benchmark")
+        return
 
     pairs = make_pairs(args.data, args.pairs, args.seed)
     methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms)
-    methods.update(baselines.available(go_icp_too=args.go_icp_seconds > 0))
-    results = {}
-    for name, method in methods.items():
-        if args.only and name not in args.only:
-            continue
-        seconds = args.go_icp_seconds if name.startswith("Go-ICP") else args.seconds_per_method
-        results[name] = run_method(method, pairs, seconds, warm_up=not name.startswith("Go-ICP"))
-        ok = results[name].success()
-        print(f"{name:36s} {ok.mean():6.1%} of {len(ok)}  median "
-              f"{np.median(results[name].ms):7.1f} ms", flush=True)  # fmt: skip
+    methods.update(baselines.available())
+    if args.only:
+        methods = {name: m for name, m in methods.items() if name in args.only}
+    results = run_methods(methods, pairs, args.seconds_per_method)
+    for name, outcome in results.items():
+        ok = outcome.success()
+        print(f"{name:40s} {ok.mean():6.1%} of {len(ok)}  median "
+              f"{np.median(outcome.ms):7.1f} ms", flush=True)  # fmt: skip
     model_stat = model.path.stat()
     modified = time.strftime("%Y-%m-%d %H:%M", time.localtime(model_stat.st_mtime))
     meta = {
         "pairs": len(pairs),
         "seed": args.seed,
         "data": str(args.data),
-        "model": f"`{model.card.name}` ({model.path.name}, {model_stat.st_size // 1024} KB, "
-        f"modified {modified})",
+        "model": f"`{model.card.name}` ({model.path}, {model_stat.st_size // 1024} KB, modified "
+        f"{modified}; trained {model.card.training.get('steps', '?')} steps, validation "
+        f"accuracy {model.card.training.get('validation', '?')})",
         "budget_ms": args.budget_ms,
-        "command": " ".join(["python -m benchmarks.bench_align", *sys.argv[1:]]),
+        "command": " ".join(["python -m benchmarks.bench_align", *_without_notes(sys.argv[1:])]),
+        "notes": args.note,
         "points": [int(np.median([len(p.a) for p in pairs])),
                    int(np.median([len(p.b) for p in pairs]))],
     }  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
     write_report(results, meta, args.out / "align_benchmark")
     dump = {name: {"rotation_deg": o.rotation_deg, "translation": o.translation, "ms": o.ms,
                    "info": o.info} for name, o in results.items()}  # fmt: skip

@@ -44,6 +44,22 @@ def hypothesis_counts(outcome) -> str:  # type: ignore[no-untyped-def]
     return ", ".join(f"{kinds[i]} {counts[i]}" for i in order)
 
 
+def time_split(results: dict) -> list[str]:
+    """Markdown lines: where the time of each itnet-align variant goes (medians per pair)."""
+    rows = []
+    for name, outcome in results.items():
+        if name.startswith("itnet-align") and outcome.info and "itnet_ms" in outcome.info[0]:
+            part = {k: np.median([i[k] for i in outcome.info])
+                    for k in ("itnet_ms", "refine_ms", "score_ms", "iterations")}  # fmt: skip
+            rows.append(f"| {name} | {part['itnet_ms']:.1f} ms | {part['refine_ms']:.1f} ms | "
+                        f"{part['score_ms']:.1f} ms | {part['iterations']:.0f} |")  # fmt: skip
+    if not rows:
+        return []
+    return ["", "Where the time of itnet-align goes (medians per pair):", "",
+            "| method | IT-Net (both clouds) | ICP | scoring | IT-Net iterations |",
+            "|---|---|---|---|---|", *rows]  # fmt: skip
+
+
 def write_report(results: dict, meta: dict, stem: Path) -> None:
     """Write ``stem``.md (table, setup, command) and ``stem``.png (figure)."""
     rows = [
@@ -76,9 +92,12 @@ def write_report(results: dict, meta: dict, stem: Path) -> None:
         "- Sizes for every method (voxels, ICP distances) are fractions of B's RMS radius, "
         "measured on the cloud; all global baselines end with the same point-to-plane ICP as "
         "`itnet-align --refine`.",
-        "- Times: wall clock per pair on this machine (2 CPU cores), after one warm-up pair.",
+        "- Times: wall clock per pair on this machine (2 CPU cores, shared with other jobs), "
+        "after one warm-up call per method; the methods take turns pair by pair, so a change "
+        "in load hits them alike.",
         *[f"- {note}" for note in meta.get("notes", [])],
     ]
+    lines += time_split(results)
     for name, outcome in results.items():
         table = confidence_table(outcome)
         if table and name.startswith("itnet-align"):

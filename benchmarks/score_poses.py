@@ -1,8 +1,8 @@
 """Score `itnet pose --json` output against the labels written by `itnet eval --dump-scans`.
 
-    itnet eval --onnx itnet/models/chair.onnx --dump-scans runs/scans
-    itnet pose runs/scans/*.npy --json --max-iterations 10 > runs/poses.jsonl
-    python benchmarks/score_poses.py runs/scans/labels.json runs/poses.jsonl
+itnet eval --onnx itnet/models/chair.onnx --dump-scans runs/scans
+itnet pose runs/scans/*.npy --json --max-iterations 10 > runs/poses.jsonl
+python benchmarks/score_poses.py runs/scans/labels.json runs/poses.jsonl
 """
 
 from __future__ import annotations

@@ -66,12 +66,13 @@ class AlignOptions:
 
     samples: int = 1  # IT-Net runs per cloud: the whole cloud, then random subsets
     subset_fraction: float = 0.8
-    symmetry: str = "yaw180"  # a name in itnet.align.SYMMETRIES
+    symmetry: str = "yaw90"  # a name in itnet.align.SYMMETRIES
     refine: bool = False
-    inlier_distance: float = 0.1  # for the overlap score, and ICP's final correspondence cut-off
-    switch_margin: float = 0.1  # fitness a rival needs above the IT-Net estimate to replace it
+    icp_distance: float = 0.1  # ICP's final correspondence cut-off (the first stage: twice it)
+    inlier_distance: float = 0.05  # the overlap score's inlier distance
+    switch_margin: float = 0.02  # fitness a rival needs above the IT-Net estimate to replace it
     score_points: int = 400  # points of each cloud scored against (up to 5x as many of) the other
-    voxel: float = 0.0  # ICP downsampling (0 = none)
+    voxel: float | None = None  # ICP downsampling; None: 0.05 above 20,000 points, else none
     seed: int = 0
 
 
@@ -87,6 +88,8 @@ class Alignment:
     confidence: dict[str, float]
     timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, refine, score, total
     iterations: int = 0  # IT-Net steps over every run (both clouds, all samples)
+    inlier_distance: float = 0.0  # the score's inlier distance, B's units
+    icp_distance: float = 0.0  # ICP's final correspondence distance, B's units (0: no ICP)
 
     def to_dict(self) -> dict:
         """JSON form (the CLI's ``--json``)."""
@@ -100,6 +103,8 @@ class Alignment:
             "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()},
             **self.confidence,
             "hypothesis": self.hypotheses[self.chosen].source,
+            "inlier_distance": float(f"{self.inlier_distance:.5g}"),
+            "icp_distance": float(f"{self.icp_distance:.5g}"),
             "refined": self.hypotheses[self.chosen].initial is not None,
             "T_canonical_from_a": self.pose_a.to_dict(),
             "T_canonical_from_b": self.pose_b.to_dict(),
@@ -151,9 +156,14 @@ def align_clouds(
     if options.refine:
         from itnet.refine import IcpRefiner
 
-        refiner = IcpRefiner(a, b, inlier, voxel=options.voxel * scale)
+        voxel = options.voxel
+        if voxel is None:
+            voxel = 0.05 if max(len(a), len(b)) > 20_000 else 0.0
+        refiner = IcpRefiner(a, b, options.icp_distance * scale, voxel=voxel * scale)
         for h in hypotheses:
-            h.initial, h.T_b_from_a = h.T_b_from_a, refiner.refine(h.T_b_from_a).T_b_from_a
+            refined = refiner.refine(h.T_b_from_a)
+            h.initial, h.T_b_from_a = h.T_b_from_a, refined.T_b_from_a
+            h.icp = {"fitness": round(refined.fitness, 4), "rmse": float(f"{refined.rmse:.5g}")}
             h.source += "+icp"
     t_refine = time.perf_counter()
 
@@ -163,7 +173,9 @@ def align_clouds(
     sub_b = b[rng.choice(len(b), cap, replace=False)] if len(b) > cap else b
     for h in hypotheses:
         h.fitness, h.rmse = overlap_score(sub_a, sub_b, h.T_b_from_a, inlier, options.score_points)
-    chosen = choose(hypotheses, options.switch_margin)
+    # Unrefined hypotheses are each a few degrees off: the tight score cannot rank them, so
+    # without ICP they only inform the confidence (a rival that fits as well lowers it).
+    chosen = choose(hypotheses, options.switch_margin) if options.refine else 0
     done = time.perf_counter()
     return Alignment(
         T_b_from_a=hypotheses[chosen].T_b_from_a,
@@ -179,4 +191,6 @@ def align_clouds(
             "total": (done - start) * 1e3,
         },
         iterations=sum(r.iterations for r in runs_a + runs_b),
+        inlier_distance=inlier,
+        icp_distance=options.icp_distance * scale if options.refine else 0.0,
     )

@@ -15,6 +15,20 @@ from numpy.typing import NDArray
 
 SUFFIXES = (".ply", ".pcd", ".xyz", ".pts", ".txt", ".npy")
 MAX_HEADER_BYTES = 64 * 1024
+# LZF's longest back-reference: 3 bytes of input -> 264 bytes of output. A compressed PCD that
+# claims more than this ratio is corrupt; checking it first bounds memory by the file's size.
+LZF_MAX_RATIO = 88
+# Errors that numpy and the parsers raise on malformed input; all become CloudReadError.
+_PARSE_ERRORS = (
+    ValueError,
+    TypeError,
+    IndexError,
+    KeyError,
+    OverflowError,
+    EOFError,
+    UnicodeDecodeError,
+)
+_PCD_KINDS = {"F": ("f", (2, 4, 8)), "I": ("i", (1, 2, 4, 8)), "U": ("u", (1, 2, 4, 8))}
 
 _PLY_TYPES = {
     "char": "i1",
@@ -52,12 +66,13 @@ def read_cloud(path: str | Path) -> NDArray[np.float64]:
         raise CloudReadError(f"{path}: unknown format {suffix!r} (known: {', '.join(SUFFIXES)})")
     try:
         data = path.read_bytes()
-        points = reader(data)
+        points = np.asarray(reader(data), dtype=np.float64).reshape(-1, 3)
     except CloudReadError as err:
         raise CloudReadError(f"{path}: {err}") from None
-    except (ValueError, IndexError, KeyError, UnicodeDecodeError, OSError) as err:
+    except MemoryError:
+        raise CloudReadError(f"{path}: not enough memory to read this cloud") from None
+    except (*_PARSE_ERRORS, OSError) as err:
         raise CloudReadError(f"{path}: not a readable {suffix} cloud ({err})") from None
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         raise CloudReadError(f"{path}: the cloud has no points")
     return points
@@ -140,9 +155,11 @@ def _read_pcd(data: bytes) -> NDArray:
     n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0])
     if not {"x", "y", "z"} <= set(fields) or n < 0:
         raise CloudReadError("PCD lacks x, y, z fields")
-    dtypes = [
-        f"{ {'F': 'f', 'I': 'i', 'U': 'u'}[t] }{s}".replace(" ", "") for t, s in zip(types, sizes)
-    ]
+    if not len(fields) == len(sizes) == len(types) == len(counts):
+        raise CloudReadError("PCD FIELDS, SIZE, TYPE and COUNT differ in length")
+    if min(counts) < 1:
+        raise CloudReadError(f"PCD COUNT must be at least 1, got {min(counts)}")
+    dtypes = [_pcd_dtype(t, s) for t, s in zip(types, sizes)]
     if kind == "ascii":
         table = np.loadtxt(body.decode("ascii").splitlines()[:n], ndmin=2)
         col = np.cumsum([0, *counts])
@@ -154,8 +171,15 @@ def _read_pcd(data: bytes) -> NDArray:
         records: Any = np.frombuffer(body, dtype=dtype, count=n)
         return np.stack([records[a][:, 0].astype(np.float64) for a in "xyz"], axis=-1)
     if kind == "binary_compressed":
-        compressed, raw_size = np.frombuffer(body[:8], dtype="<u4")
-        raw = _lzf_decompress(body[8 : 8 + int(compressed)], int(raw_size))
+        if len(body) < 8:
+            raise CloudReadError("truncated: no compressed-size header after DATA")
+        compressed, raw_size = (int(v) for v in np.frombuffer(body[:8], dtype="<u4"))
+        point_bytes = sum(c * np.dtype(d).itemsize for d, c in zip(dtypes, counts))
+        if raw_size != n * point_bytes:
+            raise CloudReadError(f"{n} points need {n * point_bytes} bytes, header says {raw_size}")
+        if len(body) < 8 + compressed:
+            raise CloudReadError(f"truncated: {compressed} compressed bytes announced")
+        raw = _lzf_decompress(body[8 : 8 + compressed], raw_size)
         out, offset = {}, 0  # columns are stored one after the other
         for f, d, c in zip(fields, dtypes, counts):
             nbytes = n * c * np.dtype(d).itemsize
@@ -165,11 +189,21 @@ def _read_pcd(data: bytes) -> NDArray:
     raise CloudReadError(f"unknown PCD DATA kind {kind!r}")
 
 
+def _pcd_dtype(kind: str, size: int) -> str:
+    """PCD TYPE and SIZE (``F``, 4) -> numpy type code (``f4``), or CloudReadError."""
+    if kind not in _PCD_KINDS or size not in _PCD_KINDS[kind][1]:
+        raise CloudReadError(f"unsupported PCD field type {kind!r} of size {size}")
+    return f"{_PCD_KINDS[kind][0]}{size}"
+
+
 def _lzf_decompress(src: bytes, size: int) -> bytes:
-    """LZF (liblzf) decompression, as used by PCD's binary_compressed."""
+    """LZF (liblzf) decompression, as used by PCD's binary_compressed. Never produces more than
+    ``size`` bytes, and refuses a ``size`` that ``src`` cannot possibly hold."""
+    if size > LZF_MAX_RATIO * len(src):
+        raise CloudReadError(f"{len(src)} compressed bytes cannot hold {size} bytes")
     out = bytearray()
     i = 0
-    while i < len(src):
+    while i < len(src) and len(out) <= size:
         ctrl = src[i]
         i += 1
         if ctrl < 32:  # literal run of ctrl + 1 bytes
@@ -184,7 +218,11 @@ def _lzf_decompress(src: bytes, size: int) -> bytes:
         i += 1
         if ref < 0:
             raise CloudReadError("corrupt compressed PCD data")
-        for _ in range(length + 2):
+        length += 2
+        if ref + length <= len(out):  # the usual case: the copy does not overlap its output
+            out += out[ref : ref + length]
+            continue
+        for _ in range(length):  # an overlapping copy repeats the bytes it is writing
             out.append(out[ref])
             ref += 1
     if len(out) != size:
@@ -193,11 +231,24 @@ def _lzf_decompress(src: bytes, size: int) -> bytes:
 
 
 def _read_npy(data: bytes) -> NDArray:
+    """A numeric (N, >= 3) .npy array. The header is checked against the file's size before
+    anything is allocated: a header that claims 10^12 rows fails at once."""
     import io
 
+    stream = io.BytesIO(data)
+    version = np.lib.format.read_magic(stream)
+    read_header = {(1, 0): np.lib.format.read_array_header_1_0}.get(
+        version, np.lib.format.read_array_header_2_0
+    )
+    shape, _, dtype = read_header(stream)
+    if len(shape) != 2 or shape[1] < 3:
+        raise CloudReadError(f"expected an (N, 3) array, got shape {shape}")
+    if dtype.kind not in "iuf" or dtype.fields is not None:
+        raise CloudReadError(f"expected a numeric array, got dtype {dtype}")
+    needed = shape[0] * shape[1] * dtype.itemsize
+    if len(data) - stream.tell() < needed:
+        raise CloudReadError(f"truncated: an array of shape {shape} needs {needed} bytes")
     arr = np.load(io.BytesIO(data), allow_pickle=False)
-    if arr.ndim != 2 or arr.shape[1] < 3:
-        raise CloudReadError(f"expected an (N, 3) array, got shape {arr.shape}")
     return arr[:, :3]
 
 

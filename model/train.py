@@ -101,8 +101,10 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     )
     val_shapes, _ = load_shapes(files["val"], config.frame, config.cache, config.check_orientation)
     scan_config = ScanConfig()
-    train_scan_config = scan_config if config.sensor_noise else ScanConfig(
-        depth_noise=(0.0, 0.0), jitter=(0.0, 0.0), outlier_fraction=(0.0, 0.0)
+    train_scan_config = (
+        scan_config
+        if config.sensor_noise
+        else ScanConfig(depth_noise=(0.0, 0.0), jitter=(0.0, 0.0), outlier_fraction=(0.0, 0.0))
     )
     val_scans = cached_scan_set(
         val_shapes, config.val_views, config.seed + 7, scan_config, config.cache
@@ -136,7 +138,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     started = time.time()
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
-        x, target = training_batch(train_shapes, config.batch, config.points, rng, train_scan_config)
+        x, target = training_batch(
+            train_shapes, config.batch, config.points, rng, train_scan_config
+        )
         x_t = torch.from_numpy(x).to(config.device)
         target_t = torch.from_numpy(target).to(config.device)
         lr = config.lr * config.lr_decay ** (step / config.decay_every)
@@ -198,3 +202,12 @@ def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
     )
     net.load_state_dict(state["model"])
     return net.eval(), state
+
+
+def ship_checkpoint(source: Path, target: Path) -> Path:
+    """Copy a checkpoint without its optimiser state (a third of the size): what the repo ships."""
+    state = torch.load(source, map_location="cpu", weights_only=False)
+    state.pop("optimizer", None)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(state, target)
+    return target

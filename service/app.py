@@ -6,6 +6,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+import anyio
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -20,6 +21,7 @@ from itnet.service.settings import Settings
 from itnet.service.state import ServiceState
 
 log = logging.getLogger("itnet.service")
+THREADS_BESIDES = 8  # worker threads beyond one per admitted estimate (other endpoints' work)
 
 DESCRIPTION = """Anytime pose estimation of partial point clouds with IT-Net.
 
@@ -42,6 +44,11 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         state.load()
         log.info("models loaded: %s", ", ".join(state.models) or "none")
+        # Every admitted estimate gets a worker thread at once: no hidden queue behind the gate.
+        limiter = anyio.to_thread.current_default_thread_limiter()
+        limiter.total_tokens = max(
+            limiter.total_tokens, settings.limits.max_concurrent_requests + THREADS_BESIDES
+        )
         yield
 
     app = FastAPI(title="itnet", version=__version__, description=DESCRIPTION, lifespan=lifespan)

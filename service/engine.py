@@ -107,8 +107,11 @@ class AnytimeRun(Iterator[Estimate]):
         converge_translation: float = 1e-4,
         limits: Limits = Limits(),
         seed: int = 0,
+        started: float | None = None,
     ) -> None:
-        self.started = time.perf_counter()
+        # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
+        # arrived, so that decoding and queueing count against the budget), else from now.
+        self.started = time.perf_counter() if started is None else started
         if not (0 < budget_ms <= limits.max_budget_ms):
             raise BadCloudError(
                 f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {budget_ms}"
@@ -149,10 +152,15 @@ class AnytimeRun(Iterator[Estimate]):
         self.stopped_by = self._stop_reason_before_step()
         if self.stopped_by is not None:
             raise StopIteration
-        start = time.perf_counter()
-        # Move the cloud by the pose so far, predict the update, compose: all inside the graph.
-        self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
-        self._last_step_ms = (time.perf_counter() - start) * 1e3
+        # Wait for a free step slot only as long as the budget can spare (see step_slot).
+        with self.model.step_slot(self._slack_ms() / 1e3) as free:
+            if not free or self._cancel.is_set():
+                self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
+                raise StopIteration
+            start = time.perf_counter()
+            # Move the cloud by the pose so far, predict the update, compose: inside the graph.
+            self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
+            self._last_step_ms = (time.perf_counter() - start) * 1e3
         self.model.record_step_ms(self._last_step_ms)
         self.iteration += 1
         update_rotation = float(rotation_angle_deg(delta[0, :3, :3]))
@@ -171,10 +179,14 @@ class AnytimeRun(Iterator[Estimate]):
             return "cancelled"
         if self.iteration >= self.max_iterations:
             return "max_iterations"
-        predicted = max(self.model.step_ms, self._last_step_ms)
-        if self.elapsed_ms() + predicted > self.budget_ms:
+        if self._slack_ms() < 0:
             return "budget"
         return None
+
+    def _slack_ms(self) -> float:
+        """Budget left after the predicted next step (negative: the step would overrun)."""
+        predicted = max(self.model.predicted_step_ms(), self._last_step_ms)
+        return self.budget_ms - self.elapsed_ms() - predicted
 
     def _estimate(
         self, pose_normalized: NDArray, rotation_deg: float, translation: float

@@ -49,6 +49,8 @@ LATENCY_BUCKETS = (
     10,
 )
 ITERATION_BUCKETS = (0, 1, 2, 3, 5, 8, 10, 15, 20, 30, 50, 100, 200)
+# Scope key: time.perf_counter() when the request reached the app (the budget counts from it).
+ARRIVED = "itnet.arrived"
 
 
 class Metrics:
@@ -107,6 +109,7 @@ class RequestMetricsMiddleware:
             await self.app(scope, receive, send)
             return
         start, status = time.perf_counter(), 500
+        scope[ARRIVED] = start
 
         async def send_recording_status(message: Message) -> None:
             nonlocal status

@@ -7,8 +7,12 @@ all graph optimisations.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
+from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -27,6 +31,11 @@ class ModelLoadError(RuntimeError):
 def default_model_dir() -> Path:
     """The models shipped inside the package (no network, no configuration)."""
     return Path(str(resources.files("itnet") / "models"))
+
+
+def default_concurrent_steps(threads: int) -> int:
+    """Steps of one model that may run at once: as many as the cores hold (cores // threads)."""
+    return max(1, (os.cpu_count() or 1) // max(1, threads))
 
 
 def session_options(threads: int = 2, spinning: bool = False) -> ort.SessionOptions:
@@ -51,6 +60,29 @@ class LoadedModel:
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     baseline_ms: float = 0.0  # fastest warm-up step: the step time without contention
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
+    concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
+    recent_window_s: float = 2.0  # how far back predicted_step_ms looks
+
+    def __post_init__(self) -> None:
+        self._slots = threading.BoundedSemaphore(self.concurrent_steps)
+        self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
+
+    @contextmanager
+    def step_slot(self, timeout_s: float) -> Iterator[bool]:
+        """Hold a step slot; yields False (holding none) if none frees within ``timeout_s``.
+
+        Steps of many concurrent requests that all run at once share the cores, and each takes
+        several times what the engine predicted from the step time: the budget overruns. Run
+        ``concurrent_steps`` at a time instead, so that a step that starts takes its usual time,
+        and let the others wait only as long as their budgets can spare."""
+        free = (
+            self._slots.acquire(timeout=timeout_s) if timeout_s > 0 else self._slots.acquire(False)
+        )
+        try:
+            yield free
+        finally:
+            if free:
+                self._slots.release()
 
     def step(
         self, points: NDArray[np.float32], pose: NDArray[np.float32]
@@ -59,10 +91,22 @@ class LoadedModel:
         pose_next, delta = self.session.run(None, {"points": points, "pose": pose})
         return pose_next, delta
 
-    def record_step_ms(self, ms: float, weight: float = 0.2) -> None:
+    def record_step_ms(self, ms: float, weight: float = 0.2, at: float | None = None) -> None:
+        """Fold a measured step time into the estimates (``at``: its perf_counter, now)."""
         with self._lock:
             self.step_ms = ms if self.step_ms == 0 else (1 - weight) * self.step_ms + weight * ms
-            self._estimated_at = time.perf_counter()
+            self._estimated_at = time.perf_counter() if at is None else at
+            self._recent.append((self._estimated_at, ms))
+
+    def predicted_step_ms(self, quantile: float = 0.9) -> float:
+        """What the next step may take: the running estimate, or the ``quantile`` of the steps
+        of the last ``recent_window_s`` if higher. On a machine whose load comes and goes, step
+        times scatter; the mean alone lets one step in a few overrun the budget."""
+        with self._lock:
+            since = time.perf_counter() - self.recent_window_s
+            recent = sorted(ms for at, ms in self._recent if at >= since)
+            high = recent[min(len(recent) - 1, int(quantile * len(recent)))] if recent else 0.0
+            return max(self.step_ms, high)
 
     def relax_step_ms(self, half_life_s: float = 1.0) -> float:
         """Let a stale step-time estimate relax toward ``baseline_ms`` (half-life ``half_life_s``
@@ -96,11 +140,17 @@ def read_card(session: ort.InferenceSession, path: Path) -> ModelCard:
     meta = session.get_modelmeta().custom_metadata_map
     if METADATA_KEY not in meta:
         raise ModelLoadError(f"{path}: not an itnet model (no '{METADATA_KEY}' metadata)")
-    return ModelCard.model_validate_json(meta[METADATA_KEY])
+    try:
+        return ModelCard.model_validate_json(meta[METADATA_KEY])
+    except ValueError as err:  # pydantic's ValidationError: a corrupt or foreign card
+        raise ModelLoadError(f"{path}: unreadable model card ({err})") from None
 
 
-def load_model(path: Path, threads: int = 2, warm_up: bool = True) -> LoadedModel:
-    """Load one .onnx step graph. Raises ModelLoadError with the reason."""
+def load_model(
+    path: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+) -> LoadedModel:
+    """Load one .onnx step graph. Raises ModelLoadError with the reason. ``concurrent_steps``
+    defaults to :func:`default_concurrent_steps`."""
     if not path.is_file():
         raise ModelLoadError(f"{path}: model file not found")
     try:
@@ -112,16 +162,19 @@ def load_model(path: Path, threads: int = 2, warm_up: bool = True) -> LoadedMode
     names = [i.name for i in session.get_inputs()]
     if names != ["points", "pose"]:
         raise ModelLoadError(f"{path}: expected inputs ['points', 'pose'], found {names}")
-    model = LoadedModel(read_card(session, path), path, session)
+    steps = concurrent_steps or default_concurrent_steps(threads)
+    model = LoadedModel(read_card(session, path), path, session, concurrent_steps=steps)
     if warm_up:
         model.warm_up()
     return model
 
 
-def load_models(directory: Path, threads: int = 2, warm_up: bool = True) -> dict[str, LoadedModel]:
+def load_models(
+    directory: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+) -> dict[str, LoadedModel]:
     """Every .onnx model in a directory, by card name. Raises ModelLoadError if there is none."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
     if not paths:
         raise ModelLoadError(f"{directory}: no .onnx models found")
-    models = [load_model(p, threads, warm_up) for p in paths]
+    models = [load_model(p, threads, warm_up, concurrent_steps) for p in paths]
     return {m.card.name: m for m in models}

@@ -1,21 +1,59 @@
-"""Launch the service under uvicorn: one process, or several workers that each load the models."""
+"""Launch the service under uvicorn: one process, or several workers that each load the models.
+
+The connection-level limits (``Settings.server``) become uvicorn's options, see
+:func:`uvicorn_options`. SIGTERM drains: uvicorn stops accepting connections, lets the requests in
+flight finish (up to ``graceful_shutdown_s``), and the process then exits with status 0.
+"""
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
+import threading
+from types import FrameType
+from typing import Any
 
 from fastapi import FastAPI
 
 from itnet.service.app import create_app
+from itnet.service.protocol import GuardedHttpToolsProtocol
 from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 
 FACTORY = "itnet.service.server:app_from_env"
+log = logging.getLogger("itnet.service")
 
 
 def app_from_env() -> FastAPI:
     """The uvicorn factory of worker processes: settings from the ``ITNET_*`` environment."""
-    return create_app(Settings())
+    settings = Settings()
+    GuardedHttpToolsProtocol.configure(settings.server)
+    return create_app(settings)
+
+
+def uvicorn_options(settings: Settings) -> dict[str, Any]:
+    """``Settings`` -> keyword arguments of ``uvicorn.run``: every connection-level limit."""
+    server, limits = settings.server, settings.limits
+    return {
+        "http": GuardedHttpToolsProtocol,  # header timeout and size cap (protocol.py)
+        # Our own size check answers with an error message first; uvicorn's is the backstop.
+        "ws_max_size": limits.max_ws_message_bytes + 4096,
+        "ws_max_queue": server.ws_max_queue,
+        "ws_ping_interval": server.ws_ping_interval_s,
+        "ws_ping_timeout": server.ws_ping_timeout_s,
+        "limit_concurrency": server.max_connections,
+        "backlog": server.backlog,
+        "timeout_keep_alive": server.keep_alive_s,
+        "timeout_graceful_shutdown": server.graceful_shutdown_s,
+    }
+
+
+def _exit_after_drain(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM outside uvicorn's own handler: before serving, or re-raised by uvicorn once it
+    has drained. Either way the stop was asked for: exit 0."""
+    log.info("stopped by signal %d", signum)
+    raise SystemExit(0)
 
 
 def settings_to_env(settings: Settings) -> dict[str, str]:
@@ -46,19 +84,15 @@ def run(
     load their own from ``settings`` passed through the environment."""
     import uvicorn
 
-    # Our own size check answers with an error message first; uvicorn's limit is the backstop.
-    ws_max_size = settings.limits.max_ws_message_bytes + 4096
+    options = uvicorn_options(settings)
     if workers == 1:
+        GuardedHttpToolsProtocol.configure(settings.server)
         app = create_app(settings, models)
-        uvicorn.run(app, host=host, port=port, log_level=log_level, ws_max_size=ws_max_size)
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, _exit_after_drain)
+        uvicorn.run(app, host=host, port=port, log_level=log_level, **options)
         return
     os.environ.update(settings_to_env(settings))
     uvicorn.run(
-        FACTORY,
-        factory=True,
-        workers=workers,
-        host=host,
-        port=port,
-        log_level=log_level,
-        ws_max_size=ws_max_size,
+        FACTORY, factory=True, workers=workers, host=host, port=port, log_level=log_level, **options
     )

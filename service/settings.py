@@ -38,6 +38,14 @@ class LimitSettings(BaseModel):
     ws_request_timeout_s: float = Field(
         default=10.0, gt=0, description="wait for a WebSocket's first message, seconds"
     )
+    ws_send_timeout_s: float = Field(
+        default=5.0,
+        gt=0,
+        description="a stream message the client has not taken in this time: it is gone, seconds",
+    )
+    body_timeout_s: float = Field(
+        default=30.0, gt=0, description="the whole HTTP body must arrive within this, seconds"
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> LimitSettings:
@@ -53,6 +61,36 @@ class LimitSettings(BaseModel):
             max_budget_ms=self.max_budget_ms,
             max_iterations=self.max_iterations,
         )
+
+
+class ServerSettings(BaseModel):
+    """The connection-level limits, enforced by uvicorn and ``itnet.service.protocol``."""
+
+    max_connections: int = Field(
+        default=256,
+        ge=1,
+        description="open connections + tasks (uvicorn limit_concurrency); beyond: a plain 503",
+    )
+    backlog: int = Field(default=512, ge=1, description="TCP accept queue length")
+    keep_alive_s: int = Field(default=5, ge=1, description="idle keep-alive connection, seconds")
+    header_timeout_s: float = Field(
+        default=10.0, gt=0, description="request line + headers must arrive within this, seconds"
+    )
+    max_header_bytes: int = Field(
+        default=64 * 1024, ge=1024, description="request line + headers, bytes; beyond: 431"
+    )
+    graceful_shutdown_s: int = Field(
+        default=30, ge=1, description="SIGTERM: how long in-flight requests may finish, seconds"
+    )
+    ws_ping_interval_s: float = Field(
+        default=20.0, gt=0, description="WebSocket ping interval, seconds"
+    )
+    ws_ping_timeout_s: float = Field(
+        default=20.0, gt=0, description="a WebSocket without a pong in this time is closed"
+    )
+    ws_max_queue: int = Field(
+        default=4, ge=1, description="received WebSocket messages buffered per connection"
+    )
 
 
 class Settings(BaseSettings):
@@ -72,8 +110,14 @@ class Settings(BaseSettings):
     threads: int = Field(
         default=2, ge=1, le=64, description="onnxruntime intra-op threads per model"
     )
+    concurrent_steps: int | None = Field(
+        default=None,
+        ge=1,
+        description="steps of one model run at once, others wait (default: cores // threads)",
+    )
     warm_up: bool = Field(default=True, description="run a few steps per model at start-up")
     limits: LimitSettings = Field(default_factory=lambda: LimitSettings())
+    server: ServerSettings = Field(default_factory=lambda: ServerSettings())
 
     @field_validator("model_dir")
     @classmethod

@@ -72,7 +72,10 @@ class ServiceState:
         if not self.models:
             try:
                 self.models = load_models(
-                    self.settings.model_dir, self.settings.threads, self.settings.warm_up
+                    self.settings.model_dir,
+                    self.settings.threads,
+                    self.settings.warm_up,
+                    self.settings.concurrent_steps,
                 )
             except ModelLoadError as err:
                 self.load_error = str(err)
@@ -114,8 +117,11 @@ class ServiceState:
             )
         return self.models[name]
 
-    def start_run(self, points: ArrayLike, params: EstimateParams) -> AnytimeRun:
-        """Validate and normalise the cloud and set up the run (CPU: call from a worker thread)."""
+    def start_run(
+        self, points: ArrayLike, params: EstimateParams, arrived: float | None = None
+    ) -> AnytimeRun:
+        """Validate and normalise the cloud and set up the run (CPU: call from a worker thread).
+        The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in)."""
         model = self.model(params.model)
         limits = self.settings.limits
         if params.budget_ms > limits.max_budget_ms:
@@ -142,6 +148,7 @@ class ServiceState:
                 budget_ms=params.budget_ms,
                 max_iterations=iterations,
                 limits=limits.engine_limits(),
+                started=arrived,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
+from itnet.service.runtime import LoadedModel
 
 
 def make_tiny_net(seed: int = 0):  # type: ignore[no-untyped-def]
@@ -27,6 +33,13 @@ def make_tiny_net(seed: int = 0):  # type: ignore[no-untyped-def]
     return net.eval()
 
 
+@pytest.fixture
+def tiny_net():  # type: ignore[no-untyped-def]
+    """The network inside ``tiny_model_dir`` (same seed), in torch. (A fixture rather than an
+    import: with several conftest.py files, ``from conftest import`` finds whichever came last.)"""
+    return make_tiny_net()
+
+
 @pytest.fixture(scope="session")
 def tiny_model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder with ``tiny.onnx`` (model name 'tiny', category 'chair', 256 points)."""
@@ -42,3 +55,37 @@ def tiny_model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+@dataclass
+class SlowModel(LoadedModel):
+    """A model with ``delay_s`` of sleep per step (stands in for a big model), counting the steps
+    it has run."""
+
+    delay_s: float = 0.03
+    steps: int = 0
+
+    def step(
+        self, points: NDArray[np.float32], pose: NDArray[np.float32]
+    ) -> tuple[NDArray, NDArray]:
+        time.sleep(self.delay_s)
+        self.steps += 1
+        return super().step(points, pose)
+
+
+def _slow_copy(model: LoadedModel, delay_s: float, concurrent_steps: int = 8) -> SlowModel:
+    """Its steps sleep rather than compute, so several may run at once without sharing cores
+    (a real model on a small machine gets ``cores // threads`` step slots)."""
+    return SlowModel(
+        card=model.card,
+        path=model.path,
+        session=model.session,
+        delay_s=delay_s,
+        concurrent_steps=concurrent_steps,
+    )
+
+
+@pytest.fixture(scope="session")
+def slow_copy() -> Callable[..., SlowModel]:
+    """``slow_copy(model, delay_s, concurrent_steps=8)``: a copy whose steps sleep ``delay_s``."""
+    return _slow_copy

@@ -7,10 +7,8 @@ from itnet.service.runtime import load_model
 
 
 @pytest.mark.parametrize(("batch", "points"), [(1, 1024), (3, 100), (8, 37), (2, 4096)])
-def test_onnx_matches_torch_on_random_weights(tiny_model_dir, batch, points, rng):
-    from conftest import make_tiny_net
-
-    net = make_tiny_net()
+def test_onnx_matches_torch_on_random_weights(tiny_model_dir, tiny_net, batch, points, rng):
+    net = tiny_net
     model = load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
     x = rng.normal(size=(batch, points, 3)).astype(np.float32)
     # a non-identity starting pose exercises the transform-then-compose path of the graph

@@ -171,6 +171,12 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
         f"{refine}); hypothesis {chosen.source}, fitness {chosen.fitness:.3f}, "
         f"rmse {chosen.rmse:.4g}, confidence {result.confidence['confidence']:.2f}"
     )
+    if chosen.icp is not None:
+        typer.echo(
+            f"icp (point-to-plane, open3d): fitness {chosen.icp['fitness']:.3f}, "
+            f"inlier rmse {chosen.icp['rmse']:.4g} (correspondences within "
+            f"{result.icp_distance:.4g})"
+        )
     if result.chosen != 0:
         first = result.hypotheses[0]
         typer.echo(

@@ -21,6 +21,8 @@ def serve(
     Other settings: ITNET_* environment variables (docs/service.md).
 
     A missing or corrupt model file: a message and exit code 2, before the port is bound.
+    SIGTERM drains: new connections are refused, requests in flight finish (up to
+    ITNET_SERVER__GRACEFUL_SHUTDOWN_S), then exit code 0.
     """
     from pydantic import ValidationError
 
@@ -35,7 +37,9 @@ def serve(
         raise typer.Exit(2) from None
     try:
         # A single process keeps these; workers reload them, so skip the warm-up here.
-        models = load_models(settings.model_dir, settings.threads, warm_up=workers == 1)
+        models = load_models(
+            settings.model_dir, settings.threads, workers == 1, settings.concurrent_steps
+        )
     except (ModelLoadError, ValueError) as err:  # ValueError: an unreadable model card
         typer.echo(f"error: cannot load the models: {err}", err=True)
         raise typer.Exit(2) from None

@@ -68,8 +68,13 @@ def test_refine_reports_fit(tiny_model_dir):
     assert result.exit_code == 0, result.output
     reply = json.loads(result.stdout)
     assert reply["refined"] is True and reply["hypothesis"].endswith("+icp")
-    assert {h["source"] for h in reply["hypotheses"]} == {"itnet+icp", "itnet+yaw180+icp"}
+    sources = [h["source"] for h in reply["hypotheses"]]
+    assert sources == [f"itnet{s}+icp" for s in ("", "+yaw90", "+yaw180", "+yaw270")]
     assert 0 <= reply["fitness"] <= 1 and reply["timings_ms"]["refine"] > 0
+    assert reply["icp_distance"] == pytest.approx(2 * reply["inlier_distance"], rel=1e-3)
+    assert all(0 <= h["icp"]["fitness"] <= 1 and h["icp"]["rmse"] >= 0 for h in reply["hypotheses"])
+    text = run(tiny_model_dir, A, B, "--refine")
+    assert "icp (point-to-plane, open3d): fitness" in text.stdout
 
 
 @pytest.mark.parametrize("which", ["a", "b"])

@@ -80,6 +80,8 @@ def test_symmetric_hypothesis_recovers_a_pose_flipped_about_up(rng):
     # IT-Net took A's front for its back: its estimate is off by the flip.
     hyps = build_hypotheses([flip @ t_ca], [t_cb], symmetry_rotations("yaw180"), scale=1.0)
     assert [h.source for h in hyps] == ["itnet", "itnet+yaw180"]
+    quarter = build_hypotheses([t_ca], [t_cb], symmetry_rotations("yaw90"), scale=1.0)
+    assert [h.source for h in quarter] == ["itnet", *(f"itnet+yaw{a}" for a in (90, 180, 270))]
     assert rotation_error_deg(hyps[0].T_b_from_a[:3, :3], truth[:3, :3]) > 170
     assert np.allclose(hyps[1].T_b_from_a, truth, atol=1e-9)
 
@@ -152,24 +154,32 @@ def fake_estimator(clouds_and_poses, calls):
     return estimate
 
 
-def test_align_clouds_switches_to_the_symmetric_hypothesis_when_the_geometry_says_so(rng):
+def flipped_pair(rng):
+    """Clouds A, B of one lopsided object, and an estimator that reads A turned 180 degrees about
+    up (B right): the case the symmetry hypotheses are for."""
     obj = asymmetric_object(rng)
     t_ca, t_cb = random_pose(rng), random_pose(rng)
     a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
     flip = symmetry_rotations("yaw180")[0]
     calls: list[int] = []
     estimate = fake_estimator([(a, flip @ t_ca), (b, t_cb)], calls)
+    return a, b, relative_pose(t_ca, t_cb), estimate, calls
+
+
+def test_align_clouds_without_icp_keeps_itnet_but_reports_the_better_rival(rng):
+    a, b, truth, estimate, calls = flipped_pair(rng)
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180"))
-    assert result.hypotheses[result.chosen].source == "itnet+yaw180"
-    assert np.allclose(result.T_b_from_a, relative_pose(t_ca, t_cb), atol=1e-9)
-    assert result.confidence["fitness"] > 0.95 and result.confidence["confidence"] > 0.5
     assert calls == [len(a), len(b)] and result.iterations == 8
-    # Without symmetry hypotheses the flipped estimate stands, and says it fits badly.
-    plain = align_clouds(a, b, estimate, AlignOptions(symmetry="none"))
-    assert plain.chosen == 0 and plain.confidence["fitness"] < 0.5
-    reply = plain.to_dict()
-    assert reply["hypothesis"] == "itnet" and np.allclose(reply["T_b_from_a"], plain.T_b_from_a)
-    assert reply["T_canonical_from_a"]["T_canonical_from_input"] == (flip @ t_ca).tolist()
+    itnet, flipped = result.hypotheses
+    assert result.chosen == 0 and itnet.source == "itnet"
+    assert np.allclose(flipped.T_b_from_a, truth, atol=1e-9)
+    assert flipped.fitness > 0.95 > 0.5 > itnet.fitness
+    # A rival that fits better makes the margin negative: no confidence at all.
+    assert result.confidence["margin"] < 0 and result.confidence["confidence"] == 0
+    reply = result.to_dict()
+    assert reply["hypothesis"] == "itnet" and np.allclose(reply["T_b_from_a"], itnet.T_b_from_a)
+    assert reply["refined"] is False and reply["icp_distance"] == 0
+    assert [h["source"] for h in reply["hypotheses"]] == ["itnet", "itnet+yaw180"]
 
 
 def test_align_clouds_names_the_cloud_that_failed(rng):

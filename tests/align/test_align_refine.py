@@ -7,12 +7,15 @@ from itnet.geometry import (
     apply_rigid,
     axis_angle_to_matrix,
     invert_rigid,
+    random_rotation,
     rigid_from_rotation_translation,
     rotation_error_deg,
 )
 
 o3d = pytest.importorskip("open3d")
 
+from itnet.align import symmetry_rotations  # noqa: E402
+from itnet.alignment import AlignOptions, PoseEstimate, align_clouds  # noqa: E402
 from itnet.refine import IcpRefiner, icp_point_to_plane  # noqa: E402
 
 
@@ -26,15 +29,17 @@ def small_motion(deg: float, shift: list[float], axis=(0.3, 1.0, -0.2)) -> np.nd
     return rigid_from_rotation_translation(rot, shift)
 
 
+def torus():
+    return o3d.geometry.TriangleMesh.create_torus(torus_radius=1.0, tube_radius=0.3)
+
+
+def box():
+    return o3d.geometry.TriangleMesh.create_box(1.0, 0.6, 0.3)
+
+
+# The torus turns about an axis in its plane: a turn about its own axis (z) is invisible.
 @pytest.mark.parametrize(
-    ("make", "axis"),
-    [
-        # The torus turns about an axis in its plane: a turn about its own axis (z) is invisible.
-        (lambda: o3d.geometry.TriangleMesh.create_torus(torus_radius=1.0, tube_radius=0.3),
-         (1.0, 0.4, 0.0)),
-        (lambda: o3d.geometry.TriangleMesh.create_box(1.0, 0.6, 0.3), (0.3, 1.0, -0.2)),
-    ],  # fmt: skip
-    ids=["torus", "box"],
+    ("make", "axis"), [(torus, (1.0, 0.4, 0.0)), (box, (0.3, 1.0, -0.2))], ids=["torus", "box"]
 )
 def test_icp_recovers_a_known_small_motion(make, axis):
     mesh = make()
@@ -50,9 +55,8 @@ def test_icp_recovers_a_known_small_motion(make, axis):
 def test_icp_on_a_partial_view_keeps_a_right_start():
     # B sees only part of the box: a correct start must stay put (the Tukey kernel and the
     # correspondence cut-off stop A's unseen part from dragging it).
-    box = o3d.geometry.TriangleMesh.create_box(1.0, 0.6, 0.3)
-    a = sampled(box, 2000, seed=3)
-    part = sampled(box, 2000, seed=4)
+    a = sampled(box(), 2000, seed=3)
+    part = sampled(box(), 2000, seed=4)
     part = part[(part[:, 0] > 0.4) & (part[:, 2] > 0.1)]
     b_from_a = small_motion(40.0, [1.0, 2.0, 3.0])
     b = apply_rigid(b_from_a, part)
@@ -73,3 +77,28 @@ def test_icp_on_a_partial_view_keeps_a_right_start():
 def test_bad_distance_is_refused():
     with pytest.raises(ValueError, match="max_distance"):
         IcpRefiner(np.zeros((10, 3)), np.zeros((10, 3)), max_distance=0.0)
+
+
+def test_align_clouds_with_icp_switches_to_the_symmetric_hypothesis(rng):
+    # A lopsided object (a slab and a post on one corner) seen in two frames, and an estimator
+    # that reads A turned 180 degrees about up, and 4 degrees off on top of that.
+    obj = np.concatenate([rng.uniform([-1, -0.1, -0.6], [1, 0.1, 0.6], size=(300, 3)),
+                          rng.uniform([0.6, 0.1, -0.6], [1, 1.2, -0.3], size=(300, 3))])  # fmt: skip
+    t_ca = rigid_from_rotation_translation(random_rotation(rng), [0.3, -0.2, 2.5])
+    t_cb = rigid_from_rotation_translation(random_rotation(rng), [-0.4, 0.1, 3.0])
+    a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
+    truth = invert_rigid(t_cb) @ t_ca
+    misread = symmetry_rotations("yaw180")[0] @ small_motion(4.0, [0, 0, 0]) @ t_ca
+
+    def estimate(points):
+        pose = misread if points is a else t_cb
+        return PoseEstimate(pose, 3, 1.0, "max_iterations")
+
+    result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", refine=True))
+    assert result.hypotheses[result.chosen].source == "itnet+yaw180+icp"
+    assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
+    assert result.confidence["fitness"] > 0.9 and result.confidence["confidence"] > 0.9
+    # Without the symmetry hypotheses, ICP alone cannot undo a half turn.
+    plain = align_clouds(a, b, estimate, AlignOptions(symmetry="none", refine=True))
+    assert rotation_error_deg(plain.T_b_from_a[:3, :3], truth[:3, :3]) > 90
+    assert plain.confidence["confidence"] < 0.5

@@ -90,6 +90,9 @@ def test_unreachable_service_is_a_connection_error():
 
 
 def test_the_client_imports_neither_torch_nor_the_service():
-    code = "import sys, itnet.clients; print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime', 'fastapi') or m.startswith('itnet.service')))"  # noqa: E501
+    code = (
+        "import sys, itnet.clients; print(sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('torch', 'onnxruntime', 'fastapi') or m.startswith('itnet.service')))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

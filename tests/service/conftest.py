@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -34,26 +33,6 @@ def cloud(n: int = 300, seed: int = 0) -> NDArray[np.float32]:
     return (rng.uniform(-1, 1, size=(n, 3)) * [0.3, 0.5, 0.2] + [1.0, -2.0, 3.0]).astype(np.float32)
 
 
-@dataclass
-class SlowModel(LoadedModel):
-    """The tiny model with ``delay_s`` of sleep per step (stands in for a big model), counting
-    the steps it has run."""
-
-    delay_s: float = 0.03
-    steps: int = 0
-
-    def step(
-        self, points: NDArray[np.float32], pose: NDArray[np.float32]
-    ) -> tuple[NDArray, NDArray]:
-        time.sleep(self.delay_s)
-        self.steps += 1
-        return super().step(points, pose)
-
-
-def slow_copy(model: LoadedModel, delay_s: float) -> SlowModel:
-    return SlowModel(card=model.card, path=model.path, session=model.session, delay_s=delay_s)
-
-
 @pytest.fixture(scope="session")
 def make_cloud() -> Callable[..., NDArray[np.float32]]:
     return cloud
@@ -72,7 +51,7 @@ def client(settings: Settings) -> Iterator[TestClient]:
 
 
 @pytest.fixture(scope="module")
-def slow_model(settings: Settings) -> SlowModel:
+def slow_model(settings: Settings, slow_copy: Callable[..., Any]) -> Any:
     (model,) = load_models(settings.model_dir, warm_up=False).values()
     slow = slow_copy(model, delay_s=0.03)
     slow.warm_up(runs=2)  # as at start-up: the engine then knows a step takes 30 ms
@@ -80,7 +59,7 @@ def slow_model(settings: Settings) -> SlowModel:
 
 
 @pytest.fixture(scope="module")
-def slow_client(settings: Settings, slow_model: SlowModel) -> Iterator[TestClient]:
+def slow_client(settings: Settings, slow_model: LoadedModel) -> Iterator[TestClient]:
     """A client of an app whose model takes 30 ms a step."""
     with TestClient(create_app(settings, models={"tiny": slow_model})) as test_client:
         yield test_client

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping
 from typing import Any
 
 import anyio
 from fastapi import APIRouter, Request
 
-from itnet.service.api.deps import BodyDep, StateDep
+from itnet.service.api.deps import ArrivedDep, BodyDep, StateDep
 from itnet.service.decode import decode_http
 from itnet.service.engine import AnytimeRun, Estimate
 from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
@@ -69,25 +70,75 @@ OPENAPI_EXTRA = {
     openapi_extra=OPENAPI_EXTRA,
     summary="Estimate T_canonical_from_input of one cloud within a time budget",
 )
-async def estimate(request: Request, body: BodyDep, state: StateDep) -> dict[str, Any]:
+async def estimate(
+    request: Request, arrived: ArrivedDep, body: BodyDep, state: StateDep
+) -> dict[str, Any]:
     """Send the cloud as JSON, or as raw float32 (``Content-Type: application/octet-stream``)
     with the parameters in the query string. The reply is the final pose in the input's units,
     every per-iteration estimate, the iteration count and why the loop stopped (``budget``,
-    ``max_iterations``, ``converged``). ``elapsed_ms`` stays within ``budget_ms`` up to
-    scheduling noise."""
+    ``max_iterations``, ``converged``). ``elapsed_ms`` counts from the request's arrival and
+    stays within ``budget_ms`` up to scheduling noise. A client that disconnects stops the run."""
     content_type, query = request.headers.get("content-type"), dict(request.query_params)
+    handle = _RunHandle()
     with state.gate.slot():
-        # Decoding, validation and every step are CPU work: one worker thread per request.
-        run, estimates = await anyio.to_thread.run_sync(
-            _decode_and_run, state, body, content_type, query
-        )
-    state.metrics.observe_run(run.model.card.name, run.iteration, str(run.stopped_by))
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(_watch_disconnect, request, handle)
+            # Decoding, validation and every step are CPU work: one worker-thread hop (each hop
+            # waits for the GIL, which is costly when many requests are in flight).
+            outcome = await anyio.to_thread.run_sync(
+                _decode_and_run, state, body, content_type, query, arrived, handle
+            )
+            tasks.cancel_scope.cancel()
+    if isinstance(outcome, Exception):
+        raise outcome
+    run, estimates = outcome
+    stopped_by = "disconnected" if handle.client_left else str(run.stopped_by)
+    state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)
     return {**run.result(), "estimates": [e.to_dict() for e in estimates]}
 
 
+class _RunHandle:
+    """One request's run and whether its client left (set from two threads, hence the lock)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._run: AnytimeRun | None = None
+        self.client_left = False
+
+    def attach(self, run: AnytimeRun) -> None:
+        with self._lock:
+            self._run = run
+            if self.client_left:
+                run.cancel()
+
+    def client_gone(self) -> None:
+        with self._lock:
+            self.client_left = True
+            if self._run is not None:
+                self._run.cancel()
+
+
+async def _watch_disconnect(request: Request, handle: _RunHandle) -> None:
+    """Wait for the client to leave, then cancel its run: no step starts after that."""
+    while (await request.receive())["type"] != "http.disconnect":
+        pass
+    handle.client_gone()
+
+
 def _decode_and_run(
-    state: ServiceState, body: bytes, content_type: str | None, query: Mapping[str, str]
-) -> tuple[AnytimeRun, list[Estimate]]:
-    points, params = decode_http(body, content_type, query)
-    run = state.start_run(points, params)
+    state: ServiceState,
+    body: bytes,
+    content_type: str | None,
+    query: Mapping[str, str],
+    arrived: float,
+    handle: _RunHandle,
+) -> tuple[AnytimeRun, list[Estimate]] | Exception:
+    """Decode, validate and run to the end (the error is returned, not raised: an exception
+    would leave the task group wrapped in an ExceptionGroup)."""
+    try:
+        points, params = decode_http(body, content_type, query)
+        run = state.start_run(points, params, arrived)
+    except Exception as err:
+        return err
+    handle.attach(run)
     return run, list(run)

@@ -10,7 +10,9 @@ Protocol (one request per connection):
 
 An error is ``{"type": "error", "detail": ..., "kind": ...}`` then a close: 1008 (bad request),
 1003 (binary message), 1009 (too big), 1013 (busy), 1011 (server fault). A client that leaves
-stops the work: no step starts after the disconnect is seen.
+stops the work: no step starts after the disconnect is seen; so does one that does not take a
+message within ``ws_send_timeout_s`` (a stalled reader). The budget counts from the request's
+arrival (the first message).
 """
 
 from __future__ import annotations
@@ -64,17 +66,19 @@ async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     text = await _first_message(websocket, state)
     if text is None:
         return 1006
+    arrived, send_timeout_s = time.perf_counter(), state.settings.limits.ws_send_timeout_s
     with state.gate.slot():
-        run = await anyio.to_thread.run_sync(_prepare, state, text)
-        peer = await _stream_run(websocket, run)
+        run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
+        peer = await _stream_run(websocket, run, send_timeout_s)
     stopped_by = "disconnected" if peer.disconnected else str(run.stopped_by)
     state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)
     if peer.disconnected:
         return 1006
     try:
-        await websocket.send_json({"type": "result", **run.result()})
-        await websocket.close(1000)
-    except SEND_ERRORS:
+        with anyio.fail_after(send_timeout_s):
+            await websocket.send_json({"type": "result", **run.result()})
+            await websocket.close(1000)
+    except (*SEND_ERRORS, TimeoutError):
         return 1006
     return 1000
 
@@ -102,14 +106,15 @@ async def _first_message(websocket: WebSocket, state: ServiceState) -> str | Non
     return text
 
 
-def _prepare(state: ServiceState, text: str) -> AnytimeRun:
+def _prepare(state: ServiceState, text: str, arrived: float) -> AnytimeRun:
     points, request = decode_json(text, schema=StreamRequest)
-    return state.start_run(points, request)
+    return state.start_run(points, request, arrived)
 
 
-async def _stream_run(websocket: WebSocket, run: AnytimeRun) -> _Peer:
+async def _stream_run(websocket: WebSocket, run: AnytimeRun, send_timeout_s: float) -> _Peer:
     """Step the run in a worker thread, one step at a time, sending each estimate; meanwhile
-    listen for a cancel or a disconnect, either of which cancels the run before its next step."""
+    listen for a cancel or a disconnect, either of which cancels the run before its next step.
+    A send that the client does not take within ``send_timeout_s`` counts as a disconnect."""
     peer = _Peer()
     async with anyio.create_task_group() as tasks:
         tasks.start_soon(_listen, websocket, run, peer)
@@ -118,8 +123,9 @@ async def _stream_run(websocket: WebSocket, run: AnytimeRun) -> _Peer:
             if estimate is None or peer.disconnected:
                 break
             try:
-                await websocket.send_json({"type": "estimate", **estimate.to_dict()})
-            except SEND_ERRORS:
+                with anyio.fail_after(send_timeout_s):
+                    await websocket.send_json({"type": "estimate", **estimate.to_dict()})
+            except (*SEND_ERRORS, TimeoutError):
                 peer.disconnected = True
                 run.cancel()
         tasks.cancel_scope.cancel()
@@ -155,8 +161,9 @@ async def _refuse(websocket: WebSocket, state: ServiceState, err: ServiceError) 
     """Send the error message and close with the fitting code."""
     state.metrics.observe_error(err.kind)
     try:
-        await websocket.send_json({"type": "error", **err.body()})
-        await websocket.close(err.ws_close_code, reason=err.kind)
-    except SEND_ERRORS:
+        with anyio.fail_after(state.settings.limits.ws_send_timeout_s):
+            await websocket.send_json({"type": "error", **err.body()})
+            await websocket.close(err.ws_close_code, reason=err.kind)
+    except (*SEND_ERRORS, TimeoutError):
         return 1006
     return err.ws_close_code

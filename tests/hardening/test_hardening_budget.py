@@ -1,0 +1,125 @@
+"""The anytime budget under concurrency: it counts from the request's arrival, a run waits for a
+step slot only as long as its budget allows, and concurrent runs of a CPU-bound model keep their
+budgets (the bug: all their steps ran at once, each slower than predicted, and overran)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from hardening_helpers import live_server
+
+from itnet.service.engine import AnytimeRun
+from itnet.service.runtime import LoadedModel, load_model
+from itnet.service.settings import Settings
+
+# What a run may exceed its budget by: scheduling noise on a loaded 2-core machine, the final
+# estimate's bookkeeping, and a step somewhat slower than its prediction.
+MARGIN_MS = 15.0
+
+
+def test_the_budget_counts_from_arrival(slow: LoadedModel, points: list) -> None:
+    """A request that arrived 40 ms ago with 50 ms to spend cannot fit a 20 ms step."""
+    run = AnytimeRun(slow, points, budget_ms=50, max_iterations=10,
+                     started=time.perf_counter() - 0.040)  # fmt: skip
+    assert run.run_to_end() is run.last
+    assert (run.iteration, run.stopped_by) == (0, "budget")
+    assert 40 <= run.elapsed_ms() < 50
+
+
+def test_a_run_waits_for_a_step_slot_only_as_long_as_its_budget_allows(
+    tiny: LoadedModel, slow_copy: Callable[..., Any], points: list
+) -> None:
+    model = slow_copy(tiny, delay_s=0.02, concurrent_steps=1)
+    model.warm_up(runs=2)
+    holding, release = threading.Event(), threading.Event()
+
+    def hog() -> None:
+        with model.step_slot(1.0):
+            holding.set()
+            release.wait(5)
+
+    threading.Thread(target=hog).start()
+    assert holding.wait(5)
+    try:
+        run = AnytimeRun(model, points, budget_ms=100, max_iterations=10)
+        run.run_to_end()
+    finally:
+        release.set()
+    assert (run.iteration, run.stopped_by) == (0, "budget")
+    assert 60 <= run.elapsed_ms() <= 100  # gave up when a step could no longer fit
+
+
+def test_the_step_prediction_covers_scattered_steps_then_forgets_them(tiny: LoadedModel) -> None:
+    """Two steps in twenty took 50 ms instead of 10: the next step is planned at 50 ms (the
+    mean alone would let one run in ten overrun); two seconds later only the mean is left."""
+    fresh, stale = (LoadedModel(tiny.card, tiny.path, tiny.session) for _ in range(2))
+    for model, at in ((fresh, None), (stale, time.perf_counter() - 3.0)):
+        for ms in [10.0] * 9 + [50.0] + [10.0] * 9 + [50.0]:
+            model.record_step_ms(ms, at=at)
+    assert fresh.step_ms < 20 and fresh.predicted_step_ms() == 50.0
+    assert stale.predicted_step_ms() == stale.step_ms < 20
+
+
+def overruns(model: LoadedModel, points: list, runs: int, budget_ms: float) -> list[float]:
+    """``runs`` runs at once in threads; each one's elapsed time minus its budget, in ms."""
+
+    def one(_: int) -> float:
+        run = AnytimeRun(model, points, budget_ms=budget_ms, max_iterations=100,
+                         converge_rotation_deg=0, converge_translation=0)  # fmt: skip
+        run.run_to_end()
+        return run.elapsed_ms() - budget_ms
+
+    with ThreadPoolExecutor(runs) as pool:
+        return list(pool.map(one, range(runs)))
+
+
+@pytest.mark.slow
+def test_concurrent_cpu_bound_runs_keep_their_budgets(heavy_model_dir: Path, points: list) -> None:
+    """Eight runs at once of a 10 ms CPU-bound step, one step slot per two cores: none overruns
+    by more than the margin, and the steps still make progress."""
+    model = load_model(heavy_model_dir / "tiny.onnx", threads=1, concurrent_steps=1)
+    late = [ms for _ in range(3) for ms in overruns(model, points, runs=8, budget_ms=80)]
+    assert max(late) <= MARGIN_MS, sorted(late)[-5:]
+
+
+@pytest.mark.slow
+def test_a_live_server_under_load_keeps_the_budget(
+    heavy_model_dir: Path, settings: Settings, points: list
+) -> None:
+    """Twelve clients in closed loops for 2 s against 4 slots: every answer within budget plus
+    the margin, the excess refused at once, nothing else. (The clients are coroutines of one
+    thread: client threads would fight the server for this process's GIL.)"""
+    model = load_model(heavy_model_dir / "tiny.onnx", threads=1, concurrent_steps=1)
+    budget_ms = 60.0
+    request = {"points": points, "budget_ms": budget_ms, "max_iterations": 100}
+
+    async def load(url: str) -> list[tuple[int, dict]]:
+        replies: list[tuple[int, dict]] = []
+        stop = time.perf_counter() + 2.0
+
+        async def client(http: httpx.AsyncClient) -> None:
+            while time.perf_counter() < stop:
+                reply = await http.post("/v1/estimate", json=request)
+                replies.append((reply.status_code, reply.json()))
+
+        async with httpx.AsyncClient(base_url=url, timeout=10) as http:
+            await asyncio.gather(*(client(http) for _ in range(12)))
+        return replies
+
+    with live_server(settings, {"tiny": model}) as server:
+        replies = asyncio.run(load(server.url))
+    statuses = {status for status, _ in replies}
+    assert statuses <= {200, 503}, statuses
+    elapsed = np.array([body["elapsed_ms"] for status, body in replies if status == 200])
+    steps = sum(body["iterations"] for status, body in replies if status == 200)
+    assert len(elapsed) > 20 and steps > 20
+    assert elapsed.max() <= budget_ms + MARGIN_MS, np.sort(elapsed)[-5:]

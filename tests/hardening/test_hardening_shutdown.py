@@ -1,0 +1,91 @@
+"""SIGTERM to ``itnet serve`` while requests run: the listening socket closes at once (new
+connections are refused), the HTTP requests in flight finish with their full answer, streams in
+flight are closed with 1012 (service restart) and their runs stop, and the process exits 0."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+from hardening_helpers import wait_for
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+
+def refused(port: int) -> bool:
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+    except ConnectionRefusedError:
+        return True
+    return False
+
+
+def in_flight(url: str) -> float:
+    for line in httpx.get(f"{url}/metrics").text.splitlines():
+        if line.startswith("itnet_in_flight "):
+            return float(line.split()[1])
+    raise AssertionError("no itnet_in_flight in /metrics")
+
+
+def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, points: list) -> None:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    command = [sys.executable, "-c", "from itnet.cli import app; app()", "serve", "--port",
+               str(port), "--model-dir", str(heavy_model_dir), "--log-level", "info"]  # fmt: skip
+    env = {**os.environ, "ITNET_THREADS": "1", "ITNET_SERVER__GRACEFUL_SHUTDOWN_S": "10"}
+    log = (tmp_path / "server.log").open("w+")
+    server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: server.poll() is not None or not refused(port), 30)
+        request = {"points": points, "budget_ms": 1500, "max_iterations": 200}
+        replies: list[tuple[httpx.Response, float]] = []
+
+        def post() -> None:
+            reply = httpx.post(f"{url}/v1/estimate", json=request, timeout=20)
+            replies.append((reply, time.perf_counter()))
+
+        posts = [threading.Thread(target=post) for _ in range(3)]
+        for thread in posts:
+            thread.start()
+        stream = connect(url.replace("http", "ws") + "/v1/estimate/stream", open_timeout=10)
+        stream.send(json.dumps(request))
+        assert json.loads(stream.recv(timeout=10))["type"] == "estimate"
+        # Connections still in the kernel's accept queue are reset when the socket closes: wait
+        # until every request has reached the app.
+        assert wait_for(lambda: in_flight(url) == 4, 5)
+
+        sent_at = time.perf_counter()
+        server.send_signal(signal.SIGTERM)
+        assert wait_for(lambda: refused(port), 1.0), "still accepting after SIGTERM"
+        with pytest.raises(ConnectionClosed):
+            while True:
+                stream.recv(timeout=5)
+        assert stream.close_code == 1012
+        for thread in posts:
+            thread.join(timeout=15)
+        assert [reply.status_code for reply, _ in replies] == [200, 200, 200]
+        for reply, finished_at in replies:
+            assert finished_at > sent_at  # in flight when the signal came, and answered in full
+            body = reply.json()
+            assert body["iterations"] > 0 and body["stopped_by"] in ("budget", "max_iterations")
+            assert len(body["estimates"]) == body["iterations"]
+        assert server.wait(timeout=15) == 0
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait(timeout=10)
+        log.seek(0)
+        output = log.read()
+        log.close()
+    assert "Traceback" not in output, output[-3000:]
