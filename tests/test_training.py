@@ -85,7 +85,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
         "steps"
     ] == 20
 
-    ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "128"]
+    ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "512"]
     torch_eval = runner.invoke(
         app, [*ev, "--checkpoint", str(run / "best.pt"), "--out", str(tmp_path / "e1")]
     )
@@ -101,7 +101,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
             "--name",
             "x",
             "--points",
-            "128",
+            "512",
             "--report",
             str(tmp_path / "e1" / "report.json"),
         ],
