@@ -1,6 +1,6 @@
 """End-to-end latency and throughput of the itnet service over loopback.
 
-    python benchmarks/bench_service.py --model-dir itnet/models --requests 20 --duration-s 3
+    python -m benchmarks.bench_service --model-dir itnet/models --requests 20 --duration-s 3
 
 Starts ``uvicorn itnet.service.server:app_from_env`` on 127.0.0.1 (a free port), then measures:
 
@@ -16,66 +16,19 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import signal
-import socket
-import subprocess
-import sys
+import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
 import numpy as np
 import typer
 
+from benchmarks.harness import model_dir as harness_model_dir
+from benchmarks.harness import percentile, serve
+
 JSON = {"content-type": "application/json"}
 BINARY = {"content-type": "application/octet-stream"}
-
-
-def percentile(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else float("nan")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-@contextmanager
-def running_server(model_dir: Path | None, threads: int, max_concurrent: int) -> Iterator[str]:
-    """A uvicorn process on a free loopback port; yields its URL; stopped on exit."""
-    port = free_port()
-    env = {**os.environ, "ITNET_THREADS": str(threads),
-           "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max_concurrent)}  # fmt: skip
-    if model_dir is not None:
-        env["ITNET_MODEL_DIR"] = str(model_dir)
-    command = [sys.executable, "-m", "uvicorn", "itnet.service.server:app_from_env", "--factory",
-               "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"]  # fmt: skip
-    process = subprocess.Popen(command, env=env)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            if process.poll() is not None:
-                raise RuntimeError(f"the server exited with {process.returncode}")
-            if time.monotonic() > deadline:
-                raise RuntimeError("the server did not become ready within 60 s")
-            try:
-                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
-        yield url
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def box_cloud(points: int, seed: int = 0) -> np.ndarray:
@@ -200,7 +153,11 @@ def main(
     load1, _, _ = os.getloadavg()
     typer.echo(f"machine: {os.cpu_count()} CPUs, load average {load1:.2f} at start; "
                f"ITNET_THREADS={threads}\n")  # fmt: skip
-    with running_server(model_dir, threads, max_concurrent=max(clients) + 4) as url:
+    env = {"ITNET_THREADS": str(threads),
+           "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max(clients) + 4)}  # fmt: skip
+    log = Path(tempfile.gettempdir()) / "itnet-bench-service.log"
+    with serve(harness_model_dir(model_dir), log, env) as server:
+        url = server.url
         model = httpx.get(f"{url}/v1/models").json()["models"][0]
         typer.echo(f"model: {model['name']} ({model['points']} points, one step "
                    f"{model['step_ms']:.2f} ms at start-up)\n")  # fmt: skip
