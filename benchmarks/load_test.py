@@ -26,6 +26,7 @@ import numpy as np
 import typer
 
 from benchmarks.harness import model_dir, percentile, sample_cloud, serve
+from itnet.service.settings import Settings
 
 JSON = {"content-type": "application/json"}
 
@@ -129,14 +130,19 @@ def main(
     points: int = typer.Option(2048, help="Points per cloud."),
     margin_ms: float = typer.Option(10.0, help="Allowed p99 overrun of the budget."),
     threads: int = typer.Option(2, help="ITNET_THREADS of the server."),
-    max_concurrent: int = typer.Option(16, help="ITNET_LIMITS__MAX_CONCURRENT_REQUESTS."),
+    max_concurrent: int = typer.Option(
+        0, help="ITNET_LIMITS__MAX_CONCURRENT_REQUESTS (0: the server's default, 2 per core)."
+    ),
     models: Path | None = typer.Option(None, help="Model folder (default: shipped or stand-in)."),
     log: Path = typer.Option(Path("/tmp/itnet-load-server.log"), help="Server log file."),
     json_out: Path | None = typer.Option(None, help="Write the rows as JSON here."),
+    gc_freeze: bool = typer.Option(True, help="ITNET_GC_FREEZE of the server."),
 ) -> None:
     """Run the load test and print its table."""
     folder = model_dir(models)
-    env = {"ITNET_THREADS": str(threads),
+    if max_concurrent <= 0:
+        max_concurrent = Settings().limits.max_concurrent_requests  # what the server will use
+    env = {"ITNET_THREADS": str(threads), "ITNET_GC_FREEZE": str(gc_freeze).lower(),
            "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max_concurrent)}  # fmt: skip
     cloud = sample_cloud(points)
     body = json.dumps({"points": cloud.tolist(), "budget_ms": budget_ms}).encode()
@@ -153,7 +159,8 @@ def main(
         rss_after = server.rss_mb()
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points (JSON, "
                f"{len(body):,} bytes); budget {budget_ms:g} ms; server limit {max_concurrent} "
-               f"concurrent estimates, {threads} onnxruntime threads")  # fmt: skip
+               f"concurrent estimates, {threads} onnxruntime threads, "
+               f"gc_freeze {gc_freeze}")  # fmt: skip
     typer.echo(table(rows, margin_ms))
     typer.echo(f"after the run: /healthz {health}; server RSS {rss_before:.0f} -> "
                f"{rss_after:.0f} MiB")  # fmt: skip

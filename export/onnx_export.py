@@ -21,7 +21,7 @@ OUTPUT_NAMES = ["pose_next", "delta"]
 
 def export_step(net: ITNet, card: ModelCard, path: Path, opset: int = 20) -> Path:
     """Write ``path`` (.onnx): the step graph with ``card`` as metadata. Returns the path."""
-    step = ExportableStep(net).eval()
+    step = ExportableStep(net.eval()).eval()
     points = torch.randn(2, 64, 3)
     pose = torch.eye(4).expand(2, 4, 4).contiguous()
     batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
@@ -36,7 +36,15 @@ def export_step(net: ITNet, card: ModelCard, path: Path, opset: int = 20) -> Pat
         external_data=False,
         verbose=False,
     )
-    model = program.model_proto
+    return save_with_card(program.model_proto, card, path)
+
+
+def save_with_card(model: onnx.ModelProto, card: ModelCard, path: Path) -> Path:
+    """Write ``model`` to ``path`` as one file with ``card`` as its only itnet metadata, and
+    check it. Returns the path."""
+    for i in reversed(range(len(model.metadata_props))):
+        if model.metadata_props[i].key == METADATA_KEY:
+            del model.metadata_props[i]
     entry = model.metadata_props.add()
     entry.key, entry.value = METADATA_KEY, card.model_dump_json()
     model.producer_name = "itnet"

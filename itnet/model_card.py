@@ -17,6 +17,9 @@ class ModelCard(BaseModel):
     name: str = Field(description="model name used in requests, e.g. 'chair'")
     category: str
     version: str = "1"
+    precision: str = Field(
+        "float32", description="'float32', or 'int8' (per-point layers dynamically quantised)"
+    )
     points: int = Field(1024, description="points the runtime resamples every cloud to")
     trained_points: int = 256
     trained_iterations: int = 5

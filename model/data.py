@@ -2,7 +2,8 @@
 
 * Shapes are loaded once, orientation-checked (``shapes.check_yaw``) and cached as .npz.
 * Training batches are fresh random scans every step (a seeded generator per step, so a resumed
-  run sees the same data).
+  run sees the same data), or draws from a pool of views that is re-scanned every few hundred
+  steps (``TrainConfig.view_pool_steps``).
 * Validation and test scans are fixed (seeded) and cached, in random units (scale 0.01-100), so
   evaluation also checks that the unit does not matter.
 """
@@ -112,13 +113,22 @@ def load_shapes(
     return shapes, report
 
 
-def make_scan_set(shapes: list[Shape], views: int, seed: int, config: ScanConfig) -> ScanSet:
-    """``views`` seeded random scans of every shape, each in a random unit (scale 1e-2..1e2)."""
+def _pick(configs: list[ScanConfig], rng: np.random.Generator) -> ScanConfig:
+    """One of ``configs``, uniformly (no draw when there is one: single-config data unchanged)."""
+    return configs[int(rng.integers(len(configs)))] if len(configs) > 1 else configs[0]
+
+
+def make_scan_set(
+    shapes: list[Shape], views: int, seed: int, config: ScanConfig | list[ScanConfig]
+) -> ScanSet:
+    """``views`` seeded random scans of every shape, each in a random unit (scale 1e-2..1e2).
+    A list of configs: each scan uses one, drawn uniformly."""
     rng = np.random.default_rng(seed)
+    configs = config if isinstance(config, list) else [config]
     clouds, poses, radii, names = [], [], [], []
     for shape in shapes:
         for _ in range(views):
-            cloud, pose = scan_shape(shape.points, rng, config, shape.triangles)
+            cloud, pose = scan_shape(shape.points, rng, _pick(configs, rng), shape.triangles)
             unit = 10 ** rng.uniform(-2, 2)
             pose = pose.copy()
             pose[:3, 3] *= unit
@@ -141,15 +151,38 @@ def cached_scan_set(
     return scans
 
 
+def _normalised_example(
+    cloud: NDArray, pose: NDArray, points: int, rng: np.random.Generator
+) -> tuple[NDArray, NDArray]:
+    """One scan -> (normalised resampled points (points, 3), target pose in the normalised frame),
+    normalised exactly as the runtime does it."""
+    norm = estimate_normalization(cloud)
+    return resample(norm.apply(cloud), points, rng), pose_to_normalized(pose, norm)
+
+
 def training_batch(
-    shapes: list[Shape], batch: int, points: int, rng: np.random.Generator, config: ScanConfig
+    shapes: list[Shape],
+    batch: int,
+    points: int,
+    rng: np.random.Generator,
+    config: ScanConfig | list[ScanConfig],
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4), normalised
-    frame), normalised exactly as the runtime does it."""
+    """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4)). A list
+    of configs: each scan uses one, drawn uniformly."""
+    configs = config if isinstance(config, list) else [config]
     xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
     for b, i in enumerate(rng.integers(len(shapes), size=batch)):
-        cloud, pose = scan_shape(shapes[i].points, rng, config, shapes[i].triangles)
-        norm = estimate_normalization(cloud)
-        xs[b] = resample(norm.apply(cloud), points, rng)
-        targets[b] = pose_to_normalized(pose, norm)
+        cloud, pose = scan_shape(shapes[i].points, rng, _pick(configs, rng), shapes[i].triangles)
+        xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
+    return xs, targets
+
+
+def pool_batch(
+    pool: ScanSet, batch: int, points: int, rng: np.random.Generator
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Random members of a fixed pool of scans -> (points (B, points, 3), targets (B, 4, 4)),
+    each with a fresh random subset of its points."""
+    xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
+    for b, i in enumerate(rng.integers(len(pool.clouds), size=batch)):
+        xs[b], targets[b] = _normalised_example(pool.clouds[i], pool.poses[i], points, rng)
     return xs, targets

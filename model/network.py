@@ -111,15 +111,66 @@ class ITNet(nn.Module):
         return poses
 
 
+def _folded(linear: nn.Linear, norm: nn.BatchNorm1d | None) -> tuple[Tensor, Tensor]:
+    """Weight (C_out, C_in) and bias (C_out,) of ``linear`` followed by ``norm`` in eval mode."""
+    weight = linear.weight.detach().float()
+    bias = (
+        linear.bias.detach().float()
+        if linear.bias is not None
+        else torch.zeros(len(weight), device=weight.device)
+    )
+    if norm is None:
+        return weight, bias
+    scale = norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps)
+    return weight * scale[:, None], (bias - norm.running_mean) * scale + norm.bias.detach()
+
+
+def _folded_mlp(mlp: nn.Sequential) -> list[tuple[Tensor, Tensor]]:
+    layers = list(mlp)
+    return [_folded(layers[i], layers[i + 1]) for i in range(0, len(layers), 3)]
+
+
 class ExportableStep(nn.Module):
-    """The graph exported to ONNX: (points B x N x 3, pose B x4x4) -> (next pose, update)."""
+    """The graph exported to ONNX: (points B x N x 3, pose B x4x4) -> (next pose, update).
+
+    The same function as ``ITNet.step`` in eval mode, written for inference engines: BatchNorm is
+    folded into the weights, and the per-point MLP runs channels-first, (B, C, N), so the max-pool
+    reduces the innermost axis. onnxruntime's ReduceMax over the point axis of (B, N, 1024) took
+    1.7 ms at N = 1,024 on 2 cores, half of the whole step; over the innermost axis, 0.07 ms.
+    """
 
     def __init__(self, net: ITNet) -> None:
         super().__init__()
-        self.net = net
+        regressor = net.regressor
+        point = _folded_mlp(regressor.point_mlp)
+        head = [*_folded_mlp(regressor.head), _folded(regressor.out, None)]
+        for i, (w, b) in enumerate(point):
+            self.register_buffer(f"point_w{i}", w.contiguous())
+            self.register_buffer(f"point_b{i}", b[:, None].contiguous())
+        for i, (w, b) in enumerate(head):
+            self.register_buffer(f"head_w{i}", w.t().contiguous())
+            self.register_buffer(f"head_b{i}", b.contiguous())
+        self.point_layers, self.head_layers = len(point), len(head)
+
+    def regress(self, moved: Tensor) -> Tensor:
+        """Moved points (B, N, 3) -> (B, 7) as ``PoseRegressor.forward``."""
+        h = moved.transpose(1, 2)  # (B, 3, N)
+        last = self.point_layers - 1
+        for i in range(last):
+            h = torch.relu(getattr(self, f"point_w{i}") @ h + getattr(self, f"point_b{i}"))
+        # max over points commutes with the per-channel bias and ReLU (both monotone): pool the
+        # (B, 1024, N) product first, then add and clip 1,024 numbers instead of 1,024 x N
+        g = (getattr(self, f"point_w{last}") @ h).amax(dim=-1)
+        g = torch.relu(g + getattr(self, f"point_b{last}")[:, 0])  # (B, 1024)
+        for i in range(self.head_layers):
+            g = g @ getattr(self, f"head_w{i}") + getattr(self, f"head_b{i}")
+            if i < self.head_layers - 1:
+                g = torch.relu(g)
+        return g
 
     def forward(self, points: Tensor, pose: Tensor) -> tuple[Tensor, Tensor]:
-        return self.net.step(points, pose)
+        delta = quat_wxyz_translation_to_pose(self.regress(apply_pose(pose, points)))
+        return delta @ pose, delta
 
 
 def point_loss(pose_estimate: Tensor, pose_target: Tensor, points: Tensor) -> Tensor:

@@ -15,6 +15,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from itnet import __version__
 from itnet.service.api.routes import estimate, stream, system
 from itnet.service.errors import ServiceError, describe_errors
+from itnet.service.gc_tuning import GcPauseRecorder, freeze_startup_objects
 from itnet.service.metrics import Metrics, RequestMetricsMiddleware
 from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
@@ -49,7 +50,15 @@ def create_app(
         limiter.total_tokens = max(
             limiter.total_tokens, settings.limits.max_concurrent_requests + THREADS_BESIDES
         )
-        yield
+        pauses = GcPauseRecorder(metrics.observe_gc)
+        pauses.install()
+        if settings.gc_freeze:
+            log.info("froze %d start-up objects out of garbage collection",
+                     freeze_startup_objects())  # fmt: skip
+        try:
+            yield
+        finally:
+            pauses.remove()
 
     app = FastAPI(title="itnet", version=__version__, description=DESCRIPTION, lifespan=lifespan)
     app.state.service = state

@@ -13,17 +13,20 @@ and yield the pose in the input's units.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw, rotation_angle_deg
+from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw
 from itnet.preprocess import (
     DegenerateCloudError,
+    Normalization,
     estimate_normalization,
     pose_from_normalized,
     resample,
@@ -47,13 +50,19 @@ class Limits:
 
 @dataclass(frozen=True)
 class Estimate:
-    """The pose after ``iteration`` steps. ``pose`` is T_canonical_from_input (4x4, input units)."""
+    """The pose after ``iteration`` steps. ``pose`` is T_canonical_from_input (4x4, input units),
+    computed from the normalised pose when first read (the loop itself never needs it)."""
 
     iteration: int
-    pose: NDArray[np.float64]
+    pose_normalized: NDArray[np.float32]  # (4, 4), the network's frame
+    normalization: Normalization
     elapsed_ms: float
     update_rotation_deg: float  # size of this iteration's update
     update_translation: float  # in the input's units
+
+    @cached_property
+    def pose(self) -> NDArray[np.float64]:
+        return pose_from_normalized(self.pose_normalized.astype(np.float64), self.normalization)
 
     def to_dict(self) -> dict:
         return {
@@ -108,6 +117,7 @@ class AnytimeRun(Iterator[Estimate]):
         limits: Limits = Limits(),
         seed: int = 0,
         started: float | None = None,
+        reserve_ms: float = 0.0,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -132,6 +142,9 @@ class AnytimeRun(Iterator[Estimate]):
         self.points = resample(x, model.card.points, np.random.default_rng(seed))[None]
         self.model = model
         self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
+        # Kept back from the budget for handing the reply back after the last step (the service
+        # measures it: service/handback.py); never more than half of the budget.
+        self.reserve_ms = min(max(0.0, reserve_ms), self.budget_ms / 2)
         self.converge = (converge_rotation_deg, converge_translation)
         self.pose_normalized = np.eye(4, dtype=np.float32)[None]
         self.iteration = 0
@@ -153,7 +166,8 @@ class AnytimeRun(Iterator[Estimate]):
         if self.stopped_by is not None:
             raise StopIteration
         # Wait for a free step slot only as long as the budget can spare (see step_slot).
-        with self.model.step_slot(self._slack_ms() / 1e3) as free:
+        deadline = self.started + self.budget_ms / 1e3
+        with self.model.step_slot(self._slack_ms() / 1e3, deadline) as free:
             if not free or self._cancel.is_set():
                 self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
                 raise StopIteration
@@ -163,8 +177,12 @@ class AnytimeRun(Iterator[Estimate]):
             self._last_step_ms = (time.perf_counter() - start) * 1e3
         self.model.record_step_ms(self._last_step_ms)
         self.iteration += 1
-        update_rotation = float(rotation_angle_deg(delta[0, :3, :3]))
-        update_translation = float(np.linalg.norm(delta[0, :3, 3]))  # normalised units
+        d = delta[0]  # the update's angle, in scalar math (numpy's per-call cost is the loop's)
+        cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
+        update_rotation = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+        update_translation = math.hypot(
+            float(d[0, 3]), float(d[1, 3]), float(d[2, 3])
+        )  # normalised
         self.last = self._estimate(self.pose_normalized[0], update_rotation, update_translation)
         if (
             update_rotation < self.converge[0]
@@ -184,17 +202,18 @@ class AnytimeRun(Iterator[Estimate]):
         return None
 
     def _slack_ms(self) -> float:
-        """Budget left after the predicted next step (negative: the step would overrun)."""
+        """Budget left after the predicted next step and the reserve (negative: the step would
+        overrun)."""
         predicted = max(self.model.predicted_step_ms(), self._last_step_ms)
-        return self.budget_ms - self.elapsed_ms() - predicted
+        return self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
 
     def _estimate(
         self, pose_normalized: NDArray, rotation_deg: float, translation: float
     ) -> Estimate:
-        pose = pose_from_normalized(pose_normalized.astype(np.float64), self.normalization)
         return Estimate(
             self.iteration,
-            pose,
+            pose_normalized,
+            self.normalization,
             self.elapsed_ms(),
             rotation_deg,
             translation * self.normalization.scale,

@@ -53,6 +53,9 @@ ITERATION_BUCKETS = (0, 1, 2, 3, 5, 8, 10, 15, 20, 30, 50, 100, 200)
 ARRIVED = "itnet.arrived"
 
 
+GC_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+
+
 class Metrics:
     """The service's counters and histograms, in a private registry."""
 
@@ -77,6 +80,13 @@ class Metrics:
         )
         self.errors = Counter("itnet_errors", "Errors by kind", ["kind"], registry=r)
         self.in_flight = Gauge("itnet_in_flight", "Estimates running now", registry=r)
+        self.gc_pause = Histogram(
+            "itnet_gc_pause_seconds", "Garbage-collector passes by generation", ["generation"],
+            buckets=GC_BUCKETS, registry=r,
+        )  # fmt: skip
+
+    def observe_gc(self, generation: int, seconds: float) -> None:
+        self.gc_pause.labels(str(generation)).observe(seconds)
 
     def observe_request(self, endpoint: str, status: int | str, seconds: float) -> None:
         self.requests.labels(endpoint, str(status)).inc()

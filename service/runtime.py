@@ -22,6 +22,7 @@ import onnxruntime as ort
 from numpy.typing import NDArray
 
 from itnet.model_card import METADATA_KEY, ModelCard
+from itnet.service.step_slots import StepSlots
 
 
 class ModelLoadError(RuntimeError):
@@ -64,20 +65,22 @@ class LoadedModel:
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
 
     def __post_init__(self) -> None:
-        self._slots = threading.BoundedSemaphore(self.concurrent_steps)
+        self._slots = StepSlots(self.concurrent_steps)
         self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
+        self._high: tuple[float, float, float] | None = None  # (quantile ms, when, quantile)
 
     @contextmanager
-    def step_slot(self, timeout_s: float) -> Iterator[bool]:
+    def step_slot(self, timeout_s: float, deadline: float | None = None) -> Iterator[bool]:
         """Hold a step slot; yields False (holding none) if none frees within ``timeout_s``.
 
         Steps of many concurrent requests that all run at once share the cores, and each takes
         several times what the engine predicted from the step time: the budget overruns. Run
-        ``concurrent_steps`` at a time instead, so that a step that starts takes its usual time,
-        and let the others wait only as long as their budgets can spare."""
-        free = (
-            self._slots.acquire(timeout=timeout_s) if timeout_s > 0 else self._slots.acquire(False)
-        )
+        ``concurrent_steps`` at a time instead, so that a step that starts takes its usual time;
+        the others wait only as long as their budgets can spare, and a freed slot goes to the
+        earliest ``deadline`` (a ``time.perf_counter()`` value; default: now + ``timeout_s``)."""
+        if deadline is None:
+            deadline = time.perf_counter() + timeout_s
+        free = self._slots.acquire(deadline, timeout_s)
         try:
             yield free
         finally:
@@ -97,16 +100,23 @@ class LoadedModel:
             self.step_ms = ms if self.step_ms == 0 else (1 - weight) * self.step_ms + weight * ms
             self._estimated_at = time.perf_counter() if at is None else at
             self._recent.append((self._estimated_at, ms))
+            self._high = None  # the quantile is recomputed on the next prediction
 
     def predicted_step_ms(self, quantile: float = 0.9) -> float:
         """What the next step may take: the running estimate, or the ``quantile`` of the steps
         of the last ``recent_window_s`` if higher. On a machine whose load comes and goes, step
-        times scatter; the mean alone lets one step in a few overrun the budget."""
+        times scatter; the mean alone lets one step in a few overrun the budget.
+
+        Called before every step: the quantile is cached until the next measurement, or for at
+        most 50 ms (so that steps leaving the window are noticed)."""
         with self._lock:
-            since = time.perf_counter() - self.recent_window_s
-            recent = sorted(ms for at, ms in self._recent if at >= since)
-            high = recent[min(len(recent) - 1, int(quantile * len(recent)))] if recent else 0.0
-            return max(self.step_ms, high)
+            now = time.perf_counter()
+            if self._high is None or now - self._high[1] > 0.05 or self._high[2] != quantile:
+                since = now - self.recent_window_s
+                recent = sorted(ms for at, ms in self._recent if at >= since)
+                high = recent[min(len(recent) - 1, int(quantile * len(recent)))] if recent else 0.0
+                self._high = (high, now, quantile)
+            return max(self.step_ms, self._high[0])
 
     def relax_step_ms(self, half_life_s: float = 1.0) -> float:
         """Let a stale step-time estimate relax toward ``baseline_ms`` (half-life ``half_life_s``

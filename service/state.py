@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike
 
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.errors import ServiceError
+from itnet.service.handback import HandbackTimer
 from itnet.service.metrics import Metrics
 from itnet.service.runtime import LoadedModel, ModelLoadError, load_models
 from itnet.service.schemas import EstimateParams
@@ -65,6 +66,7 @@ class ServiceState:
         self.gate = ConcurrencyGate(
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics
         )
+        self.handback = HandbackTimer()
 
     def load(self) -> None:
         """Load the models of ``settings.model_dir`` unless given; a failure leaves the app
@@ -118,7 +120,11 @@ class ServiceState:
         return self.models[name]
 
     def start_run(
-        self, points: ArrayLike, params: EstimateParams, arrived: float | None = None
+        self,
+        points: ArrayLike,
+        params: EstimateParams,
+        arrived: float | None = None,
+        reserve_ms: float = 0.0,
     ) -> AnytimeRun:
         """Validate and normalise the cloud and set up the run (CPU: call from a worker thread).
         The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in)."""
@@ -149,6 +155,7 @@ class ServiceState:
                 max_iterations=iterations,
                 limits=limits.engine_limits(),
                 started=arrived,
+                reserve_ms=reserve_ms,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -12,6 +13,11 @@ import pytest
 from numpy.typing import NDArray
 
 from itnet.service.runtime import LoadedModel
+
+# Servers started by the tests (in process and as subprocesses) leave the garbage collector alone:
+# gc.freeze() would keep every object of the pytest process alive. tests/service/test_gc.py
+# checks the freeze itself.
+os.environ.setdefault("ITNET_GC_FREEZE", "false")
 
 
 def make_tiny_net(seed: int = 0):  # type: ignore[no-untyped-def]

@@ -32,3 +32,53 @@ def test_model_card_travels_in_the_file(tiny_model_dir):
     )
     assert (tiny_model_dir / "tiny.onnx").stat().st_size < 1_000_000  # a single small file
     assert list(tiny_model_dir.iterdir()) == [tiny_model_dir / "tiny.onnx"]  # no external data
+
+
+def test_folded_step_is_the_network_step(tiny_net, rng):
+    """The export graph (BatchNorm folded, channels-first, pool before bias+ReLU) computes the
+    same function as the training network in eval mode."""
+    from itnet.model.network import ExportableStep
+
+    x = torch.from_numpy(rng.normal(size=(3, 50, 3)).astype(np.float32))
+    pose = torch.eye(4).expand(3, 4, 4).contiguous()
+    with torch.no_grad():
+        want, _ = tiny_net.step(x, pose)
+        got, _ = ExportableStep(tiny_net)(x, pose)
+    assert torch.abs(got - want).max() < 1e-5
+
+
+def test_int8_graph_is_close_to_float_and_marked(tiny_model_dir, tmp_path, rng):
+    import onnx
+
+    from itnet.export.quantize import quantize_step
+    from itnet.geometry import rotation_error_deg
+
+    path = quantize_step(tiny_model_dir / "tiny.onnx", tmp_path / "tiny8.onnx", name="tiny8")
+    ops = {n.op_type for n in onnx.load(str(path)).graph.node}
+    assert ops & {"MatMulInteger", "DynamicQuantizeMatMul", "MatMulIntegerToFloat"}
+    fp32, int8 = (load_model(p, warm_up=False) for p in (tiny_model_dir / "tiny.onnx", path))
+    assert int8.card.precision == "int8" and int8.card.name == "tiny8"
+    assert fp32.card.precision == "float32"
+    x = rng.normal(size=(4, 256, 3)).astype(np.float32)
+    pose = np.tile(np.eye(4, dtype=np.float32), (4, 1, 1))
+    want, got = fp32.step(x, pose)[0], int8.step(x, pose)[0]
+    assert np.abs(want - np.eye(4)).max() > 1e-3  # the update is not trivially the identity
+    angle = rotation_error_deg(got[:, :3, :3], want[:, :3, :3])
+    assert angle.max() < 1.0 and np.abs(got[:, :3, 3] - want[:, :3, 3]).max() < 0.02
+
+
+def test_quantize_refuses_a_graph_without_the_point_layers(tmp_path):
+    import onnx
+    from onnx import TensorProto, helper
+
+    from itnet.export.quantize import quantize_step
+
+    graph = helper.make_graph(
+        [helper.make_node("Relu", ["x"], ["y"])],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )
+    onnx.save(helper.make_model(graph), str(tmp_path / "relu.onnx"))
+    with pytest.raises(ValueError, match="point_w"):
+        quantize_step(tmp_path / "relu.onnx", tmp_path / "out.onnx")

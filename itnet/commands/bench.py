@@ -4,13 +4,32 @@ from __future__ import annotations
 
 import os
 import platform
+import statistics
 from pathlib import Path
 
 import typer
 
 
+def cpu_description() -> str:
+    """CPU model, core count and the matrix instruction sets that decide the step time."""
+    name, flags = platform.processor() or platform.machine(), set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                name = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+    except OSError:
+        pass
+    isa = [f for f in ("avx2", "avx512f", "avx512_vnni", "avx512_bf16", "amx_int8") if f in flags]
+    return f"{name}, {os.cpu_count()} CPUs" + (f" ({', '.join(isa)})" if isa else "")
+
+
 def bench(
-    model: str = typer.Option("chair", help="Model name."),
+    model: list[str] = typer.Option(
+        ["chair", "chair-fp32"], help="Model names (repeat the option for several)."
+    ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     repeats: int = typer.Option(200, help="Timed runs per configuration."),
 ) -> None:
@@ -18,20 +37,32 @@ def bench(
     from itnet.service.benchmark import loop_overhead, time_step_ms
     from itnet.service.models_in_process import get_model
 
-    path = get_model(model, model_dir).path
+    typer.echo(f"machine: {cpu_description()}")
     typer.echo(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
-        f"model {path.name}"
+        "| model | precision | B×N | 1 thread (ms) | 2 threads (ms) | 2 threads per item (ms) |"
     )
-    typer.echo("| B×N | 1 thread (ms) | 2 threads (ms) | 2 threads per item (ms) |")
-    typer.echo("|---|---|---|---|")
+    typer.echo("|---|---|---|---|---|---|")
+    paths = {name: get_model(name, model_dir) for name in model}
+    # The machine's speed drifts (other tenants of the host): interleave the models, a few
+    # rounds each, and report the median of the rounds, so the rows compare like with like.
+    rounds = 3
     for batch, points in ((1, 1024), (1, 4096), (8, 1024)):
-        one = time_step_ms(path, batch, points, 1, repeats)
-        two = time_step_ms(path, batch, points, 2, repeats)
-        typer.echo(f"| {batch}×{points} | {one:.2f} | {two:.2f} | {two / batch:.2f} |")
-    loop = loop_overhead(path, threads=2)
-    typer.echo(
-        f"\nanytime loop, 2 threads, 1024 points: {loop['loop_iteration_ms']:.3f} ms per "
-        f"iteration vs raw step {loop['raw_step_ms']:.3f} ms "
-        f"(overhead {loop['overhead_pct']:+.1f}%); per-request setup {loop['setup_ms']:.2f} ms"
-    )
+        times: dict[tuple[str, int], list[float]] = {}
+        for _ in range(rounds):
+            for name, loaded in paths.items():
+                for threads in (1, 2):
+                    ms = time_step_ms(loaded.path, batch, points, threads, repeats // rounds)
+                    times.setdefault((name, threads), []).append(ms)
+        for name, loaded in paths.items():
+            one, two = (statistics.median(times[(name, t)]) for t in (1, 2))
+            typer.echo(
+                f"| {name} | {loaded.card.precision} | {batch}×{points} | {one:.2f} | "
+                f"{two:.2f} | {two / batch:.2f} |"
+            )
+    for name, loaded in paths.items():
+        loop = loop_overhead(loaded.path, threads=2)
+        typer.echo(
+            f"\n{name}: anytime loop, 2 threads, 1024 points: {loop['loop_iteration_ms']:.3f} ms "
+            f"per iteration vs raw step {loop['raw_step_ms']:.3f} ms "
+            f"(overhead {loop['overhead_pct']:+.1f}%); per-request setup {loop['setup_ms']:.2f} ms"
+        )

@@ -18,6 +18,11 @@ def evaluate(
     iterations: int = typer.Option(20, help="Evaluate iterations 0..N."),
     points: int = typer.Option(1024, help="Points the cloud is resampled to (as the runtime)."),
     seed: int = typer.Option(2024, help="Seed of the test views."),
+    scanner: str = typer.Option(
+        "occluded",
+        help="Test views: 'occluded' (z-buffer with the 3x3 occlusion test, the product's "
+        "benchmark) or 'paper' (the paper's nearest point per pixel; see model/scanner.py).",
+    ),
     out: Path = typer.Option(Path("runs/eval"), help="Folder for report.json and anytime.png."),
     dump_scans: Path | None = typer.Option(
         None, help="Also write the test scans as .npy files plus labels.json (for `itnet pose`)."
@@ -25,15 +30,20 @@ def evaluate(
     cache: Path = typer.Option(Path("cache")),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
+    from dataclasses import replace
+
     import numpy as np
 
     from itnet.model.data import cached_scan_set, load_shapes, split_files
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
-    from itnet.model.scanner import ScanConfig
+    from itnet.model.scanner import PAPER_VIEWS, ScanConfig
 
     if (checkpoint is None) == (onnx is None):
         raise typer.BadParameter("give exactly one of --checkpoint or --onnx")
+    if scanner not in ("occluded", "paper"):
+        raise typer.BadParameter("--scanner must be 'occluded' or 'paper'")
+    scan_config = replace(ScanConfig(), **PAPER_VIEWS) if scanner == "paper" else ScanConfig()
     if checkpoint is not None:
         from itnet.model.evaluate import torch_step
         from itnet.model.train import load_checkpoint
@@ -47,7 +57,7 @@ def evaluate(
         step, trained = (lambda x, p: model.step(x, p)[0]), model.card.trained_iterations
     files = split_files(data, category, 0.1, 0)["test"]
     shapes, orientation = load_shapes(files, frame, cache, check_orientation=True)
-    scans = cached_scan_set(shapes, views, seed, ScanConfig(), cache)
+    scans = cached_scan_set(shapes, views, seed, scan_config, cache)
     poses = anytime_poses(step, scans, iterations, points)
     rep, rot, trans = report(poses, scans)
     out.mkdir(parents=True, exist_ok=True)
@@ -56,6 +66,7 @@ def evaluate(
         "category": category,
         "orientation": orientation,
         "views": views,
+        "scanner": scanner,
         "seed": seed,
         "points": points,
         **rep.model_dump(),
@@ -68,7 +79,7 @@ def evaluate(
         trans,
         trained,
         out / "anytime.png",
-        f"{category}: {rep.scans} partial scans of held-out objects",
+        f"{category}: {rep.scans} partial scans ({scanner} views) of held-out objects",
     )
     if dump_scans is not None:
         dump_scans.mkdir(parents=True, exist_ok=True)

@@ -16,12 +16,18 @@ def export(
     recommended_iterations: int = typer.Option(10, help="Default iteration cap of the runtime."),
     report: Path | None = typer.Option(None, help="report.json of `itnet eval` to record."),
     version: str = typer.Option("1"),
+    int8: bool = typer.Option(
+        False, "--int8", help="Quantise the per-point layers to int8 (1.3x faster on 2 cores)."
+    ),
 ) -> None:
     """Export, then check the graph against torch on random clouds (max abs difference)."""
+    import tempfile
+
     import numpy as np
     import torch
 
     from itnet.export.onnx_export import export_step
+    from itnet.export.quantize import quantize_step
     from itnet.model.train import load_checkpoint
     from itnet.model_card import ModelCard
     from itnet.service.runtime import load_model
@@ -33,8 +39,9 @@ def export(
         rep = json.loads(report.read_text())
         accuracy = {str(k): v for k, v in zip(rep["iterations"], rep["accuracy"])}
         evaluation = (
-            f"{rep['scans']} partial scans ({rep['views']} random views, full SO(3), "
-            f"random units) of the {rep['category']} test split, {rep['points']} points"
+            f"{rep['scans']} partial scans ({rep['views']} random {rep.get('scanner', 'occluded')} "
+            f"views, full SO(3), random units) of the {rep['category']} test split, "
+            f"{rep['points']} points"
         )
     card = ModelCard(
         name=name,
@@ -55,7 +62,11 @@ def export(
             "validation": state["metrics"].get("val_accuracy"),
         },
     )
-    export_step(net, card, out)
+    if int8:
+        with tempfile.TemporaryDirectory() as tmp:
+            quantize_step(export_step(net, card, Path(tmp) / "float32.onnx"), out)
+    else:
+        export_step(net, card, out)
     model = load_model(out, warm_up=False)
     rng = np.random.default_rng(0)
     x = rng.normal(size=(4, points, 3)).astype(np.float32)

@@ -24,13 +24,22 @@ def train(
     eval_every: int = typer.Option(500, help="Validate and checkpoint every N steps."),
     seed: int = typer.Option(0),
     device: str = typer.Option("cpu", help="cpu | cuda"),
-    bf16: bool = typer.Option(True, help="bfloat16 matmuls (AMX on CPU); pose math stays fp32."),
+    bf16: bool = typer.Option(True, help="bfloat16 matmuls (AVX-512 BF16 or AMX); pose math fp32."),
     stop_gradient: bool = typer.Option(
         True, help="Paper: stop the gradient through the moved input."
     ),
     identity_init: bool = typer.Option(True, help="Paper: last layer starts at the identity."),
     check_orientation: bool = typer.Option(True, help="Fix/drop shapes turned about the up axis."),
     resume: bool = typer.Option(True, help="Continue from OUT/last.pt when it exists."),
+    init_from: Path | None = typer.Option(
+        None, help="Start from this checkpoint's weights (fine-tuning) instead of from scratch."
+    ),
+    bn_momentum: float = typer.Option(
+        0.5, help="BatchNorm momentum at step 0 (halves every DECAY_EVERY steps, floor 0.01)."
+    ),
+    paper_views: bool = typer.Option(
+        True, help="Train on the paper's z-buffer views too, half of the scans (view variety)."
+    ),
     cache: Path = typer.Option(Path("cache"), help="Cache of canonical shapes and fixed scans."),
 ) -> None:
     """Train with fresh random partial scans every step; keeps the best validation checkpoint.
@@ -38,6 +47,7 @@ def train(
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
     --device cuda --batch 100 --steps 20000 --decay-every 2000 --no-bf16.
     """
+    from itnet.model.scanner import PAPER_VIEWS
     from itnet.model.train import TrainConfig
     from itnet.model.train import train as run_training
 
@@ -61,6 +71,9 @@ def train(
         identity_init=identity_init,
         check_orientation=check_orientation,
         cache=cache,
+        init_from=init_from,
+        bn_momentum=(bn_momentum, 0.01),
+        scan_mix=[{}, PAPER_VIEWS] if paper_views else [{}],
     )
     best = run_training(config, resume=resume)
     typer.echo(

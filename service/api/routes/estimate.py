@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import json
 import threading
+import time
 from collections.abc import Mapping
 from typing import Any
 
 import anyio
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Request, Response
 
 from itnet.service.api.deps import ArrivedDep, BodyDep, StateDep
 from itnet.service.decode import decode_http
-from itnet.service.engine import AnytimeRun, Estimate
+from itnet.service.engine import AnytimeRun
 from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
 from itnet.service.state import ServiceState
 
@@ -72,7 +74,7 @@ OPENAPI_EXTRA = {
 )
 async def estimate(
     request: Request, arrived: ArrivedDep, body: BodyDep, state: StateDep
-) -> dict[str, Any]:
+) -> Response:
     """Send the cloud as JSON, or as raw float32 (``Content-Type: application/octet-stream``)
     with the parameters in the query string. The reply is the final pose in the input's units,
     every per-iteration estimate, the iteration count and why the loop stopped (``budget``,
@@ -83,18 +85,22 @@ async def estimate(
     with state.gate.slot():
         async with anyio.create_task_group() as tasks:
             tasks.start_soon(_watch_disconnect, request, handle)
-            # Decoding, validation and every step are CPU work: one worker-thread hop (each hop
-            # waits for the GIL, which is costly when many requests are in flight).
+            # Decoding, validation, every step and the reply's serialisation are CPU work: one
+            # worker-thread hop (each hop waits for the GIL, which is costly under load).
             outcome = await anyio.to_thread.run_sync(
                 _decode_and_run, state, body, content_type, query, arrived, handle
             )
             tasks.cancel_scope.cancel()
     if isinstance(outcome, Exception):
         raise outcome
-    run, estimates = outcome
-    stopped_by = "disconnected" if handle.client_left else str(run.stopped_by)
-    state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)
-    return {**run.result(), "estimates": [e.to_dict() for e in estimates]}
+    reply, loop_end, name, iterations, stopped_by = outcome
+    now = time.perf_counter()
+    # What the next runs keep in reserve: the time from the loop's end to here.
+    state.handback.record((now - loop_end) * 1e3)
+    state.metrics.observe_run(name, iterations, stopped_by)
+    # elapsed_ms is stamped here, when the reply leaves the handler, not when the loop ended.
+    elapsed = f'{{"elapsed_ms": {round((now - arrived) * 1e3, 3)}, '.encode()
+    return Response(content=elapsed + reply[1:], media_type="application/json")
 
 
 class _RunHandle:
@@ -132,13 +138,20 @@ def _decode_and_run(
     query: Mapping[str, str],
     arrived: float,
     handle: _RunHandle,
-) -> tuple[AnytimeRun, list[Estimate]] | Exception:
-    """Decode, validate and run to the end (the error is returned, not raised: an exception
-    would leave the task group wrapped in an ExceptionGroup)."""
+) -> tuple[bytes, float, str, int, str] | Exception:
+    """Decode, validate, run to the end and serialise the reply -> (JSON bytes, perf_counter at
+    the loop's end, model, iterations, stop reason). The error is returned, not raised: an
+    exception would leave the task group wrapped in an ExceptionGroup."""
     try:
         points, params = decode_http(body, content_type, query)
-        run = state.start_run(points, params, arrived)
+        run = state.start_run(points, params, arrived, reserve_ms=state.handback.reserve_ms())
     except Exception as err:
         return err
     handle.attach(run)
-    return run, list(run)
+    estimates = list(run)
+    loop_end = time.perf_counter()
+    stopped_by = "disconnected" if handle.client_left else str(run.stopped_by)
+    reply = {**run.result(), "stopped_by": stopped_by,
+             "estimates": [e.to_dict() for e in estimates]}  # fmt: skip
+    del reply["elapsed_ms"]  # stamped by the handler when the reply leaves (see estimate)
+    return json.dumps(reply).encode(), loop_end, run.model.card.name, run.iteration, stopped_by
