@@ -39,6 +39,7 @@ def evaluate(
     from itnet.model.plots import plot_anytime
     from itnet.model.scanner import PAPER_VIEWS, ScanConfig
 
+    batch = 50  # clouds per network call
     if (checkpoint is None) == (onnx is None):
         raise typer.BadParameter("give exactly one of --checkpoint or --onnx")
     if scanner not in ("occluded", "paper"):
@@ -55,10 +56,13 @@ def evaluate(
 
         model = load_model(onnx, warm_up=False)
         step, trained = (lambda x, p: model.step(x, p)[0]), model.card.trained_iterations
+        # int8 graphs quantise activations with one scale per call: batched clouds would
+        # influence each other. The runtime steps one cloud at a time, and so does this.
+        batch = 1 if model.card.precision == "int8" else batch
     files = split_files(data, category, 0.1, 0)["test"]
     shapes, orientation = load_shapes(files, frame, cache, check_orientation=True)
     scans = cached_scan_set(shapes, views, seed, scan_config, cache)
-    poses = anytime_poses(step, scans, iterations, points)
+    poses = anytime_poses(step, scans, iterations, points, batch=batch)
     rep, rot, trans = report(poses, scans)
     out.mkdir(parents=True, exist_ok=True)
     summary = {
