@@ -87,6 +87,10 @@ def itnet_methods(
         "itnet-align": (full, AlignOptions(symmetry=symmetry)),
         "itnet-align --refine --symmetry none": (full, AlignOptions(symmetry="none", refine=True)),
         "itnet-align --refine": (full, AlignOptions(symmetry=symmetry, refine=True)),
+        "itnet-align --refine --rivals 1": (
+            full,
+            AlignOptions(symmetry=symmetry, refine=True, rivals=1),
+        ),
         "itnet-align --refine --max-iterations 5": (
             fast,
             AlignOptions(symmetry=symmetry, refine=True),

@@ -72,6 +72,8 @@ class AlignOptions:
     inlier_distance: float = 0.05  # the overlap score's inlier distance
     switch_margin: float = 0.02  # fitness a rival needs above the IT-Net estimate to replace it
     score_points: int = 400  # points of each cloud scored against (up to 5x as many of) the other
+    rivals: int | None = None  # with refine: ICP the IT-Net estimate and only this many rivals,
+    # those that fit best before ICP (at ICP's first-stage distance); None: every hypothesis
     voxel: float | None = None  # ICP downsampling; None: 0.05 above 20,000 points, else none
     seed: int = 0
 
@@ -126,6 +128,21 @@ def _estimate_all(estimate: PoseEstimator, clouds: list, name: str) -> list[Pose
         raise CloudEstimateError(name, err) from err
 
 
+def _best_rivals(
+    hypotheses: list[Hypothesis],
+    sub_a: NDArray,
+    sub_b: NDArray,
+    distance: float,
+    rivals: int,
+    points: int,
+) -> list[Hypothesis]:
+    """The IT-Net estimate (first) and the ``rivals`` other hypotheses that fit best as they are,
+    at ``distance`` (ICP's first-stage cut-off, where an unrefined estimate still lands)."""
+    fit = [overlap_score(sub_a, sub_b, h.T_b_from_a, distance, points)[0] for h in hypotheses[1:]]
+    keep = sorted(np.argsort(fit)[::-1][:rivals] + 1)
+    return [hypotheses[0], *(hypotheses[i] for i in keep)]
+
+
 def align_clouds(
     points_a: ArrayLike, points_b: ArrayLike, estimate: PoseEstimator, options: AlignOptions
 ) -> Alignment:
@@ -153,6 +170,13 @@ def align_clouds(
         [r.T_canonical_from_input for r in runs_a], [r.T_canonical_from_input for r in runs_b],
         symmetry_rotations(options.symmetry), scale,
     )  # fmt: skip
+    # Score every hypothesis the same way, on seeded subsets of both clouds.
+    cap = 5 * options.score_points
+    sub_a = a[rng.choice(len(a), cap, replace=False)] if len(a) > cap else a
+    sub_b = b[rng.choice(len(b), cap, replace=False)] if len(b) > cap else b
+    if options.refine and options.rivals is not None and len(hypotheses) > 1 + options.rivals:
+        hypotheses = _best_rivals(hypotheses, sub_a, sub_b, 2 * options.icp_distance * scale,
+                                  options.rivals, options.score_points // 2)  # fmt: skip
     if options.refine:
         from itnet.refine import IcpRefiner
 
@@ -167,10 +191,6 @@ def align_clouds(
             h.source += "+icp"
     t_refine = time.perf_counter()
 
-    # Score every hypothesis the same way, on seeded subsets of both clouds.
-    cap = 5 * options.score_points
-    sub_a = a[rng.choice(len(a), cap, replace=False)] if len(a) > cap else a
-    sub_b = b[rng.choice(len(b), cap, replace=False)] if len(b) > cap else b
     for h in hypotheses:
         h.fitness, h.rmse = overlap_score(sub_a, sub_b, h.T_b_from_a, inlier, options.score_points)
     # Unrefined hypotheses are each a few degrees off: the tight score cannot rank them, so

@@ -79,21 +79,25 @@ def test_bad_distance_is_refused():
         IcpRefiner(np.zeros((10, 3)), np.zeros((10, 3)), max_distance=0.0)
 
 
-def test_align_clouds_with_icp_switches_to_the_symmetric_hypothesis(rng):
-    # A lopsided object (a slab and a post on one corner) seen in two frames, and an estimator
-    # that reads A turned 180 degrees about up, and 4 degrees off on top of that.
+def _misread_lopsided_object(rng):
+    """A lopsided object (a slab and a post on one corner) seen in two frames, the true
+    T_b_from_a, and an estimator that reads A turned 180 degrees about up, 4 degrees off."""
     obj = np.concatenate([rng.uniform([-1, -0.1, -0.6], [1, 0.1, 0.6], size=(300, 3)),
                           rng.uniform([0.6, 0.1, -0.6], [1, 1.2, -0.3], size=(300, 3))])  # fmt: skip
     t_ca = rigid_from_rotation_translation(random_rotation(rng), [0.3, -0.2, 2.5])
     t_cb = rigid_from_rotation_translation(random_rotation(rng), [-0.4, 0.1, 3.0])
     a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
-    truth = invert_rigid(t_cb) @ t_ca
     misread = symmetry_rotations("yaw180")[0] @ small_motion(4.0, [0, 0, 0]) @ t_ca
 
     def estimate(points):
         pose = misread if points is a else t_cb
         return PoseEstimate(pose, 3, 1.0, "max_iterations")
 
+    return a, b, invert_rigid(t_cb) @ t_ca, estimate
+
+
+def test_align_clouds_with_icp_switches_to_the_symmetric_hypothesis(rng):
+    a, b, truth, estimate = _misread_lopsided_object(rng)
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", refine=True))
     assert result.hypotheses[result.chosen].source == "itnet+yaw180+icp"
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
@@ -102,3 +106,13 @@ def test_align_clouds_with_icp_switches_to_the_symmetric_hypothesis(rng):
     plain = align_clouds(a, b, estimate, AlignOptions(symmetry="none", refine=True))
     assert rotation_error_deg(plain.T_b_from_a[:3, :3], truth[:3, :3]) > 90
     assert plain.confidence["confidence"] < 0.5
+
+
+def test_rivals_refines_the_estimate_and_the_best_fitting_rival_only(rng):
+    a, b, truth, estimate = _misread_lopsided_object(rng)
+    every = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90", refine=True))
+    assert len(every.hypotheses) == 4
+    one = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90", refine=True, rivals=1))
+    assert [h.source for h in one.hypotheses] == ["itnet+icp", "itnet+yaw180+icp"]
+    assert one.hypotheses[one.chosen].source == "itnet+yaw180+icp"
+    assert rotation_error_deg(one.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
