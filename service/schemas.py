@@ -92,6 +92,7 @@ class ModelInfo(BaseModel):
 
     name: str
     category: str
+    precision: str = Field(description="'float32', or 'int8' (per-point layers quantised)")
     points: int = Field(description="points every cloud is resampled to")
     trained_iterations: int
     recommended_iterations: int

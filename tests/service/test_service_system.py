@@ -34,6 +34,7 @@ def test_models_lists_the_card(client: TestClient) -> None:
     assert body["default_model"] == "tiny"
     (model,) = body["models"]
     assert (model["name"], model["category"], model["points"]) == ("tiny", "chair", 256)
+    assert model["precision"] == "float32"
     assert model["trained_iterations"] == 5 and model["recommended_iterations"] == 5
     assert model["accuracy"] == {} and model["default"] is True
     assert model["step_ms"] > 0  # measured at warm-up

@@ -20,6 +20,7 @@ async def models(state: StateDep) -> ModelsResponse:
         ModelInfo(
             name=name,
             category=m.card.category,
+            precision=m.card.precision,
             points=m.card.points,
             trained_iterations=m.card.trained_iterations,
             recommended_iterations=m.card.recommended_iterations,
