@@ -89,3 +89,51 @@ def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, poin
         output = log.read()
         log.close()
     assert "Traceback" not in output, output[-3000:]
+
+
+def _children(pid: int) -> list[int]:
+    """PIDs whose parent is ``pid`` (from /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to list worker processes")
+def test_sigterm_with_workers_stops_every_worker_and_exits_0(
+    heavy_model_dir: Path, tmp_path: Path, points: list
+) -> None:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    command = [sys.executable, "-c", "from itnet.cli import app; app()", "serve", "--port",
+               str(port), "--model-dir", str(heavy_model_dir), "--workers", "2"]  # fmt: skip
+    env = {**os.environ, "ITNET_THREADS": "1"}
+    log = (tmp_path / "server.log").open("w+")
+    server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: server.poll() is not None or not refused(port), 60)
+        assert wait_for(lambda: len(_children(server.pid)) >= 2, 30), _children(server.pid)
+        workers = _children(server.pid)
+        request = {"points": points, "budget_ms": 200, "max_iterations": 3}
+        assert wait_for(lambda: httpx.get(f"{url}/readyz").status_code == 200, 60)
+        for _ in range(4):
+            assert httpx.post(f"{url}/v1/estimate", json=request, timeout=20).status_code == 200
+        server.send_signal(signal.SIGTERM)
+        assert server.wait(timeout=30) == 0
+        assert wait_for(lambda: not any(Path(f"/proc/{p}").exists() for p in workers), 10)
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait(timeout=10)
+        log.seek(0)
+        output = log.read()
+        log.close()
+    assert "Traceback" not in output, output[-3000:]
