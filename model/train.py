@@ -72,6 +72,7 @@ class TrainConfig(BaseModel):
     scan_mix: list[dict[str, Any]] = [{}, PAPER_VIEWS]  # each training scan: one of these
     # ScanConfig overrides, drawn uniformly ({}: occluded views; PAPER_VIEWS: the paper's rule)
     init_from: Path | None = None  # start from these weights (fine-tuning) instead of scratch
+    val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
     threads: int = 0  # 0: torch's default
 
 
@@ -126,9 +127,11 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         )
         for overrides in config.scan_mix
     ]
+    val_overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in config.val_scan.items()}
     val_scans = cached_scan_set(
-        val_shapes, config.val_views, config.seed + 7, scan_config, config.cache
-    )
+        val_shapes, config.val_views, config.seed + 7, replace(scan_config, **val_overrides),
+        config.cache,
+    )  # fmt: skip
 
     torch.manual_seed(config.seed)
     net = ITNet(NetworkConfig(identity_init=config.identity_init)).to(config.device)

@@ -11,9 +11,9 @@ RUN=${RUN:-runs/chair2}
 if [ -z "${SKIP_TRAIN:-}" ]; then
   # 1. From scratch on occluded views only (6,000 steps, lr 1e-3 x0.7 every 1,125).
   $itnet train --out runs/chair --steps 6000 --decay-every 1125 --no-paper-views
-  # 2. Fine-tune on a half-and-half mix of occluded and paper views.
+  # 2. Fine-tune on a half-and-half mix of occluded and paper views (selected on paper views).
   $itnet train --out runs/chair2 --init-from runs/chair/last.pt --steps 3000 --lr 4e-4 \
-    --decay-every 1000 --bn-momentum 0.1
+    --decay-every 1000 --bn-momentum 0.1 --val-scanner paper
 fi
 # The anytime curves on the test split (5 random views per held-out chair), torch path: occluded
 # views (the product's benchmark) and the paper's z-buffer views.

@@ -85,6 +85,18 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
         "steps"
     ] == 20
 
+    # Fine-tune from it, selecting on the paper's views; a bad scanner name is refused.
+    out_at = train.index("--out") + 1
+    tune = [*train[:out_at], str(tmp_path / "tune"), *train[out_at + 1 :], "--steps", "10"]
+    tuned = runner.invoke(
+        app, [*tune, "--init-from", str(run / "best.pt"), "--val-scanner", "paper"]
+    )
+    assert tuned.exit_code == 0, tuned.output
+    config = json.loads((tmp_path / "tune" / "config.json").read_text())
+    assert config["init_from"] == str(run / "best.pt")
+    assert config["val_scan"]["tolerance"] == 0.0 and len(config["scan_mix"]) == 2
+    assert runner.invoke(app, [*tune, "--val-scanner", "nearest"]).exit_code == 2
+
     ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "512"]
     torch_eval = runner.invoke(
         app, [*ev, "--checkpoint", str(run / "best.pt"), "--out", str(tmp_path / "e1")]

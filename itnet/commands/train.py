@@ -37,6 +37,9 @@ def train(
     bn_momentum: float = typer.Option(
         0.5, help="BatchNorm momentum at step 0 (halves every DECAY_EVERY steps, floor 0.01)."
     ),
+    val_scanner: str = typer.Option(
+        "occluded", help="Validation views (model selection): 'occluded' or 'paper'."
+    ),
     paper_views: bool = typer.Option(
         True, help="Train on the paper's z-buffer views too, half of the scans (view variety)."
     ),
@@ -49,6 +52,9 @@ def train(
     """
     from itnet.model.scanner import PAPER_VIEWS
     from itnet.model.train import TrainConfig
+
+    if val_scanner not in ("occluded", "paper"):
+        raise typer.BadParameter("--val-scanner must be 'occluded' or 'paper'")
     from itnet.model.train import train as run_training
 
     config = TrainConfig(
@@ -74,6 +80,7 @@ def train(
         init_from=init_from,
         bn_momentum=(bn_momentum, 0.01),
         scan_mix=[{}, PAPER_VIEWS] if paper_views else [{}],
+        val_scan=PAPER_VIEWS if val_scanner == "paper" else {},
     )
     best = run_training(config, resume=resume)
     typer.echo(
