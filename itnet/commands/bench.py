@@ -27,22 +27,23 @@ def cpu_description() -> str:
 
 
 def bench(
-    model: list[str] = typer.Option(
-        ["chair", "chair-fp32"], help="Model names (repeat the option for several)."
+    model: list[str] | None = typer.Option(
+        None, help="Model names (repeat the option for several; default: every model)."
     ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     repeats: int = typer.Option(200, help="Timed runs per configuration."),
 ) -> None:
     """Print a markdown table of median step times (onnxruntime) and the loop overhead."""
     from itnet.service.benchmark import loop_overhead, time_step_ms
-    from itnet.service.models_in_process import get_model
+    from itnet.service.models_in_process import all_models, get_model
 
     typer.echo(f"machine: {cpu_description()}")
     typer.echo(
         "| model | precision | B×N | 1 thread (ms) | 2 threads (ms) | 2 threads per item (ms) |"
     )
     typer.echo("|---|---|---|---|---|---|")
-    paths = {name: get_model(name, model_dir) for name in model}
+    names = model or sorted(all_models(model_dir))
+    paths = {name: get_model(name, model_dir) for name in names}
     # The machine's speed drifts (other tenants of the host): interleave the models, a few
     # rounds each, and report the median of the rounds, so the rows compare like with like.
     rounds = 3

@@ -1,0 +1,26 @@
+"""``itnet bench`` measures every model of a folder and prints its table."""
+
+from __future__ import annotations
+
+from typer.testing import CliRunner
+
+from itnet.cli import app
+
+
+def test_bench_prints_a_row_per_model_and_shape_and_the_loop_overhead(tiny_model_dir) -> None:
+    result = CliRunner().invoke(
+        app, ["bench", "--model-dir", str(tiny_model_dir), "--repeats", "3"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "machine:" in result.output and "CPUs" in result.output
+    rows = [line for line in result.output.splitlines() if line.startswith("| tiny |")]
+    assert [r.split("|")[3].strip() for r in rows] == ["1×1024", "1×4096", "8×1024"]
+    assert all(r.split("|")[2].strip() == "float32" for r in rows)
+    assert "tiny: anytime loop" in result.output and "overhead" in result.output
+
+
+def test_bench_refuses_an_unknown_model(tiny_model_dir) -> None:
+    result = CliRunner().invoke(
+        app, ["bench", "--model-dir", str(tiny_model_dir), "--model", "sofa"]
+    )
+    assert result.exit_code == 2 and "unknown model 'sofa'" in result.output
