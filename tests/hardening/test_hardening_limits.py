@@ -247,5 +247,7 @@ def test_every_admitted_estimate_gets_a_worker_thread_at_once(
     assert {r.json()["stopped_by"] for r in replies} == {"max_iterations"}
     first_steps = [r.json()["estimates"][0]["elapsed_ms"] for r in replies]
     # Measured on 2 cores: 85-185 ms without a queue (60 threads contend for the GIL), and
-    # 370-440 ms for the last 20 with anyio's 40 threads.
-    assert max(first_steps) < 300, sorted(first_steps)[-5:]
+    # 370-440 ms for the last 20 with anyio's 40 threads. The spread, not the level: a stall of
+    # the whole process (a garbage collection of the test process) delays every request alike.
+    spread = max(first_steps) - min(first_steps)
+    assert spread < 250, sorted(first_steps)[:3] + sorted(first_steps)[-3:]
