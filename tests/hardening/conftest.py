@@ -3,6 +3,7 @@ live server around it (see hardening_helpers.py)."""
 
 from __future__ import annotations
 
+import gc
 import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -11,8 +12,20 @@ from typing import Any
 import pytest
 from hardening_helpers import LIMITS, SERVER, LiveServer, card_of, cloud, live_server, with_card
 
+from itnet.service.gc_tuning import freeze_startup_objects
 from itnet.service.runtime import LoadedModel, load_model, load_models
 from itnet.service.settings import Settings
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _startup_objects_out_of_gc(tiny_model_dir: Path) -> Iterator[None]:
+    """These tests time a server that runs inside the test process, which has imported torch
+    (for the tiny model's export): a full garbage collection of that many objects stalls every
+    thread for hundreds of ms, the pause that ``ITNET_GC_FREEZE`` removes from the service. Do
+    what the service does: freeze what exists once everything is imported."""
+    freeze_startup_objects()
+    yield
+    gc.unfreeze()
 
 
 @pytest.fixture(scope="module")
