@@ -14,7 +14,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,6 +82,10 @@ class Server:
     log: IO[str]
 
     @property
+    def port(self) -> int:
+        return int(self.url.rsplit(":", 1)[1])
+
+    @property
     def ws_url(self) -> str:
         return self.url.replace("http://", "ws://") + "/v1/estimate/stream"
 
@@ -96,13 +100,20 @@ class Server:
 
 @contextmanager
 def serve(
-    models: Path, log_path: Path, env: Mapping[str, str] | None = None, timeout_s: float = 90
+    models: Path,
+    log_path: Path,
+    env: Mapping[str, str] | None = None,
+    timeout_s: float = 90,
+    args: Sequence[str] = (),
+    log_level: str = "warning",
 ) -> Iterator[Server]:
-    """``itnet serve`` on a free loopback port until ready; SIGTERM (then kill) on exit."""
+    """``itnet serve`` (plus ``args``) on a free loopback port until /readyz says 200; SIGTERM
+    (then kill) on exit unless it has exited already. Used by the benchmarks and the tests that
+    need a real server process."""
     port = free_port()
     command = [sys.executable, "-c", "from itnet.cli import app; app()", "serve",
                "--host", "127.0.0.1", "--port", str(port), "--model-dir", str(models),
-               "--log-level", "warning"]  # fmt: skip
+               "--log-level", log_level, *args]  # fmt: skip
     log = log_path.open("w+")
     process = subprocess.Popen(
         command, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, **(env or {})}

@@ -3,17 +3,13 @@ process on 127.0.0.1, with the tiny random model."""
 
 import asyncio
 import json
-import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 
-import httpx
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmarks.harness import serve
 from itnet.cli import align_app
 from itnet.clients import AsyncItnetClient, ItnetClient, ItnetRequestError
 
@@ -21,38 +17,12 @@ pytestmark = pytest.mark.e2e
 EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
-def server(tiny_model_dir):
+def server(tiny_model_dir, tmp_path_factory):
     """URL of an ``itnet serve`` subprocess (stopped after the module; 30 s to come up)."""
-    port = free_port()
-    itnet = Path(sys.executable).parent / "itnet"
-    argv = [str(itnet), "serve", "--model-dir", str(tiny_model_dir), "--port", str(port),
-            "--log-level", "warning"]  # fmt: skip
-    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 30
-    while True:
-        try:
-            if httpx.get(url + "/readyz", timeout=1).status_code == 200:
-                break
-        except httpx.TransportError:
-            pass
-        if process.poll() is not None or time.monotonic() > deadline:
-            process.kill()
-            pytest.fail(f"itnet serve did not come up: {process.stdout.read().decode()[-2000:]}")
-        time.sleep(0.2)
-    yield url
-    process.terminate()
-    try:
-        process.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        process.kill()
+    log = tmp_path_factory.mktemp("align-e2e") / "server.log"
+    with serve(tiny_model_dir, log, timeout_s=30) as running:
+        yield running.url
 
 
 @pytest.fixture

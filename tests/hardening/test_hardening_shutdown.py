@@ -5,11 +5,8 @@ flight are closed with 1012 (service restart) and their runs stop, and the proce
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -19,6 +16,8 @@ import pytest
 from hardening_helpers import wait_for
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
+
+from benchmarks.harness import serve
 
 
 def refused(port: int) -> bool:
@@ -37,17 +36,9 @@ def in_flight(url: str) -> float:
 
 
 def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, points: list) -> None:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    command = [sys.executable, "-c", "from itnet.cli import app; app()", "serve", "--port",
-               str(port), "--model-dir", str(heavy_model_dir), "--log-level", "info"]  # fmt: skip
-    env = {**os.environ, "ITNET_THREADS": "1", "ITNET_SERVER__GRACEFUL_SHUTDOWN_S": "10"}
-    log = (tmp_path / "server.log").open("w+")
-    server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        assert wait_for(lambda: server.poll() is not None or not refused(port), 30)
+    env = {"ITNET_THREADS": "1", "ITNET_SERVER__GRACEFUL_SHUTDOWN_S": "10"}
+    with serve(heavy_model_dir, tmp_path / "server.log", env, log_level="info") as server:
+        url = server.url
         request = {"points": points, "budget_ms": 1500, "max_iterations": 200}
         replies: list[tuple[httpx.Response, float]] = []
 
@@ -58,7 +49,7 @@ def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, poin
         posts = [threading.Thread(target=post) for _ in range(3)]
         for thread in posts:
             thread.start()
-        stream = connect(url.replace("http", "ws") + "/v1/estimate/stream", open_timeout=10)
+        stream = connect(server.ws_url, open_timeout=10)
         stream.send(json.dumps(request))
         assert json.loads(stream.recv(timeout=10))["type"] == "estimate"
         # Connections still in the kernel's accept queue are reset when the socket closes: wait
@@ -66,8 +57,8 @@ def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, poin
         assert wait_for(lambda: in_flight(url) == 4, 5)
 
         sent_at = time.perf_counter()
-        server.send_signal(signal.SIGTERM)
-        assert wait_for(lambda: refused(port), 1.0), "still accepting after SIGTERM"
+        server.process.send_signal(signal.SIGTERM)
+        assert wait_for(lambda: refused(server.port), 1.0), "still accepting after SIGTERM"
         with pytest.raises(ConnectionClosed):
             while True:
                 stream.recv(timeout=5)
@@ -80,14 +71,8 @@ def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, poin
             body = reply.json()
             assert body["iterations"] > 0 and body["stopped_by"] in ("budget", "max_iterations")
             assert len(body["estimates"]) == body["iterations"]
-        assert server.wait(timeout=15) == 0
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait(timeout=10)
-        log.seek(0)
-        output = log.read()
-        log.close()
+        assert server.process.wait(timeout=15) == 0
+        output = server.log_tail(chars=10**7)
     assert "Traceback" not in output, output[-3000:]
 
 
@@ -109,31 +94,17 @@ def _children(pid: int) -> list[int]:
 def test_sigterm_with_workers_stops_every_worker_and_exits_0(
     heavy_model_dir: Path, tmp_path: Path, points: list
 ) -> None:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    command = [sys.executable, "-c", "from itnet.cli import app; app()", "serve", "--port",
-               str(port), "--model-dir", str(heavy_model_dir), "--workers", "2"]  # fmt: skip
-    env = {**os.environ, "ITNET_THREADS": "1"}
-    log = (tmp_path / "server.log").open("w+")
-    server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        assert wait_for(lambda: server.poll() is not None or not refused(port), 60)
-        assert wait_for(lambda: len(_children(server.pid)) >= 2, 30), _children(server.pid)
-        workers = _children(server.pid)
+    env = {"ITNET_THREADS": "1"}
+    with serve(heavy_model_dir, tmp_path / "server.log", env, args=["--workers", "2"]) as server:
+        pid = server.process.pid
+        assert wait_for(lambda: len(_children(pid)) >= 2, 30), _children(pid)
+        workers = _children(pid)
         request = {"points": points, "budget_ms": 200, "max_iterations": 3}
-        assert wait_for(lambda: httpx.get(f"{url}/readyz").status_code == 200, 60)
         for _ in range(4):
-            assert httpx.post(f"{url}/v1/estimate", json=request, timeout=20).status_code == 200
-        server.send_signal(signal.SIGTERM)
-        assert server.wait(timeout=30) == 0
+            reply = httpx.post(f"{server.url}/v1/estimate", json=request, timeout=20)
+            assert reply.status_code == 200
+        server.process.send_signal(signal.SIGTERM)
+        assert server.process.wait(timeout=30) == 0
         assert wait_for(lambda: not any(Path(f"/proc/{p}").exists() for p in workers), 10)
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait(timeout=10)
-        log.seek(0)
-        output = log.read()
-        log.close()
+        output = server.log_tail(chars=10**7)
     assert "Traceback" not in output, output[-3000:]

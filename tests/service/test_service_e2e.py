@@ -3,15 +3,8 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
 
 import httpx
 import numpy as np
@@ -19,51 +12,18 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
+from benchmarks.harness import serve
+
 START_TIMEOUT_S = 60
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def read(log: IO[str]) -> str:
-    log.seek(0)
-    return log.read()[-3000:]
 
 
 @pytest.fixture(scope="module")
 def server(tiny_model_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """``itnet serve`` on a free port; yields its base URL; stopped (then killed) at the end."""
-    port = free_port()
-    log = (tmp_path_factory.mktemp("e2e") / "server.log").open("w+")
-    cli = [sys.executable, "-c", "from itnet.cli import app; app()"]
-    command = [*cli, "serve", "--host", "127.0.0.1", "--port", str(port),
-               "--model-dir", str(tiny_model_dir)]  # fmt: skip
-    env = {**os.environ, "ITNET_THREADS": "1"}
-    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            assert process.poll() is None, f"server exited: {read(log)}"
-            assert time.monotonic() < deadline, f"server not ready: {read(log)}"
-            try:
-                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
-        yield url
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=10)
-        log.close()
+    log = tmp_path_factory.mktemp("e2e") / "server.log"
+    env = {"ITNET_THREADS": "1"}
+    with serve(tiny_model_dir, log, env, timeout_s=START_TIMEOUT_S, log_level="info") as running:
+        yield running.url
 
 
 POINTS = np.random.default_rng(11).uniform(-0.5, 0.5, size=(700, 3)).astype(np.float32)
