@@ -2,8 +2,7 @@
 
 * Shapes are loaded once, orientation-checked (``shapes.check_yaw``) and cached as .npz.
 * Training batches are fresh random scans every step (a seeded generator per step, so a resumed
-  run sees the same data), or draws from a pool of views that is re-scanned every few hundred
-  steps (``TrainConfig.view_pool_steps``).
+  run sees the same data).
 * Validation and test scans are fixed (seeded) and cached, in random units (scale 0.01-100), so
   evaluation also checks that the unit does not matter.
 """
@@ -174,15 +173,4 @@ def training_batch(
     for b, i in enumerate(rng.integers(len(shapes), size=batch)):
         cloud, pose = scan_shape(shapes[i].points, rng, _pick(configs, rng), shapes[i].triangles)
         xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
-    return xs, targets
-
-
-def pool_batch(
-    pool: ScanSet, batch: int, points: int, rng: np.random.Generator
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Random members of a fixed pool of scans -> (points (B, points, 3), targets (B, 4, 4)),
-    each with a fresh random subset of its points."""
-    xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
-    for b, i in enumerate(rng.integers(len(pool.clouds), size=batch)):
-        xs[b], targets[b] = _normalised_example(pool.clouds[i], pool.poses[i], points, rng)
     return xs, targets

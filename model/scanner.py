@@ -19,7 +19,9 @@ Two scanners:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +56,13 @@ PAPER_VIEWS: dict[str, object] = {
     "occlusion_tolerance": float("inf"),
 }
 """ScanConfig overrides for the paper's z-buffer rule (the nearest point of each pixel)."""
+
+
+def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
+    """The default ScanConfig with each mapping of ``overrides`` applied in turn. Lists become
+    tuples: overrides stored in a JSON config come back as lists."""
+    merged = {k: tuple(v) if isinstance(v, list) else v for o in overrides for k, v in o.items()}
+    return replace(ScanConfig(), **merged)
 
 
 def random_camera_pose(rng: np.random.Generator, config: ScanConfig) -> NDArray[np.float64]:

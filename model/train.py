@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -19,17 +18,14 @@ import torch
 from pydantic import BaseModel
 
 from itnet.model.data import (
-    ScanSet,
     cached_scan_set,
     load_shapes,
-    make_scan_set,
-    pool_batch,
     split_files,
     training_batch,
 )
 from itnet.model.evaluate import anytime_poses, report, torch_step
 from itnet.model.network import ITNet, NetworkConfig, point_loss
-from itnet.model.scanner import PAPER_VIEWS, ScanConfig
+from itnet.model.scanner import PAPER_VIEWS, scan_config
 
 
 class TrainConfig(BaseModel):
@@ -66,9 +62,6 @@ class TrainConfig(BaseModel):
     device: str = "cpu"
     bf16: bool = True  # autocast matmuls to bfloat16 (AVX-512 BF16 or AMX on CPU), keep the pose math in fp32
     sensor_noise: bool = True  # depth noise, jitter and outliers in the training scans
-    view_pool_steps: int = (
-        0  # 0: fresh scans every step; N: one view per shape, re-scanned every N steps
-    )
     scan_mix: list[dict[str, Any]] = [{}, PAPER_VIEWS]  # each training scan: one of these
     # ScanConfig overrides, drawn uniformly ({}: occluded views; PAPER_VIEWS: the paper's rule)
     init_from: Path | None = None  # start from these weights (fine-tuning) instead of scratch
@@ -117,21 +110,12 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         files["train"], config.frame, config.cache, config.check_orientation
     )
     val_shapes, _ = load_shapes(files["val"], config.frame, config.cache, config.check_orientation)
-    scan_config = ScanConfig()
     quiet = {"depth_noise": (0.0, 0.0), "jitter": (0.0, 0.0), "outlier_fraction": (0.0, 0.0)}
-    train_scan_configs = [
-        replace(
-            scan_config,
-            **({} if config.sensor_noise else quiet),
-            **{k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()},
-        )
-        for overrides in config.scan_mix
-    ]
-    val_overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in config.val_scan.items()}
+    noise = {} if config.sensor_noise else quiet
+    train_scan_configs = [scan_config(noise, overrides) for overrides in config.scan_mix]
     val_scans = cached_scan_set(
-        val_shapes, config.val_views, config.seed + 7, replace(scan_config, **val_overrides),
-        config.cache,
-    )  # fmt: skip
+        val_shapes, config.val_views, config.seed + 7, scan_config(config.val_scan), config.cache
+    )
 
     torch.manual_seed(config.seed)
     net = ITNet(NetworkConfig(identity_init=config.identity_init)).to(config.device)
@@ -160,22 +144,12 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     )
     bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
     losses: list[float] = []
-    pool: tuple[int, ScanSet] | None = None
     started = time.time()
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
-        if config.view_pool_steps:
-            pool_id = step // config.view_pool_steps
-            if pool is None or pool[0] != pool_id:
-                views = make_scan_set(
-                    train_shapes, 1, config.seed * 100_003 + pool_id, train_scan_configs
-                )
-                pool = (pool_id, views)
-            x, target = pool_batch(pool[1], config.batch, config.points, rng)
-        else:
-            x, target = training_batch(
-                train_shapes, config.batch, config.points, rng, train_scan_configs
-            )
+        x, target = training_batch(
+            train_shapes, config.batch, config.points, rng, train_scan_configs
+        )
         x_t = torch.from_numpy(x).to(config.device)
         target_t = torch.from_numpy(target).to(config.device)
         lr = config.lr * config.lr_decay ** (step / config.decay_every)

@@ -30,21 +30,20 @@ def evaluate(
     cache: Path = typer.Option(Path("cache")),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
-    from dataclasses import replace
 
     import numpy as np
 
     from itnet.model.data import cached_scan_set, load_shapes, split_files
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
-    from itnet.model.scanner import PAPER_VIEWS, ScanConfig
+    from itnet.model.scanner import PAPER_VIEWS, scan_config
 
     batch = 50  # clouds per network call
     if (checkpoint is None) == (onnx is None):
         raise typer.BadParameter("give exactly one of --checkpoint or --onnx")
     if scanner not in ("occluded", "paper"):
         raise typer.BadParameter("--scanner must be 'occluded' or 'paper'")
-    scan_config = replace(ScanConfig(), **PAPER_VIEWS) if scanner == "paper" else ScanConfig()
+    config = scan_config(PAPER_VIEWS if scanner == "paper" else {})
     if checkpoint is not None:
         from itnet.model.evaluate import torch_step
         from itnet.model.train import load_checkpoint
@@ -61,7 +60,7 @@ def evaluate(
         batch = 1 if model.card.precision == "int8" else batch
     files = split_files(data, category, 0.1, 0)["test"]
     shapes, orientation = load_shapes(files, frame, cache, check_orientation=True)
-    scans = cached_scan_set(shapes, views, seed, scan_config, cache)
+    scans = cached_scan_set(shapes, views, seed, config, cache)
     poses = anytime_poses(step, scans, iterations, points, batch=batch)
     rep, rot, trans = report(poses, scans)
     out.mkdir(parents=True, exist_ok=True)
