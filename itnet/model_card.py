@@ -20,7 +20,9 @@ class ModelCard(BaseModel):
     precision: str = Field(
         "float32", description="'float32', or 'int8' (per-point layers dynamically quantised)"
     )
-    points: int = Field(1024, description="points the runtime resamples every cloud to")
+    points: int = Field(
+        1024, description="points the runtime subsamples a larger cloud to (a smaller one: whole)"
+    )
     trained_points: int = 256
     trained_iterations: int = 5
     recommended_iterations: int = 10

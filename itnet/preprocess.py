@@ -70,6 +70,20 @@ def pose_to_normalized(pose: ArrayLike, norm: Normalization) -> FloatArray:
     return t
 
 
+def cap_points(points: ArrayLike, count: int, rng: np.random.Generator) -> NDArray:
+    """At most ``count`` points (K x3, K = min(N, count)): a seeded random subset of a larger
+    cloud, a smaller one whole and in order.
+
+    What the runtime feeds the network. Padding a small cloud to ``count`` with repeats (as
+    ``resample`` does for fixed-size training batches) gives the same max-pooled feature, hence
+    the same pose, but costs a step time proportional to ``count`` instead of N.
+    """
+    p = np.asarray(points)
+    if len(p) <= count:
+        return p
+    return p[rng.choice(len(p), size=count, replace=False)]
+
+
 def resample(points: ArrayLike, count: int, rng: np.random.Generator) -> NDArray:
     """Exactly ``count`` points (count x3): a random subset, or all points plus random repeats.
 

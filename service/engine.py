@@ -6,7 +6,8 @@
     run.stopped_by                # 'budget' | 'max_iterations' | 'converged' | 'cancelled'
 
 Per request: validate the cloud, normalise it (``itnet.preprocess``: centroid, RMS radius),
-resample it to the model's point count (seeded, so the same cloud gives the same answer), then
+subsample it to the model's point count if larger (seeded, so the same cloud gives the same
+answer; a smaller cloud goes in whole: repeats would not change the pose, only the cost), then
 loop: predict the next step's time, stop if it would overrun the budget, run the step, compose,
 and yield the pose in the input's units.
 """
@@ -27,9 +28,9 @@ from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw
 from itnet.preprocess import (
     DegenerateCloudError,
     Normalization,
+    cap_points,
     estimate_normalization,
     pose_from_normalized,
-    resample,
 )
 from itnet.service.runtime import LoadedModel
 
@@ -139,7 +140,10 @@ class AnytimeRun(Iterator[Estimate]):
         except DegenerateCloudError as err:
             raise BadCloudError(str(err)) from None
         x = self.normalization.apply(cloud)
-        self.points = resample(x, model.card.points, np.random.default_rng(seed))[None]
+        self.points = cap_points(x, model.card.points, np.random.default_rng(seed))[None]
+        # A step's cost is about proportional to its points, with a floor for the fixed part:
+        # the model's step-time record is kept at the card's point count, scaled by this.
+        self._load = max(self.points.shape[1] / model.card.points, 0.25)
         self.model = model
         self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
         # Kept back from the budget for handing the reply back after the last step (the service
@@ -175,7 +179,7 @@ class AnytimeRun(Iterator[Estimate]):
             # Move the cloud by the pose so far, predict the update, compose: inside the graph.
             self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
             self._last_step_ms = (time.perf_counter() - start) * 1e3
-        self.model.record_step_ms(self._last_step_ms)
+        self.model.record_step_ms(self._last_step_ms / self._load)
         self.iteration += 1
         d = delta[0]  # the update's angle, in scalar math (numpy's per-call cost is the loop's)
         cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
@@ -204,7 +208,7 @@ class AnytimeRun(Iterator[Estimate]):
     def _slack_ms(self) -> float:
         """Budget left after the predicted next step and the reserve (negative: the step would
         overrun)."""
-        predicted = max(self.model.predicted_step_ms(), self._last_step_ms)
+        predicted = max(self.model.predicted_step_ms() * self._load, self._last_step_ms)
         return self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
 
     def _estimate(

@@ -93,7 +93,7 @@ class ModelInfo(BaseModel):
     name: str
     category: str
     precision: str = Field(description="'float32', or 'int8' (per-point layers quantised)")
-    points: int = Field(description="points every cloud is resampled to")
+    points: int = Field(description="points a larger cloud is subsampled to (a smaller: whole)")
     trained_iterations: int
     recommended_iterations: int
     accuracy: dict[str, float] = Field(

@@ -7,6 +7,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,14 +21,16 @@ from itnet.service.runtime import LoadedModel
 os.environ.setdefault("ITNET_GC_FREEZE", "false")
 
 
-def make_tiny_net(seed: int = 0):  # type: ignore[no-untyped-def]
+def make_tiny_net(  # type: ignore[no-untyped-def]
+    seed: int = 0, point_channels: tuple[int, ...] = (16, 32, 64)
+):
     """A small ITNet with random weights and random BatchNorm statistics (eval mode)."""
     import torch
 
     from itnet.model.network import ITNet, NetworkConfig
 
     torch.manual_seed(seed)
-    net = ITNet(NetworkConfig(point_channels=(16, 32, 64), head_channels=(32, 16)))
+    net = ITNet(NetworkConfig(point_channels=point_channels, head_channels=(32, 16)))
     with torch.no_grad():
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm1d):
@@ -44,6 +47,12 @@ def tiny_net():  # type: ignore[no-untyped-def]
     """The network inside ``tiny_model_dir`` (same seed), in torch. (A fixture rather than an
     import: with several conftest.py files, ``from conftest import`` finds whichever came last.)"""
     return make_tiny_net()
+
+
+@pytest.fixture(scope="session")
+def make_net() -> Callable[..., Any]:
+    """``make_tiny_net`` itself, for fixtures elsewhere that export a variant of it."""
+    return make_tiny_net
 
 
 @pytest.fixture(scope="session")

@@ -97,6 +97,24 @@ def test_pose_is_in_input_units_and_equivariant(model, cloud, rng):
     assert np.allclose(moved, base @ np.linalg.inv(shift), atol=1e-4)
 
 
+def test_small_cloud_goes_in_whole_with_the_padded_answer(model, rng):
+    """A cloud below the card's point count is fed unpadded: the same pose as the training-style
+    input padded with repeats (max-pooling ignores repeats), at a step over fewer points."""
+    from itnet.preprocess import resample
+
+    small = rng.normal(size=(100, 3)) * [0.3, 0.2, 0.1]
+    run = AnytimeRun(model, small, budget_ms=10_000, max_iterations=4, converge_rotation_deg=0)
+    assert run.points.shape == (1, 100, 3)
+    last = run.run_to_end()
+    padded = resample(run.points[0], model.card.points, rng)[None]
+    pose = np.eye(4, dtype=np.float32)[None]
+    for _ in range(4):
+        pose, _ = model.step(padded, pose)
+    assert np.allclose(last.pose_normalized, pose[0], atol=1e-5)
+    big = AnytimeRun(model, rng.normal(size=(1000, 3)), budget_ms=10_000, max_iterations=1)
+    assert big.points.shape == (1, model.card.points, 3)
+
+
 def test_same_cloud_same_answer(model, cloud):
     a = AnytimeRun(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose
     b = AnytimeRun(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose

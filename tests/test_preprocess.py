@@ -4,6 +4,7 @@ import pytest
 from itnet.geometry import apply_rigid, random_rotation, rigid_from_rotation_translation
 from itnet.preprocess import (
     DegenerateCloudError,
+    cap_points,
     estimate_normalization,
     pose_from_normalized,
     pose_to_normalized,
@@ -35,6 +36,17 @@ def test_pose_round_trip_and_meaning(rng):
 def test_degenerate_cloud_is_refused(cloud):
     with pytest.raises(DegenerateCloudError, match="degenerate"):
         estimate_normalization(cloud)
+
+
+def test_cap_points_subsamples_large_clouds_and_keeps_small_ones_whole(rng):
+    cloud = rng.normal(size=(100, 3))
+    assert np.array_equal(cap_points(cloud, 100, rng), cloud)
+    assert np.array_equal(cap_points(cloud, 1000, rng), cloud)
+    out = cap_points(cloud, 30, rng)
+    assert out.shape == (30, 3) and len({tuple(p) for p in out}) == 30
+    assert {tuple(p) for p in out} <= {tuple(p) for p in cloud}
+    seeded = [cap_points(cloud, 30, np.random.default_rng(5)) for _ in range(2)]
+    assert np.array_equal(*seeded)
 
 
 def test_resample_exact_count_without_inventing_points(rng):
