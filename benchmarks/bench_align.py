@@ -80,24 +80,16 @@ def itnet_methods(
 ) -> tuple[dict[str, Callable], LoadedModel]:
     """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info)."""
     model = load_models(model_dir or default_model_dir())[model_name]
-    full = in_process_estimator(model, budget_ms)
-    fast = in_process_estimator(model, budget_ms, max_iterations=5)
+    estimate = in_process_estimator(model, budget_ms)
     symmetry = category_symmetry(model.card.category)
     variants = {
-        "itnet-align": (full, AlignOptions(symmetry=symmetry)),
-        "itnet-align --refine --symmetry none": (full, AlignOptions(symmetry="none", refine=True)),
-        "itnet-align --refine": (full, AlignOptions(symmetry=symmetry, refine=True)),
-        "itnet-align --refine --rivals 1": (
-            full,
-            AlignOptions(symmetry=symmetry, refine=True, rivals=1),
+        "itnet-align": AlignOptions(symmetry=symmetry),
+        "itnet-align --refine": AlignOptions(symmetry=symmetry, refine=True),
+        "itnet-align --refine --starts 1 --candidates 4": AlignOptions(
+            symmetry=symmetry, refine=True, starts=1, candidates=4
         ),
-        "itnet-align --refine --max-iterations 5": (
-            fast,
-            AlignOptions(symmetry=symmetry, refine=True),
-        ),
-        "itnet-align --refine --samples 3": (
-            full,
-            AlignOptions(symmetry=symmetry, refine=True, samples=3),
+        "itnet-align --refine --starts 6 --candidates 12": AlignOptions(
+            symmetry=symmetry, refine=True, starts=6, candidates=12
         ),
     }
 
@@ -106,12 +98,13 @@ def itnet_methods(
             result = align_clouds(a, b, estimate, options)
             chosen = result.hypotheses[result.chosen].source
             info = {**result.confidence, "hypothesis": chosen, "iterations": result.iterations,
+                    "considered": result.considered,
                     **{f"{k}_ms": v for k, v in result.timings_ms.items()}}  # fmt: skip
             return result.T_b_from_a, info
 
         return align
 
-    return {name: method(*args) for name, args in variants.items()}, model
+    return {name: method(estimate, options) for name, options in variants.items()}, model
 
 
 def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float) -> dict:

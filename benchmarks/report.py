@@ -3,6 +3,7 @@ figure (CDFs of rotation and translation error, and the time per pair)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +38,9 @@ def confidence_table(outcome) -> list[str]:  # type: ignore[no-untyped-def]
 
 
 def hypothesis_counts(outcome) -> str:  # type: ignore[no-untyped-def]
-    """How often each hypothesis kind was chosen, e.g. 'itnet+icp 81, itnet+yaw180+icp 19'."""
-    names = [i.get("hypothesis", "?") for i in outcome.info]
+    """How often each hypothesis kind was chosen, e.g. 'itnet+icp 81, itnet+yaw180+icp 19'
+    (whichever IT-Net runs it came from: 'itnet a1 b0+yaw90' counts as 'itnet+yaw90')."""
+    names = [re.sub(r" a\d+ b\d+", "", i.get("hypothesis", "?")) for i in outcome.info]
     kinds, counts = np.unique(names, return_counts=True)
     order = np.argsort(-counts)
     return ", ".join(f"{kinds[i]} {counts[i]}" for i in order)
@@ -49,15 +51,17 @@ def time_split(results: dict) -> list[str]:
     rows = []
     for name, outcome in results.items():
         if name.startswith("itnet-align") and outcome.info and "itnet_ms" in outcome.info[0]:
-            part = {k: np.median([i[k] for i in outcome.info])
-                    for k in ("itnet_ms", "refine_ms", "score_ms", "iterations")}  # fmt: skip
-            rows.append(f"| {name} | {part['itnet_ms']:.1f} ms | {part['refine_ms']:.1f} ms | "
-                        f"{part['score_ms']:.1f} ms | {part['iterations']:.0f} |")  # fmt: skip
+            part = {k: np.median([i.get(k, 0.0) for i in outcome.info])
+                    for k in ("itnet_ms", "rank_ms", "refine_ms", "score_ms", "iterations",
+                              "considered")}  # fmt: skip
+            rows.append(f"| {name} | {part['itnet_ms']:.1f} ms | {part['rank_ms']:.1f} ms | "
+                        f"{part['refine_ms']:.1f} ms | {part['score_ms']:.1f} ms | "
+                        f"{part['iterations']:.0f} | {part['considered']:.0f} |")  # fmt: skip
     if not rows:
         return []
     return ["", "Where the time of itnet-align goes (medians per pair):", "",
-            "| method | IT-Net (both clouds) | ICP | scoring | IT-Net iterations |",
-            "|---|---|---|---|---|", *rows]  # fmt: skip
+            "| method | IT-Net (both clouds) | ranking | ICP | scoring | IT-Net iterations "
+            "| hypotheses |", "|---|---|---|---|---|---|---|", *rows]  # fmt: skip
 
 
 def write_report(results: dict, meta: dict, stem: Path) -> None:

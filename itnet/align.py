@@ -7,18 +7,17 @@ Pure numpy: no files, no network, no model. Frames (SPEC.md):
 * ``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a`` moves cloud A onto cloud B.
 
 Why hypotheses. A category-level pose can be wrong in structured ways: a chair seen from its
-side looks much the same turned 180 degrees about its up axis (+y), and a sparse view gives a
-different answer on a different subset of its points. So the alignment considers
+side looks much the same turned 90 or 180 degrees about its up axis (+y), and a sparse view can
+send IT-Net to a different answer from a different start. So the alignment considers, for IT-Net
+runs ``i`` on A and ``j`` on B (each from its own starting rotation, ``itnet.alignment``) and
+each likely symmetry ``S`` of the category (the identity first),
 
-1. the IT-Net estimate ``inv(T_cb) · T_ca``;
-2. the same estimate with A's canonical pose composed with each likely symmetry ``S`` of the
-   category, ``inv(T_cb) · S · T_ca`` (what it is if exactly one of the two poses is off by S);
-3. optionally, estimates from random subsets of both clouds (``samples`` > 1);
+    inv(T_cb[j]) · S · T_ca[i]          (what T_b_from_a is if A's pose i is off by S)
 
-refines each with ICP when asked (``itnet.refine``), scores each by how well the moved A lies on
-B (``overlap_score``), and keeps the IT-Net estimate unless another hypothesis explains the
-geometry clearly better (``switch_margin``), because with little overlap the geometric score is
-the weaker witness. ``confidence`` says how much the answer can be trusted (see its docstring).
+ranks them by how well the moved A lies on B at a loose distance, keeps the best few that are
+distinct (``distinct``), refines those with ICP when asked (``itnet.refine``), scores them at a
+tight distance (``itnet.overlap``) and reports the best. ``confidence`` says how much the answer
+can be trusted (see its docstring).
 """
 
 from __future__ import annotations
@@ -29,7 +28,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import (
-    apply_rigid,
     axis_angle_to_matrix,
     invert_rigid,
     rotation_error_deg,
@@ -72,42 +70,70 @@ class Hypothesis:
     """A candidate T_b_from_a (4x4, B's units) and, once scored, how well it fits the geometry."""
 
     T_b_from_a: NDArray[np.float64]
-    source: str  # "itnet", "itnet+yaw180", "sample 2", with "+icp" once refined
+    source: str  # "itnet", "itnet+yaw180", "itnet a1 b0+yaw90", with "+icp" once refined
     fitness: float = float("nan")  # symmetric share of points within the inlier distance
     rmse: float = float("nan")  # RMS distance of those inliers, B's units
+    loose_fitness: float = float("nan")  # the share at the ranking distance, before refinement
     initial: NDArray[np.float64] | None = field(default=None, repr=False)  # before refinement
     icp: dict[str, float] | None = None  # open3d's fitness and inlier RMSE of the last ICP stage
 
     def to_dict(self) -> dict:
         rmse = float(f"{self.rmse:.5g}")
         out = {"source": self.source, "fitness": round(self.fitness, 4), "rmse": rmse,
+               "loose_fitness": round(self.loose_fitness, 4),
                "T_b_from_a": self.T_b_from_a.tolist()}  # fmt: skip
         return out if self.icp is None else {**out, "icp": self.icp}
 
 
 def build_hypotheses(
-    poses_a: ArrayLike, poses_b: ArrayLike, symmetries: ArrayLike, scale: float
+    poses_a: ArrayLike, poses_b: ArrayLike, symmetries: ArrayLike
 ) -> list[Hypothesis]:
-    """Candidate alignments from IT-Net poses.
+    """Every candidate alignment from IT-Net poses: for each run i on A, run j on B and symmetry
+    S (the identity first), ``inv(T_cb[j]) · S · T_ca[i]``.
 
-    poses_a, poses_b: (K, 4, 4) T_canonical_from_a / _b, row 0 from the whole cloud and rows
-    1.. from random subsets; symmetries: (S, 4, 4) canonical-frame rotations (no identity);
-    scale: a length in B's units (its RMS radius) for telling near-duplicates apart.
-    Returns the IT-Net estimate first, then its symmetric variants, then the subset estimates
-    that differ from every earlier hypothesis by more than 5 degrees or 0.05 scale.
+    poses_a: (Ra, 4, 4) T_canonical_from_a from Ra runs; poses_b: (Rb, 4, 4) likewise;
+    symmetries: (S, 4, 4) canonical-frame rotations (no identity). Returns Ra·Rb·(S+1)
+    hypotheses, runs 0 and 0 without a symmetry first (named "itnet"; the others name their
+    runs when not 0, e.g. "itnet a1 b0+yaw90").
     """
     pa, pb = np.asarray(poses_a, dtype=np.float64), np.asarray(poses_b, dtype=np.float64)
-    main = relative_pose(pa[0], pb[0])
-    found = [Hypothesis(main, "itnet")]
+    turns = [(np.eye(4), "")]
     for sym in np.asarray(symmetries, dtype=np.float64):
         yaw = round(float(np.degrees(np.arctan2(sym[0, 2], sym[0, 0])))) % 360  # about +y
-        name = f"itnet+yaw{yaw}"
-        found.append(Hypothesis(invert_rigid(pb[0]) @ sym @ pa[0], name))
-    for i in range(1, min(len(pa), len(pb))):
-        candidate = relative_pose(pa[i], pb[i])
-        if all(not same_alignment(candidate, h.T_b_from_a, scale) for h in found):
-            found.append(Hypothesis(candidate, f"sample {i}"))
+        turns.append((sym, f"+yaw{yaw}"))
+    found = []
+    for i, pose_a in enumerate(pa):
+        for j, pose_b in enumerate(pb):
+            runs = "" if i == j == 0 else f" a{i} b{j}"
+            for sym, turn in turns:
+                found.append(Hypothesis(invert_rigid(pose_b) @ sym @ pose_a, f"itnet{runs}{turn}"))
     return found
+
+
+def distinct(
+    hypotheses: list[Hypothesis],
+    scores: ArrayLike,
+    count: int,
+    scale: float,
+    max_deg: float = 30.0,
+    max_shift: float = 0.3,
+) -> list[int]:
+    """Indices of up to ``count`` hypotheses, best ``scores`` (H,) first, skipping any that is
+    the same alignment as one already kept (within ``max_deg`` and ``max_shift`` x scale): many
+    hypotheses are near-copies of one another, and refining copies wastes the ICP budget."""
+    poses = np.array([h.T_b_from_a for h in hypotheses], dtype=np.float64)
+    rot, shift = poses[:, :3, :3], poses[:, :3, 3]
+    # Pairwise rotation angles from trace(R_i^T R_j), and distances between translations.
+    cos = (np.einsum("iab,jab->ij", rot, rot) - 1.0) / 2.0
+    close = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) < max_deg
+    close &= np.linalg.norm(shift[:, None] - shift[None], axis=-1) < max_shift * scale
+    kept: list[int] = []
+    for k in np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable"):
+        if not close[k, kept].any():
+            kept.append(int(k))
+            if len(kept) == count:
+                break
+    return kept
 
 
 def same_alignment(
@@ -120,65 +146,9 @@ def same_alignment(
     return angle < max_deg and float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < max_shift * scale
 
 
-def nearest_distances(source: ArrayLike, target: ArrayLike, chunk: int = 256) -> NDArray:
-    """For each source point (N, 3), the distance to its nearest target point (M, 3): (N,).
-
-    Brute force in chunks (clouds are subsampled to a few hundred points for scoring), as
-    |s|^2 + min_j (|t_j|^2 - 2 s.t_j) about the target's centroid, which keeps the cancellation
-    small for clouds far from their frame's origin. The dot products are three elementwise
-    passes, not a BLAS call: a threaded BLAS is slow on matrices this thin, and worse on a
-    busy machine."""
-    t = np.asarray(target, dtype=np.float64)
-    centre = t.mean(axis=0)
-    t = t - centre
-    s = np.asarray(source, dtype=np.float64) - centre
-    t_sq = np.sum(t * t, axis=1)
-    out = np.empty(len(s))
-    for start in range(0, len(s), chunk):
-        b = s[start : start + chunk]
-        dot = b[:, 0:1] * t[:, 0] + b[:, 1:2] * t[:, 1] + b[:, 2:3] * t[:, 2]
-        d2 = (t_sq - 2.0 * dot).min(axis=1) + np.sum(b * b, axis=1)
-        out[start : start + chunk] = np.sqrt(np.maximum(d2, 0.0))
-    return out
-
-
-def overlap_score(
-    points_a: ArrayLike,
-    points_b: ArrayLike,
-    b_from_a: ArrayLike,
-    inlier_distance: float,
-    sources: int | None = None,
-) -> tuple[float, float]:
-    """How well A (N, 3), moved by T_b_from_a, lies on B (M, 3) -> (fitness, rmse).
-
-    fitness: mean of the share of moved-A points within ``inlier_distance`` of B and the share
-    of B points within it of moved A (symmetric, in [0, 1]); rmse: RMS distance of those
-    inlier pairs, B's units (``inf`` when there are none). ``sources``: measure the shares on
-    that many points of each side (a fixed random subset) against all points of the other."""
-    moved = apply_rigid(np.asarray(b_from_a, dtype=np.float64), points_a)
-    b = np.asarray(points_b, dtype=np.float64)
-    d_ab = nearest_distances(_subset(moved, sources), b)
-    d_ba = nearest_distances(_subset(b, sources), moved)
-    near_ab, near_ba = d_ab < inlier_distance, d_ba < inlier_distance
-    inliers = np.concatenate([d_ab[near_ab], d_ba[near_ba]])
-    fitness = 0.5 * (float(np.mean(near_ab)) + float(np.mean(near_ba)))
-    rmse = float(np.sqrt(np.mean(inliers**2))) if len(inliers) else float("inf")
-    return fitness, rmse
-
-
-def _subset(points: NDArray, count: int | None) -> NDArray:
-    if count is None or len(points) <= count:
-        return points
-    return points[np.random.default_rng(0).choice(len(points), count, replace=False)]
-
-
-def choose(hypotheses: list[Hypothesis], switch_margin: float) -> int:
-    """Index of the hypothesis to report: the best by fitness (then rmse), but the first one (the
-    IT-Net estimate) unless the best beats it by more than ``switch_margin`` in fitness."""
-    best = max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
-    if hypotheses[best].fitness - hypotheses[0].fitness > switch_margin:
-        return best
-    return 0
+def choose(hypotheses: list[Hypothesis]) -> int:
+    """Index of the hypothesis to report: the best by fitness, then by rmse."""
+    return max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
 
 
 def confidence(hypotheses: list[Hypothesis], chosen: int, scale: float) -> dict[str, float]:

@@ -1,7 +1,11 @@
 """Pose estimators for ``itnet.alignment``: IT-Net in-process, or through a running service.
 
-Both are callables ``cloud (N, 3) -> PoseEstimate`` (T_canonical_from_input, 4x4, the cloud's
-units), so the alignment code does not care where the network runs.
+Both are callables ``(cloud (N, 3), starts, iterations, subset) -> [PoseEstimate]`` (one
+T_canonical_from_input, 4x4 in the cloud's units, per start), so the alignment code does not
+care where the network runs. ``starts`` (B, 3, 3) are the rotations IT-Net begins from (None:
+the identity only); ``iterations`` caps each run (None: the estimator's own cap, else the
+model's recommendation); ``subset``: each run sees its own seeded random subset of that many
+points (None: the model's point count).
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.alignment import PoseEstimate, PoseEstimator
+from itnet.preprocess import cap_points
 
 if TYPE_CHECKING:
     from itnet.clients import ItnetClient
@@ -26,12 +31,19 @@ def in_process_estimator(
     Raises ``itnet.service.engine.BadCloudError`` for a cloud the engine refuses."""
     from itnet.service.engine import AnytimeRun
 
-    def estimate(points: NDArray[np.float64]) -> PoseEstimate:
-        run = AnytimeRun(
-            model, points, budget_ms=budget_ms, max_iterations=max_iterations, seed=seed
-        )
-        last = run.run_to_end()
-        return PoseEstimate(last.pose, run.iteration, run.elapsed_ms(), str(run.stopped_by))
+    def estimate(
+        points: NDArray[np.float64],
+        starts: NDArray | None = None,
+        iterations: int | None = None,
+        subset: int | None = None,
+    ) -> list[PoseEstimate]:
+        # Every start in one run: the copies of the cloud go through each step as one batch.
+        cap = max_iterations if iterations is None else iterations
+        run = AnytimeRun(model, points, budget_ms=budget_ms, max_iterations=cap, seed=seed,
+                         starts=starts, points_per_step=subset)  # fmt: skip
+        run.run_to_end()
+        elapsed, stopped = run.elapsed_ms(), str(run.stopped_by)
+        return [PoseEstimate(pose, run.iteration, elapsed, stopped) for pose in run.poses()]
 
     return estimate
 
@@ -41,13 +53,32 @@ def client_estimator(
 ) -> PoseEstimator:
     """IT-Net through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on the wire).
 
+    The HTTP API always starts at the identity, so each start is a request of its own: the cloud
+    (its subset) turned by it here (about the origin: the service recentres it anyway), the turn composed
+    back into the pose.
     Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
 
-    def estimate(points: NDArray[np.float64]) -> PoseEstimate:
-        reply = client.estimate(
-            points, budget_ms=budget_ms, max_iterations=max_iterations, model=model, binary=True
-        )
-        return PoseEstimate(reply.T_canonical_from_input, reply.iterations, reply.elapsed_ms,
-                            reply.stopped_by)  # fmt: skip
+    def estimate(
+        points: NDArray[np.float64],
+        starts: NDArray | None = None,
+        iterations: int | None = None,
+        subset: int | None = None,
+    ) -> list[PoseEstimate]:
+        out, cloud, rng = [], np.asarray(points), np.random.default_rng(0)
+        for turn in np.eye(3)[None] if starts is None else np.asarray(starts).reshape(-1, 3, 3):
+            # The same subsets, drawn the same way, as AnytimeRun's points_per_step.
+            seen = cloud if subset is None else cap_points(cloud, subset, rng)
+            reply = client.estimate(
+                seen @ turn.T,
+                budget_ms=budget_ms,
+                max_iterations=max_iterations if iterations is None else iterations,
+                model=model,
+                binary=True,
+            )
+            back = np.eye(4)
+            back[:3, :3] = turn
+            out.append(PoseEstimate(reply.T_canonical_from_input @ back, reply.iterations,
+                                    reply.elapsed_ms, reply.stopped_by))  # fmt: skip
+        return out
 
     return estimate

@@ -45,13 +45,16 @@ def _open3d() -> Any:
     return o3d
 
 
-def _prepared(points: ArrayLike, voxel: float, normal_radius: float) -> Any:
-    """An open3d cloud, voxel-downsampled when ``voxel`` > 0, with normals for point-to-plane."""
+def _prepared(points: ArrayLike, voxel: float, normal_radius: float | None = None) -> Any:
+    """An open3d cloud, voxel-downsampled when ``voxel`` > 0, with normals when a
+    ``normal_radius`` is given (point-to-plane needs them on the target only)."""
     o3d = _open3d()
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
     if voxel > 0:
         cloud = cloud.voxel_down_sample(voxel)
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30))
+    if normal_radius is not None:
+        search = o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=30)
+        cloud.estimate_normals(search)
     return cloud
 
 
@@ -60,7 +63,9 @@ class IcpRefiner:
 
     ``max_distance`` (B's units) is the correspondence cut-off of the final stage; a first stage
     runs at twice that distance to pull in estimates that are further off. A Tukey kernel at the
-    stage's distance keeps the points of A that B never saw from dragging the pose.
+    stage's distance keeps the points of A that B never saw from dragging the pose. A stage
+    stops after ``iterations`` or once fitness and RMSE change by less than ``tolerance``
+    (relative): open3d's default, 1e-6, runs nearly every iteration for no better answer.
     """
 
     def __init__(
@@ -70,22 +75,25 @@ class IcpRefiner:
         max_distance: float,
         voxel: float = 0.0,
         iterations: int = 30,
+        tolerance: float = 1e-4,
     ) -> None:
         if max_distance <= 0:
             raise ValueError(f"max_distance must be positive, got {max_distance}")
-        self.source = _prepared(source, voxel, 2.0 * max_distance)
+        self.source = _prepared(source, voxel)
         self.target = _prepared(target, voxel, 2.0 * max_distance)
         self.stages = (2.0 * max_distance, max_distance)
-        self.iterations = iterations
+        self.iterations, self.tolerance = iterations, tolerance
 
-    def refine(self, b_from_a: ArrayLike) -> RefineResult:
-        """Start at T_b_from_a (4x4) -> the refined one, with fitness and rmse."""
+    def refine(self, b_from_a: ArrayLike, stages: slice = slice(None)) -> RefineResult:
+        """Start at T_b_from_a (4x4) -> the refined one, with fitness and rmse. ``stages``: run
+        only these of ``self.stages`` (e.g. ``slice(1)`` for the coarse one, ``slice(1, None)``
+        to finish from it)."""
         reg = _open3d().pipelines.registration
         pose = np.asarray(b_from_a, dtype=np.float64).copy()
         result = None
-        for distance in self.stages:
+        for distance in self.stages[stages]:
             method = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
-            criteria = reg.ICPConvergenceCriteria(max_iteration=self.iterations)
+            criteria = reg.ICPConvergenceCriteria(self.tolerance, self.tolerance, self.iterations)
             result = reg.registration_icp(
                 self.source, self.target, distance, pose, method, criteria
             )

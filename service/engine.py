@@ -104,6 +104,26 @@ def validate_cloud(points: ArrayLike, limits: Limits) -> NDArray[np.float64]:
     return cloud
 
 
+def _normalization(cloud: NDArray[np.float64]) -> Normalization:
+    try:
+        return estimate_normalization(cloud)
+    except DegenerateCloudError as err:
+        raise BadCloudError(str(err)) from None
+
+
+def _rotations(starts: ArrayLike) -> NDArray[np.float32]:
+    """Starting rotations (3, 3) or (B, 3, 3) -> (B, 3, 3), checked."""
+    r = np.asarray(starts, dtype=np.float64)
+    r = r[None] if r.ndim == 2 else r
+    if r.ndim != 3 or r.shape[1:] != (3, 3) or len(r) == 0:
+        raise BadCloudError("starts must be a 3x3 rotation matrix or a stack of them")
+    if not np.allclose(r @ r.transpose(0, 2, 1), np.eye(3), atol=1e-5):
+        raise BadCloudError("starts must be rotation matrices (orthonormal)")
+    if np.any(np.linalg.det(r) < 0):
+        raise BadCloudError("starts must be rotations (determinant +1), not reflections")
+    return r.astype(np.float32)
+
+
 class AnytimeRun(Iterator[Estimate]):
     """One request's anytime estimation; iterate it for the estimates. Thread-safe ``cancel``."""
 
@@ -119,6 +139,8 @@ class AnytimeRun(Iterator[Estimate]):
         seed: int = 0,
         started: float | None = None,
         reserve_ms: float = 0.0,
+        starts: ArrayLike | None = None,
+        points_per_step: int | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -135,22 +157,38 @@ class AnytimeRun(Iterator[Estimate]):
                 f"max_iterations must be in [1, {limits.max_iterations}], got {max_iterations}"
             )
         cloud = validate_cloud(points, limits)
-        try:
-            self.normalization = estimate_normalization(cloud)
-        except DegenerateCloudError as err:
-            raise BadCloudError(str(err)) from None
-        x = self.normalization.apply(cloud)
-        self.points = cap_points(x, model.card.points, np.random.default_rng(seed))[None]
+        if points_per_step is not None and points_per_step < limits.min_points:
+            raise BadCloudError(f"points_per_step must be at least {limits.min_points}")
+        # Where the iterations begin: the identity, or ``starts`` (3x3 or Bx3x3), rotations of
+        # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment).
+        # The B runs go through each step as one batch; the estimates and the convergence test
+        # follow the first, ``poses()`` gives them all.
+        turns = np.eye(3, dtype=np.float32)[None] if starts is None else _rotations(starts)
+        self.pose_normalized = np.tile(np.eye(4, dtype=np.float32), (len(turns), 1, 1))
+        self.pose_normalized[:, :3, :3] = turns
+        rng = np.random.default_rng(seed)
+        if points_per_step is None:
+            # The whole cloud sets the centre and scale; then at most the card's point count.
+            norm = _normalization(cloud)
+            x = cap_points(norm.apply(cloud), model.card.points, rng)
+            self.normalizations, inputs = [norm] * len(turns), [x] * len(turns)
+        else:
+            # Each run its own seeded subset, normalised on its own: exactly what a request with
+            # that subset would do (itnet.estimators.client_estimator sends those requests).
+            subsets = [cap_points(cloud, points_per_step, rng) for _ in turns]
+            self.normalizations = [_normalization(sub) for sub in subsets]
+            inputs = [n.apply(sub) for n, sub in zip(self.normalizations, subsets)]
+        self.normalization = self.normalizations[0]
+        self.points = np.stack(inputs)
         # A step's cost is about proportional to its points, with a floor for the fixed part:
         # the model's step-time record is kept at the card's point count, scaled by this.
-        self._load = max(self.points.shape[1] / model.card.points, 0.25)
+        self._load = max(self.points.shape[0] * self.points.shape[1] / model.card.points, 0.25)
         self.model = model
         self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
         # Kept back from the budget for handing the reply back after the last step (the service
         # measures it: service/handback.py); never more than half of the budget.
         self.reserve_ms = min(max(0.0, reserve_ms), self.budget_ms / 2)
         self.converge = (converge_rotation_deg, converge_translation)
-        self.pose_normalized = np.eye(4, dtype=np.float32)[None]
         self.iteration = 0
         self.stopped_by: str | None = None
         self.last: Estimate = self._estimate(self.pose_normalized[0], 0.0, 0.0)
@@ -223,8 +261,13 @@ class AnytimeRun(Iterator[Estimate]):
             translation * self.normalization.scale,
         )
 
+    def poses(self) -> NDArray[np.float64]:
+        """T_canonical_from_input (B, 4, 4), input units: the pose so far from every start."""
+        poses = self.pose_normalized.astype(np.float64)
+        return np.stack([pose_from_normalized(p, n) for p, n in zip(poses, self.normalizations)])
+
     def run_to_end(self) -> Estimate:
-        """Consume the run; the final estimate (iteration 0 = centred cloud, identity rotation)."""
+        """Consume the run; the final estimate (iteration 0 = centred cloud, the start rotation)."""
         for _ in self:
             pass
         return self.last

@@ -160,3 +160,49 @@ def test_tiny_model_is_not_the_identity(model, cloud, rng):
     rot = random_rotation(rng)
     pose = AnytimeRun(model, cloud @ rot.T, max_iterations=3, budget_ms=10_000).run_to_end().pose
     assert rotation_error_deg(pose[:3, :3], np.eye(3)) > 0.01
+
+
+def test_starts_run_as_one_batch_with_the_answers_of_separate_runs(model, cloud):
+    from itnet.alignment import starting_turns
+
+    turns = starting_turns(3)
+    batch = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4, starts=turns)
+    batch.run_to_end()
+    poses = batch.poses()
+    assert poses.shape == (3, 4, 4) and batch.iteration == 4
+    for turn, pose in zip(turns, poses):
+        alone = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4, starts=turn)
+        assert np.allclose(alone.run_to_end().pose, pose, atol=1e-4)
+    assert np.allclose(batch.last.pose, poses[0])  # the stream follows the first start
+    # Different starts end in different places (the tiny model is no fixed-point oracle).
+    assert rotation_error_deg(poses[0][:3, :3], poses[1][:3, :3]) > 1
+
+
+def test_points_per_step_gives_each_start_its_own_normalised_subset(model, cloud):
+    from itnet.preprocess import cap_points, estimate_normalization
+
+    turns = np.stack([np.eye(3)] * 2)
+    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, starts=turns,
+                     points_per_step=50)  # fmt: skip
+    assert run.points.shape == (2, 50, 3) and not np.allclose(run.points[0], run.points[1])
+    rng = np.random.default_rng(0)
+    for x, norm in zip(run.points, run.normalizations):
+        subset = cap_points(cloud, 50, rng)  # the same draws, in the same order
+        assert np.allclose(norm.center, estimate_normalization(subset).center)
+        assert np.allclose(x, norm.apply(subset))
+    with pytest.raises(BadCloudError, match="points_per_step"):
+        AnytimeRun(model, cloud, points_per_step=1)
+
+
+@pytest.mark.parametrize(
+    ("starts", "message"),
+    [
+        (np.diag([1.0, 1.0, -1.0]), "reflections"),
+        (np.eye(3) * 2, "orthonormal"),
+        (np.eye(4), "3x3"),
+        (np.zeros((0, 3, 3)), "3x3"),
+    ],
+)
+def test_bad_starts_are_refused(model, cloud, starts, message):
+    with pytest.raises(BadCloudError, match=message):
+        AnytimeRun(model, cloud, starts=starts)

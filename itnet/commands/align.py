@@ -1,9 +1,9 @@
 """``itnet align A B`` (also ``itnet-align``): T_b_from_a, the transform that moves cloud A onto B.
 
 Both canonical poses come from IT-Net (in-process, or a running service with ``--server``);
-``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a``. Hypotheses (the category's
-symmetries, subset estimates), optional ICP and the choice between them are in
-``itnet.alignment`` and ``itnet.align``.
+``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a``. Hypotheses (several IT-Net
+starts per cloud, crossed, times the category's symmetries), optional ICP and the choice
+between them are in ``itnet.alignment`` and ``itnet.align``.
 """
 
 from __future__ import annotations
@@ -26,24 +26,26 @@ def align(
     model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
-    max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
+    max_iterations: int | None = typer.Option(
+        None, help="IT-Net iterations per run (default: 6 with several starts, else the model's)."
+    ),
     server: str | None = typer.Option(
         None, "--server", help="URL of a running itnet service (default: run the model here)."
     ),
     refine: bool = typer.Option(
-        False, "--refine", help="Refine every hypothesis with point-to-plane ICP (open3d)."
+        False, "--refine", help="Refine the candidates with point-to-plane ICP (open3d)."
     ),
-    samples: int = typer.Option(
-        1, min=1, max=16, help="IT-Net runs per cloud: the whole cloud, then random 80% subsets."
+    starts: int = typer.Option(
+        4, min=1, max=16, help="IT-Net runs per cloud, each from another turn about z."
+    ),
+    candidates: int = typer.Option(
+        8, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
     ),
     symmetry: str = typer.Option(
         "auto", help="Symmetry hypotheses: auto (from the model's category), none, yaw180, yaw90."
     ),
-    rivals: int = typer.Option(
-        -1,
-        min=-1,
-        help="With --refine: ICP the IT-Net estimate and only this many other hypotheses, those "
-        "that fit best before ICP (-1: all; 1 is 16% faster for 2 points of success).",
+    finalists: int = typer.Option(
+        3, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
     ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
@@ -69,12 +71,14 @@ def align(
             require_open3d()  # imported up front, so the reported time is the work's
         except RefineUnavailable as err:
             _fail(str(err), code=1)
-    estimate, category, close = _estimator(server, model, model_dir, budget_ms, max_iterations)
+    estimate, category, close = _estimator(server, model, model_dir, budget_ms)
     options = AlignOptions(
-        samples=samples,
+        starts=starts,
+        iterations=max_iterations,
         symmetry=category_symmetry(category) if symmetry == "auto" else symmetry,
         refine=refine,
-        rivals=None if rivals < 0 else rivals,
+        candidates=candidates,
+        finalists=finalists,
     )
     try:
         result = align_clouds(points_a, points_b, estimate, options)
@@ -118,7 +122,7 @@ def _exit_code(cause: BaseException | None) -> int:
     return 1
 
 
-def _estimator(server, model, model_dir, budget_ms, max_iterations):  # type: ignore[no-untyped-def]
+def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]
     """(pose estimator, the model's category, a close function) for in-process or --server."""
     from itnet.estimators import client_estimator, in_process_estimator
 
@@ -126,7 +130,7 @@ def _estimator(server, model, model_dir, budget_ms, max_iterations):  # type: ig
         from itnet.service.models_in_process import get_model
 
         loaded = get_model(model, model_dir)
-        estimate = in_process_estimator(loaded, budget_ms, max_iterations)
+        estimate = in_process_estimator(loaded, budget_ms)
         return estimate, loaded.card.category, lambda: None
 
     from itnet.clients import ItnetClient, ItnetClientError
@@ -138,7 +142,7 @@ def _estimator(server, model, model_dir, budget_ms, max_iterations):  # type: ig
         client.close()
         _fail(f"cannot use the service at {server}: {err}", code=1)
     return (
-        client_estimator(client, model, budget_ms, max_iterations),
+        client_estimator(client, model, budget_ms),
         _category(listed, model),
         (client.close),
     )
@@ -187,6 +191,7 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
     if result.chosen != 0:
         first = result.hypotheses[0]
         typer.echo(
-            f"note: the IT-Net estimate ({first.source}, fitness {first.fitness:.3f}) was replaced "
-            f"by {chosen.source}, which fits the geometry better"
+            f"note: of {result.considered} hypotheses, {len(result.hypotheses)} distinct ones were "
+            f"kept; the best-ranked before ICP ({first.source}, fitness {first.fitness:.3f}) lost "
+            f"to {chosen.source}, which fits the geometry better"
         )

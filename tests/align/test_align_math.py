@@ -8,13 +8,18 @@ from itnet.align import (
     build_hypotheses,
     choose,
     confidence,
-    nearest_distances,
-    overlap_score,
+    distinct,
     relative_pose,
     same_alignment,
     symmetry_rotations,
 )
-from itnet.alignment import AlignOptions, CloudEstimateError, PoseEstimate, align_clouds
+from itnet.alignment import (
+    AlignOptions,
+    CloudEstimateError,
+    PoseEstimate,
+    align_clouds,
+    starting_turns,
+)
 from itnet.geometry import (
     apply_rigid,
     axis_angle_to_matrix,
@@ -23,6 +28,7 @@ from itnet.geometry import (
     rigid_from_rotation_translation,
     rotation_error_deg,
 )
+from itnet.overlap import Cloud, overlap, overlap_score
 
 
 def random_pose(rng, size=None, scale=2.0):
@@ -78,21 +84,42 @@ def test_symmetric_hypothesis_recovers_a_pose_flipped_about_up(rng):
     flip = symmetry_rotations("yaw180")[0]
     truth = relative_pose(t_ca, t_cb)
     # IT-Net took A's front for its back: its estimate is off by the flip.
-    hyps = build_hypotheses([flip @ t_ca], [t_cb], symmetry_rotations("yaw180"), scale=1.0)
+    hyps = build_hypotheses([flip @ t_ca], [t_cb], symmetry_rotations("yaw180"))
     assert [h.source for h in hyps] == ["itnet", "itnet+yaw180"]
-    quarter = build_hypotheses([t_ca], [t_cb], symmetry_rotations("yaw90"), scale=1.0)
+    quarter = build_hypotheses([t_ca], [t_cb], symmetry_rotations("yaw90"))
     assert [h.source for h in quarter] == ["itnet", *(f"itnet+yaw{a}" for a in (90, 180, 270))]
     assert rotation_error_deg(hyps[0].T_b_from_a[:3, :3], truth[:3, :3]) > 170
     assert np.allclose(hyps[1].T_b_from_a, truth, atol=1e-9)
 
 
-def test_subset_hypotheses_skip_duplicates(rng):
-    t_ca, t_cb = random_pose(rng, scale=0.5), random_pose(rng, scale=0.5)
-    nudge = rigid_from_rotation_translation(axis_angle_to_matrix([1, 0, 0], np.radians(1)), 0)
-    turn = rigid_from_rotation_translation(axis_angle_to_matrix([1, 0, 0], np.radians(40)), 0)
-    poses_a = [t_ca, nudge @ t_ca, turn @ t_ca]  # sample 1 repeats the main estimate
-    hyps = build_hypotheses(poses_a, [t_cb] * 3, symmetry_rotations("none"), scale=1.0)
-    assert [h.source for h in hyps] == ["itnet", "sample 2"]
+def test_hypotheses_cross_every_run_of_a_with_every_run_of_b(rng):
+    poses_a, poses_b = random_pose(rng, 2), random_pose(rng, 3)
+    flip = symmetry_rotations("yaw180")
+    hyps = build_hypotheses(poses_a, poses_b, flip)
+    assert len(hyps) == 2 * 3 * 2
+    assert [h.source for h in hyps[:4]] == [
+        "itnet",
+        "itnet+yaw180",
+        "itnet a0 b1",
+        "itnet a0 b1+yaw180",
+    ]
+    assert hyps[-1].source == "itnet a1 b2+yaw180"
+    assert np.allclose(hyps[-1].T_b_from_a, invert_rigid(poses_b[2]) @ flip[0] @ poses_a[1])
+    assert np.allclose(hyps[2].T_b_from_a, relative_pose(poses_a[0], poses_b[1]))
+
+
+def test_distinct_keeps_the_best_of_each_group_of_near_copies(rng):
+    def turned(deg, shift=0.0):
+        rot = axis_angle_to_matrix([0, 1, 0], np.radians(deg))
+        return Hypothesis(rigid_from_rotation_translation(rot, [shift, 0, 0]), f"{deg}/{shift}")
+
+    hyps = [turned(0), turned(20), turned(90), turned(100), turned(0, 1.0), turned(200)]
+    scores = [0.5, 0.9, 0.3, 0.4, 0.6, 0.1]
+    # 20 beats its near copy 0; 100 beats 90; the shifted copy of 0 is its own alignment.
+    assert distinct(hyps, scores, count=10, scale=1.0) == [1, 4, 3, 5]
+    assert distinct(hyps, scores, count=2, scale=1.0) == [1, 4]
+    assert distinct(hyps, scores, count=10, scale=1.0, max_deg=5.0) == [1, 4, 0, 3, 2, 5]
+    assert distinct(hyps, scores, count=10, scale=10.0) == [1, 3, 5]  # 1.0 is now near
 
 
 def test_same_alignment_thresholds():
@@ -104,10 +131,17 @@ def test_same_alignment_thresholds():
     assert not same_alignment(np.eye(4), turned, scale=1.0)
 
 
-def test_nearest_distances_match_a_direct_search(rng):
-    s, t = rng.normal(size=(70, 3)), rng.normal(size=(1500, 3))
-    direct = np.array([np.linalg.norm(t - p, axis=1).min() for p in s])
-    assert np.allclose(nearest_distances(s, t, chunk=16), direct, atol=1e-4)
+def test_overlap_matches_a_direct_search_for_every_pose(rng):
+    a, b = rng.normal(size=(80, 3)), rng.normal(size=(120, 3))
+    poses = random_pose(rng, 5, scale=0.3)
+    fitness, rmse = overlap(poses, Cloud(a), Cloud(b), distance=0.4)
+    for pose, fit, err in zip(poses, fitness, rmse):
+        moved = apply_rigid(pose, a)
+        d_ab = np.array([np.linalg.norm(b - p, axis=1).min() for p in moved])
+        d_ba = np.array([np.linalg.norm(moved - q, axis=1).min() for q in b])
+        near = np.concatenate([d_ab[d_ab < 0.4], d_ba[d_ba < 0.4]])
+        assert fit == pytest.approx(0.5 * (np.mean(d_ab < 0.4) + np.mean(d_ba < 0.4)))
+        assert err == pytest.approx(np.sqrt(np.mean(near**2)))
 
 
 def test_overlap_score(rng):
@@ -128,10 +162,12 @@ def hyp(fitness, angle_deg=0.0):
     return Hypothesis(rigid_from_rotation_translation(rot, 0), "h", fitness, 0.01)
 
 
-def test_choose_keeps_itnet_unless_clearly_beaten():
-    assert choose([hyp(0.50), hyp(0.58, 180)], switch_margin=0.1) == 0
-    assert choose([hyp(0.30), hyp(0.58, 180)], switch_margin=0.1) == 1
-    assert choose([hyp(0.30), hyp(0.58, 180)], switch_margin=0.5) == 0
+def test_choose_takes_the_best_fit_then_the_smaller_rmse():
+    assert choose([hyp(0.50), hyp(0.58, 180)]) == 1
+    assert choose([hyp(0.60), hyp(0.58, 180)]) == 0
+    tie = [hyp(0.5), hyp(0.5, 90)]
+    tie[1].rmse = 0.001
+    assert choose(tie) == 1
 
 
 def test_confidence_falls_when_a_rival_fits_as_well():
@@ -144,11 +180,15 @@ def test_confidence_falls_when_a_rival_fits_as_well():
 
 
 def fake_estimator(clouds_and_poses, calls):
-    def estimate(points):
+    """An estimator that knows each cloud's pose: the same answer from every start (as a perfect
+    IT-Net would give). It recognises a subset of a cloud by its first point."""
+
+    def estimate(points, starts=None, iterations=None, subset=None):
         calls.append(len(points))
         for cloud, pose in clouds_and_poses:
-            if points is cloud:
-                return PoseEstimate(pose, 4, 1.0, "max_iterations")
+            if len(points) >= 3 and (cloud == points[0]).all(axis=1).any():
+                runs = 1 if starts is None else len(starts)
+                return [PoseEstimate(pose, iterations or 4, 1.0, "max_iterations")] * runs
         raise ValueError("3 points is too few")
 
     return estimate
@@ -166,20 +206,22 @@ def flipped_pair(rng):
     return a, b, relative_pose(t_ca, t_cb), estimate, calls
 
 
-def test_align_clouds_without_icp_keeps_itnet_but_reports_the_better_rival(rng):
+def test_align_clouds_without_icp_ranks_the_symmetric_hypothesis_first(rng):
     a, b, truth, estimate, calls = flipped_pair(rng)
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180"))
-    assert calls == [len(a), len(b)] and result.iterations == 8
-    itnet, flipped = result.hypotheses
-    assert result.chosen == 0 and itnet.source == "itnet"
+    assert calls == [len(a), len(b)]  # each cloud once, all four starts in one call
+    assert result.iterations == 8 * 6 and result.considered == 4 * 4 * 2
+    # Every start gave the same poses: the 32 hypotheses are two distinct alignments.
+    flipped, itnet = result.hypotheses
+    assert result.chosen == 0 and flipped.source == "itnet+yaw180" and itnet.source == "itnet"
     assert np.allclose(flipped.T_b_from_a, truth, atol=1e-9)
+    assert flipped.loose_fitness > 0.95 > 0.5 > itnet.loose_fitness
     assert flipped.fitness > 0.95 > 0.5 > itnet.fitness
-    # A rival that fits better makes the margin negative: no confidence at all.
-    assert result.confidence["margin"] < 0 and result.confidence["confidence"] == 0
+    assert result.confidence["margin"] > 0.4 and result.confidence["confidence"] > 0.9
     reply = result.to_dict()
-    assert reply["hypothesis"] == "itnet" and np.allclose(reply["T_b_from_a"], itnet.T_b_from_a)
-    assert reply["refined"] is False and reply["icp_distance"] == 0
-    assert [h["source"] for h in reply["hypotheses"]] == ["itnet", "itnet+yaw180"]
+    assert reply["hypothesis"] == "itnet+yaw180" and np.allclose(reply["T_b_from_a"], truth)
+    assert reply["refined"] is False and reply["icp_distance"] == 0 and reply["considered"] == 32
+    assert [h["source"] for h in reply["hypotheses"]] == ["itnet+yaw180", "itnet"]
 
 
 def test_align_clouds_names_the_cloud_that_failed(rng):
@@ -190,15 +232,29 @@ def test_align_clouds_names_the_cloud_that_failed(rng):
     assert info.value.cloud == "B" and isinstance(info.value.__cause__, ValueError)
 
 
-def test_align_clouds_runs_subsets(rng):
-    calls: list[int] = []
+def test_align_clouds_runs_every_start_of_a_cloud_in_one_call(rng):
+    calls: list[tuple] = []
 
-    def estimate(points):
-        calls.append(len(points))
-        return PoseEstimate(np.eye(4), 1, 0.1, "budget")
+    def estimate(points, starts=None, iterations=None, subset=None):
+        calls.append((len(points), np.asarray(starts), iterations, subset))
+        return [PoseEstimate(np.eye(4), iterations or 10, 0.1, "budget")] * len(starts)
 
-    a, b = rng.normal(size=(100, 3)), rng.normal(size=(50, 3))
-    result = align_clouds(a, b, estimate, AlignOptions(samples=3, symmetry="none"))
-    assert calls == [100, 80, 80, 50, 40, 40]
-    assert len(result.hypotheses) == 1  # the subset estimates agree: no new hypothesis
-    assert result.iterations == 6
+    a, b = rng.normal(size=(300, 3)), rng.normal(size=(50, 3))
+    result = align_clouds(a, b, estimate, AlignOptions(symmetry="none"))
+    assert [(n, len(s), it, sub) for n, s, it, sub in calls] == [(300, 4, 6, 192), (50, 4, 6, 192)]
+    turns = calls[0][1]
+    assert np.allclose(turns, starting_turns(4)) and np.allclose(turns[0], np.eye(3))
+    assert np.allclose(turns[2] @ [1, 0, 0], [-1, 0, 0])  # a half turn about z
+    tilt = np.radians(20)  # every second start is also tilted about x
+    assert np.allclose(turns[1] @ [1, 0, 0], [0, np.cos(tilt), np.sin(tilt)])
+    assert np.allclose(np.linalg.det(turns), 1) and np.allclose(
+        turns @ turns.transpose(0, 2, 1), np.eye(3)
+    )
+    assert result.iterations == 8 * 6
+    assert len(result.hypotheses) == 1  # the runs agree: one distinct alignment
+    calls.clear()
+    one = align_clouds(a, b, estimate, AlignOptions(symmetry="none", starts=1))
+    assert [(n, len(s), it) for n, s, it, _ in calls] == [(300, 1, None), (50, 1, None)]
+    assert one.iterations == 20  # the estimator's own default
+    with pytest.raises(ValueError, match="starts and candidates"):
+        align_clouds(a, b, estimate, AlignOptions(starts=0))

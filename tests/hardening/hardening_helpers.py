@@ -3,6 +3,7 @@ loopback socket, with the service's connection limits), small limits, a test clo
 
 from __future__ import annotations
 
+import os
 import socket
 import threading
 import time
@@ -116,3 +117,8 @@ def with_card(source: Path, target: Path, card: str | None) -> None:
     if card is not None:
         model.metadata_props.add(key=METADATA_KEY, value=card)
     onnx.save(model, str(target))
+
+
+def scaled(examples: int) -> int:
+    """A fuzz test's example count times ``ITNET_FUZZ_SCALE`` (default 1; e.g. 30 for a long run)."""
+    return max(1, round(examples * float(os.environ.get("ITNET_FUZZ_SCALE", "1"))))
