@@ -97,16 +97,19 @@ def build_hypotheses(
     runs when not 0, e.g. "itnet a1 b0+yaw90").
     """
     pa, pb = np.asarray(poses_a, dtype=np.float64), np.asarray(poses_b, dtype=np.float64)
-    turns = [(np.eye(4), "")]
-    for sym in np.asarray(symmetries, dtype=np.float64):
+    syms = np.concatenate([np.eye(4)[None], np.asarray(symmetries, dtype=np.float64)])
+    names = [""]
+    for sym in syms[1:]:
         yaw = round(float(np.degrees(np.arctan2(sym[0, 2], sym[0, 0])))) % 360  # about +y
-        turns.append((sym, f"+yaw{yaw}"))
+        names.append(f"+yaw{yaw}")
+    # (Ra, Rb, S+1, 4, 4): every run of A, every run of B, every symmetry, in one product.
+    poses = invert_rigid(pb)[None, :, None] @ syms[None, None] @ pa[:, None, None]
     found = []
-    for i, pose_a in enumerate(pa):
-        for j, pose_b in enumerate(pb):
+    for i in range(len(pa)):
+        for j in range(len(pb)):
             runs = "" if i == j == 0 else f" a{i} b{j}"
-            for sym, turn in turns:
-                found.append(Hypothesis(invert_rigid(pose_b) @ sym @ pose_a, f"itnet{runs}{turn}"))
+            for k, turn in enumerate(names):
+                found.append(Hypothesis(poses[i, j, k], f"itnet{runs}{turn}"))
     return found
 
 
