@@ -132,6 +132,7 @@ class Alignment:
     timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, refine, score, total
     iterations: int = 0  # IT-Net steps over every run (both clouds, all starts)
     considered: int = 0  # hypotheses ranked before the candidates were picked
+    scale: float = 1.0  # B's RMS radius about its centroid (the unit of the relative distances)
     inlier_distance: float = 0.0  # the score's inlier distance, B's units
     icp_distance: float = 0.0  # ICP's final correspondence distance, B's units (0: no ICP)
 
@@ -148,6 +149,7 @@ class Alignment:
             **self.confidence,
             "hypothesis": self.hypotheses[self.chosen].source,
             "considered": self.considered,
+            "scale": float(f"{self.scale:.5g}"),
             "inlier_distance": float(f"{self.inlier_distance:.5g}"),
             "icp_distance": float(f"{self.icp_distance:.5g}"),
             "refined": self.hypotheses[self.chosen].initial is not None,
@@ -262,6 +264,7 @@ def align_clouds(
         },
         iterations=sum(r.iterations for r in runs_a + runs_b),  # one batched step: B steps
         considered=len(every),
+        scale=scale,
         inlier_distance=options.inlier_distance * scale,
         icp_distance=options.icp_distance * scale if options.refine else 0.0,
     )

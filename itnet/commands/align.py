@@ -165,6 +165,7 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
     """The matrix, then one line: rotation, translation, iterations, time, hypothesis, fit."""
     import numpy as np
 
+    from itnet.align import same_alignment
     from itnet.geometry import rotation_angle_deg
 
     t = result.T_b_from_a
@@ -188,8 +189,10 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
             f"inlier rmse {chosen.icp['rmse']:.4g} (correspondences within "
             f"{result.icp_distance:.4g})"
         )
-    if result.chosen != 0:
-        first = result.hypotheses[0]
+    first = result.hypotheses[0]
+    if result.chosen != 0 and not same_alignment(
+        first.T_b_from_a, chosen.T_b_from_a, result.scale, 10.0, 0.1
+    ):
         typer.echo(
             f"note: of {result.considered} hypotheses, {len(result.hypotheses)} distinct ones were "
             f"kept; the best-ranked before ICP ({first.source}, fitness {first.fitness:.3f}) lost "

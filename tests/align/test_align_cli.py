@@ -120,3 +120,26 @@ def test_shipped_examples_are_small_scans_of_one_chair():
     wrong, _ = overlap_score(a, b, np.eye(4), 0.1 * scale)
     assert fitness > 0.3 > wrong
     assert rmse < 0.05 * scale
+
+
+def test_summary_notes_a_switch_only_when_the_answer_differs(capsys):
+    from itnet.align import Hypothesis
+    from itnet.alignment import Alignment, PoseEstimate
+    from itnet.commands.align import _print_summary
+    from itnet.geometry import axis_angle_to_matrix, rigid_from_rotation_translation
+
+    def hyp(deg, fitness, source):
+        pose = rigid_from_rotation_translation(axis_angle_to_matrix([0, 1, 0], np.radians(deg)), 0)
+        return Hypothesis(pose, source, fitness, 0.01)
+
+    run = PoseEstimate(np.eye(4), 6, 1.0, "max_iterations")
+
+    def summary(second_deg):
+        hyps = [hyp(0, 0.4, "itnet+icp"), hyp(second_deg, 0.5, "itnet a1 b0+yaw90+icp")]
+        result = Alignment(hyps[1].T_b_from_a, run, run, hyps, 1, {"confidence": 0.5},
+                           {"total": 1.0, "itnet": 0.5, "refine": 0.3}, 48, 64)  # fmt: skip
+        _print_summary(result)
+        return capsys.readouterr().out
+
+    assert "note: of 64 hypotheses, 2 distinct" in summary(90)  # a different answer won
+    assert "note:" not in summary(2)  # the same answer, reached from another start
