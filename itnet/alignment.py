@@ -39,7 +39,7 @@ from itnet.align import (
     symmetry_rotations,
 )
 from itnet.geometry import axis_angle_to_matrix, rotation_angle_deg
-from itnet.overlap import Cloud, overlap
+from itnet.overlap import Cloud, overlap, sample
 from itnet.preprocess import estimate_normalization
 
 
@@ -109,6 +109,8 @@ class AlignOptions:
             return self.iterations
         return SHORT_RUN if self.starts > 1 else None
 
+
+TREE_POINTS = 20_000  # points of each cloud in the scoring KD-trees (a random subset beyond)
 
 # Tilting every second start: on 600 tuning pairs (seeds 7 and 11) 78.7% aligned against 77.3%
 # with turns about z alone (docs/align.md).
@@ -205,7 +207,10 @@ def align_clouds(
     t_itnet = time.perf_counter()
 
     scale = estimate_normalization(b).scale
-    cloud_a, cloud_b = Cloud(a), Cloud(b)
+    # KD-trees on at most TREE_POINTS of each cloud: a 100,000-point scan scores the same on a
+    # fifth of its points, and its tree builds in a fraction of the time.
+    cloud_a = Cloud(sample(a, TREE_POINTS, options.seed))
+    cloud_b = Cloud(sample(b, TREE_POINTS, options.seed + 1))
     every = build_hypotheses(
         [r.T_canonical_from_input for r in runs_a], [r.T_canonical_from_input for r in runs_b],
         symmetry_rotations(options.symmetry),

@@ -124,3 +124,31 @@ def test_only_the_finalists_get_the_fine_stage(rng, monkeypatch):
     assert stages == [slice(1)] * 4 + [slice(1, None)]  # four coarse, one fine
     assert result.hypotheses[result.chosen].source == "itnet+yaw180+icp"
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
+
+
+def test_dense_clouds_in_millimetres_align(rng):
+    """30,000 points a cloud, in mm: the scoring trees take a subset, ICP a voxel grid, and the
+    answer is the same as for the sparse clouds."""
+    obj = (
+        np.concatenate(
+            [
+                rng.uniform([-1, -0.1, -0.6], [1, 0.1, 0.6], size=(15_000, 3)),
+                rng.uniform([0.6, 0.1, -0.6], [1, 1.2, -0.3], size=(15_000, 3)),
+            ]
+        )
+        * 1000
+    )
+    t_ca = rigid_from_rotation_translation(random_rotation(rng), [300.0, -200.0, 2500.0])
+    t_cb = rigid_from_rotation_translation(random_rotation(rng), [-400.0, 100.0, 3000.0])
+    a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj[::-1])
+    misread = symmetry_rotations("yaw180")[0] @ small_motion(4.0, [0, 0, 0]) @ t_ca
+
+    def estimate(points, starts=None, iterations=None, subset=None):
+        pose = misread if points is a else t_cb
+        return [PoseEstimate(pose, 3, 1.0, "max_iterations")] * len(starts)
+
+    result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", refine=True))
+    truth = invert_rigid(t_cb) @ t_ca
+    assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
+    assert np.linalg.norm(result.T_b_from_a[:3, 3] - truth[:3, 3]) < 10.0  # mm
+    assert result.confidence["fitness"] > 0.8
