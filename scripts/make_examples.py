@@ -1,13 +1,14 @@
 """Make the example clouds in itnet/examples/: two partial scans of one held-out chair.
 
     .venv/bin/python scripts/make_examples.py
+    .venv/bin/python scripts/make_examples.py --seed 39 --name chair_quarter   # a symmetric case
 
 The chair is a ModelNet10 *test* shape (never trained on), mapped to the canonical frame
 (``itnet.model.shapes``), given a real size (bounding-sphere radius ``--radius`` metres) and
 scanned twice by the project's virtual depth camera (``itnet.model.scanner``) from seeded random
 viewpoints. Each scan is in its own camera frame (metres), as a depth camera would deliver it.
-Writes chair_a.ply, chair_b.ply (binary float32) and chair_truth.json (the true T_b_from_a and
-both true T_canonical_from_input, for checking ``itnet-align``'s answer).
+Writes NAME_a.ply, NAME_b.ply (binary float32) and NAME_truth.json (the true T_b_from_a and
+both true T_canonical_from_input, for checking ``itnet-align``'s answer); NAME is ``--name``.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main() -> None:
     parser.add_argument("--radius", type=float, default=0.45, help="chair size, metres")
     parser.add_argument("--min-angle", type=float, default=60.0, help="least view change, deg")
     parser.add_argument("--out", type=Path, default=ROOT / "itnet/examples")
+    parser.add_argument("--name", default="chair", help="file name prefix")
     args = parser.parse_args()
 
     shape = load_shape(args.shape, "modelnet")
@@ -50,8 +52,8 @@ def main() -> None:
     cloud_a, cloud_b = cloud_a * args.radius, cloud_b * args.radius
 
     args.out.mkdir(parents=True, exist_ok=True)
-    write_ply(args.out / "chair_a.ply", cloud_a)
-    write_ply(args.out / "chair_b.ply", cloud_b)
+    write_ply(args.out / f"{args.name}_a.ply", cloud_a)
+    write_ply(args.out / f"{args.name}_b.ply", cloud_b)
     truth = {
         "source": f"ModelNet10 test shape {args.shape.name}, frame 'modelnet' -> canonical",
         "seed": args.seed,
@@ -63,7 +65,7 @@ def main() -> None:
         "T_canonical_from_b": pose_b.tolist(),
         "note": "canonical frame scaled to metres (bounding-sphere radius radius_m)",
     }
-    (args.out / "chair_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
+    (args.out / f"{args.name}_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     print(f"wrote {args.out}: {len(cloud_a)} + {len(cloud_b)} points, views "
           f"{truth['view_change_deg']} deg apart")  # fmt: skip
 

@@ -143,3 +143,24 @@ def test_summary_notes_a_switch_only_when_the_answer_differs(capsys):
 
     assert "note: of 64 hypotheses, 2 distinct" in summary(90)  # a different answer won
     assert "note:" not in summary(2)  # the same answer, reached from another start
+
+
+@pytest.mark.parametrize("name", ["chair", "chair_quarter"])
+def test_the_shipped_model_aligns_the_shipped_examples(name):
+    """The README's command, with the shipped chair model: within 5 degrees of the truth. The
+    quarter-turn example needs the symmetry hypotheses: one plain run is a quarter turn off."""
+    from itnet.geometry import rotation_error_deg
+
+    pytest.importorskip("open3d")
+    files = [str(EXAMPLES / f"{name}_a.ply"), str(EXAMPLES / f"{name}_b.ply")]
+    truth = np.array(json.loads((EXAMPLES / f"{name}_truth.json").read_text())["T_b_from_a"])
+
+    def error(*options):
+        result = runner.invoke(align_app, [*files, "--refine", "--json", *options])
+        assert result.exit_code == 0, result.output
+        t = np.array(json.loads(result.stdout)["T_b_from_a"])
+        return float(rotation_error_deg(t[:3, :3], truth[:3, :3]))
+
+    assert error() < 5.0
+    if name == "chair_quarter":
+        assert error("--starts", "1", "--symmetry", "none") > 45.0
