@@ -88,8 +88,8 @@ def itnet_methods(
         "itnet-align --refine --starts 1 --candidates 4": AlignOptions(
             symmetry=symmetry, refine=True, starts=1, candidates=4
         ),
-        "itnet-align --refine --starts 6 --candidates 12": AlignOptions(
-            symmetry=symmetry, refine=True, starts=6, candidates=12
+        "itnet-align --refine --starts 6 --candidates 16": AlignOptions(
+            symmetry=symmetry, refine=True, starts=6, candidates=16
         ),
     }
 

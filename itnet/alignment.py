@@ -90,9 +90,10 @@ class AlignOptions:
     iterations: int | None = None  # per run; None: 6 with several starts, the model's with one
     symmetry: str = "yaw90"  # a name in itnet.align.SYMMETRIES
     refine: bool = False
-    candidates: int = 8  # distinct hypotheses kept (and refined, with refine) after ranking
-    finalists: int = 3  # with refine: candidates that get ICP's fine stage, the best after its
+    candidates: int = 12  # distinct hypotheses kept (and refined, with refine) after ranking
+    finalists: int = 4  # with refine: candidates that get ICP's fine stage, the best after its
     # coarse one (all of them when finalists >= candidates)
+    coarse_points: int | None = 200  # points of A in ICP's coarse stage (None: all)
     distinct_deg: float = 30.0  # hypotheses closer than this (and distinct_shift) count as one
     distinct_shift: float = 0.3
     icp_distance: float = 0.1  # ICP's final correspondence cut-off (the first stage: twice it)
@@ -232,7 +233,8 @@ def align_clouds(
         if voxel is None:
             voxel = 0.05 if max(len(a), len(b)) > 20_000 else 0.0
         refiner = IcpRefiner(a, b, options.icp_distance * scale, voxel=voxel * scale,
-                             tolerance=options.icp_tolerance)  # fmt: skip
+                             tolerance=options.icp_tolerance,
+                             coarse_points=options.coarse_points)  # fmt: skip
         # Coarse stage for every candidate, fine stage for the finalists that fit best after it.
         coarse = [refiner.refine(h.T_b_from_a, slice(1)) for h in hypotheses]
         fit, _ = overlap(np.array([r.T_b_from_a for r in coarse]), cloud_a, cloud_b,

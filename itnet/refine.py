@@ -76,10 +76,18 @@ class IcpRefiner:
         voxel: float = 0.0,
         iterations: int = 30,
         tolerance: float = 1e-4,
+        coarse_points: int | None = None,
     ) -> None:
         if max_distance <= 0:
             raise ValueError(f"max_distance must be positive, got {max_distance}")
         self.source = _prepared(source, voxel)
+        # The coarse stage only has to bring a start within the fine stage's reach: on a seeded
+        # subset of ``coarse_points`` of A's points (None: all) it costs less for the same.
+        self.coarse_source = self.source
+        count = len(self.source.points)
+        if coarse_points is not None and count > coarse_points:
+            keep = np.random.default_rng(0).choice(count, coarse_points, replace=False)
+            self.coarse_source = self.source.select_by_index(np.sort(keep).tolist())
         self.target = _prepared(target, voxel, 2.0 * max_distance)
         self.stages = (2.0 * max_distance, max_distance)
         self.iterations, self.tolerance = iterations, tolerance
@@ -91,12 +99,12 @@ class IcpRefiner:
         reg = _open3d().pipelines.registration
         pose = np.asarray(b_from_a, dtype=np.float64).copy()
         result = None
-        for distance in self.stages[stages]:
+        for stage in range(len(self.stages))[stages]:
+            distance = self.stages[stage]
+            source = self.coarse_source if stage == 0 else self.source
             method = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
             criteria = reg.ICPConvergenceCriteria(self.tolerance, self.tolerance, self.iterations)
-            result = reg.registration_icp(
-                self.source, self.target, distance, pose, method, criteria
-            )
+            result = reg.registration_icp(source, self.target, distance, pose, method, criteria)
             pose = np.asarray(result.transformation, dtype=np.float64).copy()
         assert result is not None
         return RefineResult(pose, float(result.fitness), float(result.inlier_rmse))

@@ -39,13 +39,13 @@ def align(
         4, min=1, max=16, help="IT-Net runs per cloud, each from another turn about z."
     ),
     candidates: int = typer.Option(
-        8, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
+        12, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
     ),
     symmetry: str = typer.Option(
         "auto", help="Symmetry hypotheses: auto (from the model's category), none, yaw180, yaw90."
     ),
     finalists: int = typer.Option(
-        3, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
+        4, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
     ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),

@@ -152,3 +152,17 @@ def test_dense_clouds_in_millimetres_align(rng):
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
     assert np.linalg.norm(result.T_b_from_a[:3, 3] - truth[:3, 3]) < 10.0  # mm
     assert result.confidence["fitness"] > 0.8
+
+
+def test_the_coarse_stage_can_run_on_a_subset_of_a():
+    mesh = box()
+    a = sampled(mesh, 1500, seed=1)
+    b_from_a = small_motion(8.0, [0.06, -0.04, 0.03])
+    b = apply_rigid(b_from_a, sampled(mesh, 1500, seed=2))
+    refiner = IcpRefiner(a, b, max_distance=0.1, coarse_points=100)
+    assert len(refiner.coarse_source.points) == 100 and len(refiner.source.points) == 1500
+    coarse = refiner.refine(np.eye(4), slice(1))
+    assert rotation_error_deg(coarse.T_b_from_a[:3, :3], b_from_a[:3, :3]) < 3.0
+    fine = refiner.refine(coarse.T_b_from_a, slice(1, None))
+    assert rotation_error_deg(fine.T_b_from_a[:3, :3], b_from_a[:3, :3]) < 0.5
+    assert len(IcpRefiner(a, b, 0.1, coarse_points=5000).coarse_source.points) == 1500
