@@ -52,6 +52,9 @@ def create_app(
         )
         pauses = GcPauseRecorder(metrics.observe_gc)
         pauses.install()
+        # SIGTERM: streams in flight get their final result before uvicorn closes them.
+        if state.drain.install():
+            log.info("streams drain on SIGTERM")
         if settings.gc_freeze:
             log.info("froze %d start-up objects out of garbage collection",
                      freeze_startup_objects())  # fmt: skip

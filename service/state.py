@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from numpy.typing import ArrayLike
 
+from itnet.service.draining import StreamDrain
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.errors import ServiceError
 from itnet.service.handback import HandbackTimer
@@ -67,6 +68,7 @@ class ServiceState:
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics
         )
         self.handback = HandbackTimer()
+        self.drain = StreamDrain()
 
     def load(self) -> None:
         """Load the models of ``settings.model_dir`` unless given; a failure leaves the app

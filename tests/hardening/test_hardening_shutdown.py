@@ -59,10 +59,16 @@ def test_sigterm_drains_then_exits_0(heavy_model_dir: Path, tmp_path: Path, poin
         sent_at = time.perf_counter()
         server.process.send_signal(signal.SIGTERM)
         assert wait_for(lambda: refused(server.port), 1.0), "still accepting after SIGTERM"
+        # The stream stops at its next step and gets its final result before the close.
+        messages = []
         with pytest.raises(ConnectionClosed):
             while True:
-                stream.recv(timeout=5)
-        assert stream.close_code == 1012
+                messages.append(json.loads(stream.recv(timeout=5)))
+        *estimates, result = messages
+        assert all(m["type"] == "estimate" for m in estimates)
+        assert result["type"] == "result" and result["stopped_by"] == "cancelled"
+        assert result["iterations"] == len(estimates) + 1 >= 2  # the first one read above
+        assert stream.close_code == 1001
         for thread in posts:
             thread.join(timeout=15)
         assert [reply.status_code for reply, _ in replies] == [200, 200, 200]

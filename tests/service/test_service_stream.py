@@ -176,3 +176,27 @@ def test_a_silent_client_is_closed_after_the_request_timeout(tiny_model_dir: Pat
     settings = Settings(model_dir=tiny_model_dir, warm_up=False, limits=limits)
     with TestClient(create_app(settings)) as client, client.websocket_connect(PATH) as ws:
         assert "no request within 0.2 s" in expect_error(ws, "timeout", 1008)
+
+
+def test_shutdown_gives_a_running_stream_its_result_and_refuses_new_ones(
+    slow_client: TestClient, make_cloud: CloudMaker
+) -> None:
+    """What SIGTERM does to streams (service/draining.py), driven here by hand."""
+    drain = slow_client.app.state.service.drain  # type: ignore[attr-defined]
+    request = {"points": make_cloud().tolist(), "budget_ms": 4000, "max_iterations": 50}
+    try:
+        with slow_client.websocket_connect(PATH) as ws:
+            ws.send_json(request)
+            assert ws.receive_json()["iteration"] == 1
+            drain.begin()
+            estimates, result = receive_until_result(ws)
+            with pytest.raises(WebSocketDisconnect) as closed:
+                ws.receive_json()
+        assert closed.value.code == 1001
+        assert result["stopped_by"] == "cancelled" and result["iterations"] == 1 + len(estimates)
+        assert len(estimates) <= 2  # the step already running, no more
+        with slow_client.websocket_connect(PATH) as late:
+            late.send_json(request)
+            expect_error(late, "shutting_down", 1013)
+    finally:
+        drain.draining.clear()

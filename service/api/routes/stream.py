@@ -6,7 +6,8 @@ Protocol (one request per connection):
 2. server -> ``{"type": "estimate", "iteration": 1, ...}`` after every step;
 3. client may send ``{"type": "cancel"}`` at any time: the loop stops before its next step;
 4. server -> ``{"type": "result", ...}`` (``stopped_by`` is ``cancelled`` after a cancel), then
-   closes with 1000.
+   closes with 1000. When the server shuts down (SIGTERM) the run stops at its next step the
+   same way, with ``stopped_by`` ``cancelled``, and the close code is 1001 (going away).
 
 An error is ``{"type": "error", "detail": ..., "kind": ...}`` then a close: 1008 (bad request),
 1003 (binary message), 1009 (too big), 1013 (busy), 1011 (server fault). A client that leaves
@@ -67,20 +68,24 @@ async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     if text is None:
         return 1006
     arrived, send_timeout_s = time.perf_counter(), state.settings.limits.ws_send_timeout_s
+    if state.drain.draining.is_set():
+        raise ServiceError(503, "shutting_down", "the server is shutting down")
     with state.gate.slot():
         run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
-        peer = await _stream_run(websocket, run, send_timeout_s)
+        with state.drain.track(run):
+            peer = await _stream_run(websocket, run, send_timeout_s)
     stopped_by = "disconnected" if peer.disconnected else str(run.stopped_by)
     state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)
     if peer.disconnected:
         return 1006
+    code = 1001 if state.drain.draining.is_set() else 1000
     try:
         with anyio.fail_after(send_timeout_s):
             await websocket.send_json({"type": "result", **run.result()})
-            await websocket.close(1000)
+            await websocket.close(code)
     except (*SEND_ERRORS, TimeoutError):
         return 1006
-    return 1000
+    return code
 
 
 async def _first_message(websocket: WebSocket, state: ServiceState) -> str | None:
