@@ -28,7 +28,7 @@ log = logging.getLogger("itnet.service")
 def app_from_env() -> FastAPI:
     """The uvicorn factory of worker processes: settings from the ``ITNET_*`` environment."""
     settings = Settings()
-    GuardedHttpToolsProtocol.configure(settings.server)
+    GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
     return create_app(settings)
 
 
@@ -86,7 +86,7 @@ def run(
 
     options = uvicorn_options(settings)
     if workers == 1:
-        GuardedHttpToolsProtocol.configure(settings.server)
+        GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
         app = create_app(settings, models)
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, _exit_after_drain)

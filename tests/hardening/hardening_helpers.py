@@ -70,7 +70,7 @@ class LiveServer:
 def live_server(settings: Settings, models: dict[str, LoadedModel]) -> Iterator[LiveServer]:
     """uvicorn serving ``create_app(settings, models)`` on a loopback socket in a thread."""
     app = create_app(settings, models)
-    GuardedHttpToolsProtocol.configure(settings.server)
+    GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     port = sock.getsockname()[1]

@@ -141,7 +141,9 @@ def test_beyond_max_connections_uvicorn_answers_503_until_slots_free(
     timeout closes them, and the server serves again (slowloris cannot hold it)."""
     hogs = [raw(slow_server, b"GET /healthz HTTP/1.1\r\n") for _ in range(SERVER.max_connections)]
     refused = httpx.get(f"{slow_server.url}/healthz")
-    assert refused.status_code == 503
+    assert refused.status_code == 503  # the service's own refusal, as the estimate gate's
+    assert refused.json()["kind"] == "overloaded" and refused.headers["retry-after"] == "1"
+    assert refused.headers["connection"] == "close"
     assert wait_for(lambda: httpx.get(f"{slow_server.url}/healthz").status_code == 200, 3.0)
     for sock in hogs:
         sock.close()
