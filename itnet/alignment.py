@@ -13,9 +13,10 @@ Why several starts. IT-Net is iterative, and where it ends depends on where it b
 or ambiguous view ends in the right basin from some starts and not from others. The runs start
 from turns about the sensor's viewing axis (z of a camera frame: the clouds IT-Net was trained
 on look along it, so a turn about it keeps the view looking like one it knows), each on its own
-random subset of ``points`` points of the cloud (sparser than the model's 1,024: the density it
-was trained at); in-process, the starts go through each step as one batch. ``docs/align.md`` has the measurements behind the
-defaults (starts, iterations per run, candidates).
+random subset of ``points`` points of the cloud (192, a little sparser than the 256 the
+model was trained at: as many pairs aligned, for less); in-process, the starts go through each
+step as one batch. ``docs/align.md`` has the measurements behind the defaults (starts,
+iterations per run, candidates).
 
 The pose estimator is passed in (a callable), so this module does no I/O and loads no model: the
 CLI gives it an in-process ``AnytimeRun`` or an HTTP client, the benchmark the same.

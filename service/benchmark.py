@@ -30,7 +30,7 @@ def time_step_ms(path: Path, batch: int, points: int, threads: int, repeats: int
 def loop_overhead(
     path: Path, threads: int, iterations: int = 20, repeats: int = 30
 ) -> dict[str, float]:
-    """Per-iteration time inside AnytimeRun vs the raw step, on a 1,024-point cloud.
+    """Per-iteration time inside AnytimeRun vs the raw step, on a cloud of the card's point count.
 
     The iteration time is measured from the first to the last estimate (normalisation and
     resampling, done once per request, are reported apart as ``setup_ms``).

@@ -14,7 +14,8 @@ def test_bench_prints_a_row_per_model_and_shape_and_the_loop_overhead(tiny_model
     assert result.exit_code == 0, result.output
     assert "machine:" in result.output and "CPUs" in result.output
     rows = [line for line in result.output.splitlines() if line.startswith("| tiny |")]
-    assert [r.split("|")[3].strip() for r in rows] == ["1×1024", "1×4096", "8×1024"]
+    # The tiny model's own 256 points first, then the paper's shapes.
+    assert [r.split("|")[3].strip() for r in rows] == ["1×256", "1×1024", "1×4096", "8×1024"]
     assert all(r.split("|")[2].strip() == "float32" for r in rows)
     assert "tiny: anytime loop" in result.output and "overhead" in result.output
 

@@ -16,7 +16,11 @@ def evaluate(
     frame: str = typer.Option("modelnet"),
     views: int = typer.Option(5, help="Random views per test object."),
     iterations: int = typer.Option(20, help="Evaluate iterations 0..N."),
-    points: int = typer.Option(1024, help="Points the cloud is resampled to (as the runtime)."),
+    points: int | None = typer.Option(
+        None,
+        help="Points each cloud is subsampled to (default: as the runtime, the model card's "
+        "count; for a checkpoint, its training count).",
+    ),
     seed: int = typer.Option(2024, help="Seed of the test views."),
     scanner: str = typer.Option(
         "occluded",
@@ -50,6 +54,7 @@ def evaluate(
 
         net, state = load_checkpoint(checkpoint)
         step, trained = torch_step(net), state["config"]["iterations"]
+        points = int(state["config"]["points"]) if points is None else points
     else:
         from itnet.service.runtime import load_model
 
@@ -58,6 +63,7 @@ def evaluate(
         # int8 graphs quantise activations with one scale per call: batched clouds would
         # influence each other. The runtime steps one cloud at a time, and so does this.
         batch = 1 if model.card.precision == "int8" else batch
+        points = model.card.points if points is None else points
     files = split_files(data, category, 0.1, 0)["test"]
     shapes, orientation = load_shapes(files, frame, cache, check_orientation=True)
     scans = cached_scan_set(shapes, views, seed, config, cache)

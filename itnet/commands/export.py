@@ -12,7 +12,11 @@ def export(
     checkpoint: Path = typer.Argument(..., help="Torch checkpoint (best.pt of a run)."),
     out: Path = typer.Option(Path("itnet/models/chair.onnx"), help="Output .onnx file."),
     name: str = typer.Option("chair", help="Model name used in requests."),
-    points: int = typer.Option(1024, help="Points the runtime resamples clouds to."),
+    points: int | None = typer.Option(
+        None,
+        help="Points the runtime subsamples a larger cloud to (default: the count the model was "
+        "trained on: the density it knows, and the cheapest step).",
+    ),
     recommended_iterations: int = typer.Option(10, help="Default iteration cap of the runtime."),
     report: Path | None = typer.Option(None, help="report.json of `itnet eval` to record."),
     version: str = typer.Option("1"),
@@ -34,6 +38,7 @@ def export(
 
     net, state = load_checkpoint(checkpoint)
     config = state["config"]
+    points = int(config["points"]) if points is None else points
     accuracy, evaluation = {}, ""
     if report is not None:
         rep = json.loads(report.read_text())
