@@ -133,7 +133,7 @@ class Alignment:
     hypotheses: list[Hypothesis]  # the candidates, scored (and refined, with refine)
     chosen: int
     confidence: dict[str, float]
-    timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, refine, score, total
+    timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, rank, refine, score, total
     iterations: int = 0  # IT-Net steps over every run (both clouds, all starts)
     considered: int = 0  # hypotheses ranked before the candidates were picked
     scale: float = 1.0  # B's RMS radius about its centroid (the unit of the relative distances)
@@ -195,8 +195,9 @@ def align_clouds(
 ) -> Alignment:
     """Cloud A (N, 3) and B (M, 3), each in its own frame and unit-consistent -> Alignment.
 
-    ``estimate`` maps a cloud (K, 3) to its IT-Net PoseEstimate; what it raises comes back as
-    CloudEstimateError (``__cause__``: the original). Raises ``itnet.refine.RefineUnavailable``
+    ``estimate`` maps a cloud (K, 3) and starting rotations to one IT-Net PoseEstimate per
+    start (``PoseEstimator``); what it raises comes back as CloudEstimateError (``__cause__``:
+    the original). Raises ``itnet.refine.RefineUnavailable``
     when refinement needs open3d and it is absent.
     """
     if options.starts < 1 or options.candidates < 1 or options.points < 3:
