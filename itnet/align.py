@@ -126,9 +126,8 @@ def distinct(
     hypotheses are near-copies of one another, and refining copies wastes the ICP budget."""
     poses = np.array([h.T_b_from_a for h in hypotheses], dtype=np.float64)
     rot, shift = poses[:, :3, :3], poses[:, :3, 3]
-    # Pairwise rotation angles from trace(R_i^T R_j), and distances between translations.
-    cos = (np.einsum("iab,jab->ij", rot, rot) - 1.0) / 2.0
-    close = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) < max_deg
+    # Pairwise (H, H): the angle between the rotations, the distance between the translations.
+    close = rotation_error_deg(rot[:, None], rot[None]) < max_deg
     close &= np.linalg.norm(shift[:, None] - shift[None], axis=-1) < max_shift * scale
     kept: list[int] = []
     for k in np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable"):

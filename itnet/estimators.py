@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.alignment import PoseEstimate, PoseEstimator
+from itnet.geometry import rigid_from_rotation_translation
 from itnet.preprocess import cap_points
 
 if TYPE_CHECKING:
@@ -54,8 +55,8 @@ def client_estimator(
     """IT-Net through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on the wire).
 
     The HTTP API always starts at the identity, so each start is a request of its own: the cloud
-    (its subset) turned by it here (about the origin: the service recentres it anyway), the turn composed
-    back into the pose.
+    (its subset) turned by it here (about the origin: the service recentres it anyway), the
+    turn composed back into the pose.
     Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
 
     def estimate(
@@ -75,8 +76,7 @@ def client_estimator(
                 model=model,
                 binary=True,
             )
-            back = np.eye(4)
-            back[:3, :3] = turn
+            back = rigid_from_rotation_translation(turn, np.zeros(3))
             out.append(PoseEstimate(reply.T_canonical_from_input @ back, reply.iterations,
                                     reply.elapsed_ms, reply.stopped_by))  # fmt: skip
         return out

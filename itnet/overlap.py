@@ -11,6 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from itnet.preprocess import cap_points
+
 
 class Cloud:
     """A cloud (M, 3) and its KD-tree, built once for many queries."""
@@ -21,10 +23,11 @@ class Cloud:
 
 
 def sample(points: NDArray, count: int | None, seed: int) -> NDArray:
-    """``count`` points (count, 3) of a cloud (N, 3), a seeded random subset (all if fewer)."""
-    if count is None or len(points) <= count:
+    """``count`` points (count, 3) of a cloud (N, 3), a seeded random subset (all if fewer or
+    ``count`` is None): ``itnet.preprocess.cap_points`` with a generator seeded here."""
+    if count is None:
         return points
-    return points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
+    return np.asarray(cap_points(points, count, np.random.default_rng(seed)))
 
 
 def overlap(
