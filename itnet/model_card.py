@@ -5,6 +5,8 @@ Shared by the exporter (writes it) and the runtime (reads it), so both agree on 
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, Field
 
 METADATA_KEY = "itnet"
@@ -28,6 +30,12 @@ class ModelCard(BaseModel):
     recommended_iterations: int = 10
     normalization: str = NORMALIZATION
     canonical_frame: str = "+y up, front toward -z, origin at the bounding-box centre"
+    symmetry: Literal["none", "yaw180", "yaw90", "yaw"] = Field(
+        "none",
+        description="rotations about +y (up) that leave the category's shapes alike: 'none', "
+        "'yaw180' (C2), 'yaw90' (C4) or 'yaw' (any turn: round objects); a pose is correct when "
+        "any equivalent pose is",
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",

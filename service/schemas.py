@@ -102,6 +102,10 @@ class ModelInfo(BaseModel):
     evaluation: str = Field(description="how the accuracy was measured")
     normalization: str
     canonical_frame: str
+    symmetry: str = Field(
+        description="'none', 'yaw180', 'yaw90' or 'yaw': turns about +y (up) under which the "
+        "category's shapes look alike; the reply gives one representative of the equivalent poses"
+    )
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

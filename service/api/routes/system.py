@@ -28,6 +28,7 @@ async def models(state: StateDep) -> ModelsResponse:
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,
             canonical_frame=m.card.canonical_frame,
+            symmetry=m.card.symmetry,
             step_ms=round(m.step_ms, 3),
             default=name == default,
         )
