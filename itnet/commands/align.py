@@ -32,8 +32,13 @@ def align(
     server: str | None = typer.Option(
         None, "--server", help="URL of a running itnet service (default: run the model here)."
     ),
-    refine: bool = typer.Option(
-        False, "--refine", help="Refine the candidates with point-to-plane ICP (open3d)."
+    refine: bool | None = typer.Option(
+        None,
+        "--refine/--no-refine",
+        help="Refine the candidates with point-to-plane ICP (open3d). Default: on when open3d "
+        "is installed (the 'refine' extra), off otherwise; --no-refine skips it (faster, "
+        "fewer pairs aligned).",
+        show_default=False,
     ),
     starts: int = typer.Option(
         4, min=1, max=16, help="IT-Net runs per cloud, each from another turn about z."
@@ -66,11 +71,15 @@ def align(
     except CloudReadError as err:
         _fail(str(err))
 
-    if refine:
-        try:
+    try:
+        if refine is not False:
             require_open3d()  # imported up front, so the reported time is the work's
-        except RefineUnavailable as err:
+            refine = True
+    except RefineUnavailable as err:
+        if refine:  # asked for by name
             _fail(str(err), code=1)
+        typer.echo(f"note: no ICP refinement: {err}", err=True)
+        refine = False
     estimate, category, close = _estimator(server, model, model_dir, budget_ms)
     options = AlignOptions(
         starts=starts,

@@ -10,8 +10,12 @@ import typer
 
 def export(
     checkpoint: Path = typer.Argument(..., help="Torch checkpoint (best.pt of a run)."),
-    out: Path = typer.Option(Path("itnet/models/chair.onnx"), help="Output .onnx file."),
-    name: str = typer.Option("chair", help="Model name used in requests."),
+    out: Path | None = typer.Option(
+        None, help="Output .onnx file (default: itnet/models/<name>.onnx)."
+    ),
+    name: str | None = typer.Option(
+        None, help="Model name used in requests (default: the checkpoint's category)."
+    ),
     points: int | None = typer.Option(
         None,
         help="Points the runtime subsamples a larger cloud to (default: the count the model was "
@@ -48,6 +52,8 @@ def export(
             f"views, full SO(3), random units) of the {rep['category']} test split, "
             f"{rep['points']} points"
         )
+    name = name or str(config["category"])  # a mug model is served as 'mug', not 'chair'
+    out = out or Path("itnet/models") / f"{name}.onnx"
     card = ModelCard(
         name=name,
         category=config["category"],

@@ -26,7 +26,9 @@ def run(tiny_model_dir, *args, main=False):
 
 
 def test_json_reply(tiny_model_dir):
-    result = run(tiny_model_dir, A, B, "--json", "--symmetry", "none", "--starts", "1")
+    result = run(
+        tiny_model_dir, A, B, "--json", "--symmetry", "none", "--starts", "1", "--no-refine"
+    )
     assert result.exit_code == 0, result.output
     reply = json.loads(result.stdout)
     t = np.array(reply["T_b_from_a"])
@@ -63,6 +65,15 @@ def test_output_writes_a_moved_onto_b(tiny_model_dir, tmp_path):
     assert moved.shape == expected.shape
     assert np.allclose(moved, expected, atol=1e-5)
     assert reply["output"] == str(out)
+
+
+def test_icp_is_the_default_when_open3d_is_installed(tiny_model_dir):
+    pytest.importorskip("open3d")
+    default = json.loads(run(tiny_model_dir, A, B, "--json").stdout)
+    skipped = json.loads(run(tiny_model_dir, A, B, "--json", "--no-refine").stdout)
+    assert default["refined"] is True and default["timings_ms"]["refine"] > 0
+    assert skipped["refined"] is False and "+icp" not in skipped["hypothesis"]
+    assert "--no-refine" in runner.invoke(align_app, ["--help"]).stdout
 
 
 def test_refine_reports_fit(tiny_model_dir):
