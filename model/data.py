@@ -78,10 +78,18 @@ def split_files(
 
 
 def load_shapes(
-    files: list[Path], frame: str, cache: Path, check_orientation: bool
+    files: list[Path],
+    frame: str,
+    cache: Path,
+    check_orientation: bool,
+    quarter_turns: int = 0,
+    symmetry: str = "none",
 ) -> tuple[list[Shape], dict]:
-    """Canonical shapes for files (cached). Returns (shapes, orientation-check counts)."""
+    """Canonical shapes for files (cached), turned by the category's ``quarter_turns`` and
+    orientation-checked under its ``symmetry``. Returns (shapes, orientation-check counts)."""
     key = _cache_key([str(f) for f in files], frame, check_orientation)
+    if quarter_turns % 4 or symmetry != "none":  # keeps the chair's existing cache keys
+        key = _cache_key(key, quarter_turns % 4, symmetry)
     path = cache / f"shapes-{key}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
@@ -93,11 +101,13 @@ def load_shapes(
             )
         ]
         return shapes, report
-    shapes = [load_shape(f, frame) for f in files]
+    shapes = [load_shape(f, frame, quarter_turns) for f in files]
     report = {"loaded": len(shapes)}
     if check_orientation:
-        shapes, counts = check_yaw(shapes)
+        shapes, counts = check_yaw(shapes, symmetry=symmetry)
         report.update(counts)
+    if not shapes:  # nothing to cache; the caller says what to do about it
+        return shapes, report
     cache.mkdir(parents=True, exist_ok=True)
     tris = [s.triangles if s.triangles is not None else np.zeros((0, 3), np.int64) for s in shapes]
     np.savez_compressed(
@@ -141,7 +151,10 @@ def make_scan_set(
 def cached_scan_set(
     shapes: list[Shape], views: int, seed: int, config: ScanConfig, cache: Path
 ) -> ScanSet:
-    path = cache / f"scans-{_cache_key([s.name for s in shapes], views, seed, config)}.npz"
+    # the names and a fingerprint of the geometry (a category's turn changes the points, not names)
+    fingerprint = round(float(sum(np.abs(s.points[:4] @ [1.0, 2.0, 3.0]).sum() for s in shapes)), 6)
+    key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint)
+    path = cache / f"scans-{key}.npz"
     if path.exists():
         return ScanSet.load(path)
     scans = make_scan_set(shapes, views, seed, config)
@@ -165,12 +178,16 @@ def training_batch(
     points: int,
     rng: np.random.Generator,
     config: ScanConfig | list[ScanConfig],
+    indices: NDArray[np.int64] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4)). A list
-    of configs: each scan uses one, drawn uniformly."""
+    of configs: each scan uses one, drawn uniformly. ``indices`` (B,): the shapes to scan (by
+    default drawn uniformly)."""
     configs = config if isinstance(config, list) else [config]
     xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
-    for b, i in enumerate(rng.integers(len(shapes), size=batch)):
+    if indices is None:
+        indices = rng.integers(len(shapes), size=batch)
+    for b, i in enumerate(indices):
         cloud, pose = scan_shape(shapes[i].points, rng, _pick(configs, rng), shapes[i].triangles)
         xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
     return xs, targets

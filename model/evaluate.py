@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from itnet.metrics import is_correct, pose_errors
 from itnet.model.data import ScanSet
 from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
+from itnet.symmetry import symmetric_rotation_error_deg
 
 # (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
 StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]
@@ -57,9 +58,18 @@ def anytime_poses(
     return out
 
 
-def report(poses: NDArray, scans: ScanSet) -> tuple[AnytimeReport, NDArray, NDArray]:
-    """Poses (S, K+1, 4, 4) -> (report, rotation errors (S, K+1), translation errors (S, K+1))."""
+def report(
+    poses: NDArray, scans: ScanSet, symmetry: str = "none"
+) -> tuple[AnytimeReport, NDArray, NDArray]:
+    """Poses (S, K+1, 4, 4) -> (report, rotation errors (S, K+1), translation errors (S, K+1)).
+
+    The rotation error is the smallest over the category's equivalent poses (``symmetry``); the
+    object centre is the same for all of them."""
     rot, trans = pose_errors(poses, scans.poses[:, None], scans.radii[:, None])
+    if symmetry != "none":
+        rot = symmetric_rotation_error_deg(
+            poses[..., :3, :3], scans.poses[:, None, :3, :3], symmetry
+        )
     ok = is_correct(rot, trans)
     rep = AnytimeReport(
         iterations=list(range(poses.shape[1])),

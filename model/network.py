@@ -173,7 +173,20 @@ class ExportableStep(nn.Module):
         return delta @ pose, delta
 
 
-def point_loss(pose_estimate: Tensor, pose_target: Tensor, points: Tensor) -> Tensor:
-    """PLoss: mean over batch and points of ||T_est x - T_gt x||^2. Poses (B,4,4), points (B,N,3)."""
-    diff = apply_pose(pose_estimate, points) - apply_pose(pose_target, points)
-    return diff.square().sum(-1).mean()
+def point_loss(
+    pose_estimate: Tensor, pose_target: Tensor, points: Tensor, symmetries: Tensor | None = None
+) -> Tensor:
+    """PLoss: mean over batch and points of ||T_est x - T_gt x||^2. Poses (B,4,4), points (B,N,3).
+
+    With ``symmetries`` (B, G, 4, 4): each example's equivalent targets are ``S_g @ T_gt`` (turns
+    about the canonical origin, ``itnet.symmetry``), and its loss is the smallest over g (an
+    example with fewer turns repeats one of them)."""
+    if symmetries is None:
+        diff = apply_pose(pose_estimate, points) - apply_pose(pose_target, points)
+        return diff.square().sum(-1).mean()
+    b, g = symmetries.shape[:2]
+    targets = (symmetries @ pose_target[:, None]).reshape(b * g, 4, 4)
+    repeated = points[:, None].expand(b, g, *points.shape[1:]).reshape(b * g, *points.shape[1:])
+    estimate = apply_pose(pose_estimate, points)[:, None]  # (B, 1, N, 3)
+    diff = estimate - apply_pose(targets, repeated).reshape(b, g, *points.shape[1:])
+    return diff.square().sum(-1).mean(-1).amin(1).mean()

@@ -53,8 +53,17 @@ def to_canonical(points: NDArray, frame: str) -> tuple[NDArray[np.float64], floa
     return (p - center) / radius, radius
 
 
-def load_shape(path: Path, frame: str) -> Shape:
-    """Read a mesh (ray-castable) or a point cloud file as a canonical Shape."""
+def load_shape(path: Path, frame: str, quarter_turns: int = 0) -> Shape:
+    """Read a mesh (ray-castable) or a point cloud file as a canonical Shape, mapped from
+    ``frame`` and then turned by ``quarter_turns`` x 90 degrees about +y (a category's turn,
+    ``model.categories``)."""
+    shape = _load_shape(path, frame)
+    if quarter_turns % 4:
+        shape.points = shape.points @ yaw_rotation(quarter_turns).T
+    return shape
+
+
+def _load_shape(path: Path, frame: str) -> Shape:
     if path.suffix.lower() in MESH_SUFFIXES or _is_mesh_ply(path):
         import open3d as o3d
 
@@ -87,7 +96,8 @@ def yaw_rotation(quarter_turns: int) -> NDArray[np.float64]:
     return axis_angle_to_matrix([0.0, 1.0, 0.0], quarter_turns * np.pi / 2)
 
 
-def _chamfer(a: NDArray, b: NDArray) -> float:
+def chamfer(a: NDArray, b: NDArray) -> float:
+    """Symmetric mean nearest-neighbour distance between point sets (M, 3) and (K, 3)."""
     d = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None, :] - 2 * a @ b.T
     return float(np.sqrt(np.maximum(d.min(1), 0)).mean() + np.sqrt(np.maximum(d.min(0), 0)).mean())
 
@@ -98,15 +108,21 @@ def check_yaw(
     references: int = 24,
     sample: int = 256,
     margin: float = 0.05,
+    symmetry: str = "none",
 ) -> tuple[list[Shape], dict[str, int]]:
     """Find shapes turned by a multiple of 90 degrees about up, against the rest of their class.
 
-    For each shape, the four quarter-turns are scored by the median Chamfer distance to a random
+    For each shape, the quarter-turns that the category's ``symmetry`` tells apart (four for
+    ``none``; 0 and 90 degrees for ``yaw180``, where 180 is the same pose; none for ``yaw90`` and
+    ``yaw``, which return the shapes as they are) are scored by the median Chamfer distance to a random
     set of reference shapes of the class (most of which are right). A shape whose best turn is not
     0 is turned back; a shape whose best turn is not clearly better than the other ones
     (relative ``margin``) cannot be told apart and is dropped (it is near-symmetric, and its label
     would contradict itself). Returns (kept shapes, counts).
     """
+    candidates = {"none": 4, "yaw180": 2}.get(symmetry, 1)
+    if candidates == 1:
+        return list(shapes), {"kept": len(shapes), "turned": 0, "dropped": 0}
     rng = np.random.default_rng(seed)
     subsample = [
         s.points[rng.choice(len(s.points), min(sample, len(s.points)), replace=False)]
@@ -114,12 +130,12 @@ def check_yaw(
     ]
     refs = rng.choice(len(shapes), size=min(references, len(shapes)), replace=False)
     kept, counts = [], {"kept": 0, "turned": 0, "dropped": 0}
-    turns = [yaw_rotation(k) for k in range(4)]
+    turns = [yaw_rotation(k) for k in range(candidates)]
     for i, shape in enumerate(shapes):
         scores = []
         for r in turns:
             moved = subsample[i] @ r.T
-            scores.append(np.median([_chamfer(moved, subsample[j]) for j in refs if j != i]))
+            scores.append(np.median([chamfer(moved, subsample[j]) for j in refs if j != i]))
         order = np.argsort(scores)
         best, second = scores[order[0]], scores[order[1]]
         if second - best < margin * best:

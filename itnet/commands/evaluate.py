@@ -12,7 +12,11 @@ def evaluate(
     checkpoint: Path | None = typer.Option(None, help="Torch checkpoint (.pt) to evaluate."),
     onnx: Path | None = typer.Option(None, help="Or an exported .onnx step, run by onnxruntime."),
     data: Path = typer.Option(Path("../shared/data/modelnet10"), help="Dataset root."),
-    category: str = typer.Option("chair"),
+    category: str | None = typer.Option(
+        None,
+        help="Category of the test split (default: the model's; required for a checkpoint "
+        "trained on several categories).",
+    ),
     frame: str = typer.Option("modelnet"),
     views: int = typer.Option(5, help="Random views per test object."),
     iterations: int = typer.Option(20, help="Evaluate iterations 0..N."),
@@ -31,12 +35,16 @@ def evaluate(
     dump_scans: Path | None = typer.Option(
         None, help="Also write the test scans as .npy files plus labels.json (for `itnet pose`)."
     ),
+    check_orientation: bool = typer.Option(
+        True, help="Turn back or drop test shapes turned about up, as training does."
+    ),
     cache: Path = typer.Option(Path("cache")),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
 
     import numpy as np
 
+    from itnet.model.categories import category as category_of
     from itnet.model.data import cached_scan_set, load_shapes, split_files
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
@@ -55,6 +63,7 @@ def evaluate(
         net, state = load_checkpoint(checkpoint)
         step, trained = torch_step(net), state["config"]["iterations"]
         points = int(state["config"]["points"]) if points is None else points
+        trained_on, symmetry = state["config"]["category"], state["config"].get("symmetry")
     else:
         from itnet.service.runtime import load_model
 
@@ -64,15 +73,22 @@ def evaluate(
         # influence each other. The runtime steps one cloud at a time, and so does this.
         batch = 1 if model.card.precision == "int8" else batch
         points = model.card.points if points is None else points
-    files = split_files(data, category, 0.1, 0)["test"]
-    shapes, orientation = load_shapes(files, frame, cache, check_orientation=True)
+        trained_on, symmetry = model.card.category, model.card.symmetry
+    if category is None and ("," in trained_on or trained_on == "modelnet10"):
+        raise typer.BadParameter(f"the model knows several categories ({trained_on}): --category")
+    cat = category_of(category or trained_on, symmetry)
+    files = split_files(data, cat.name, 0.1, 0)["test"]
+    shapes, orientation = load_shapes(
+        files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry
+    )
     scans = cached_scan_set(shapes, views, seed, config, cache)
     poses = anytime_poses(step, scans, iterations, points, batch=batch)
-    rep, rot, trans = report(poses, scans)
+    rep, rot, trans = report(poses, scans, cat.symmetry)
     out.mkdir(parents=True, exist_ok=True)
     summary = {
         "source": str(checkpoint or onnx),
-        "category": category,
+        "category": cat.name,
+        "symmetry": cat.symmetry,
         "orientation": orientation,
         "views": views,
         "scanner": scanner,
@@ -88,7 +104,7 @@ def evaluate(
         trans,
         trained,
         out / "anytime.png",
-        f"{category}: {rep.scans} partial scans ({scanner} views) of held-out objects",
+        f"{cat.name} ({cat.symmetry}): {rep.scans} partial scans ({scanner} views) of held-out objects",
     )
     if dump_scans is not None:
         dump_scans.mkdir(parents=True, exist_ok=True)

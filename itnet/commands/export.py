@@ -14,7 +14,12 @@ def export(
         None, help="Output .onnx file (default: itnet/models/<name>.onnx)."
     ),
     name: str | None = typer.Option(
-        None, help="Model name used in requests (default: the checkpoint's category)."
+        None, help="Model name used in requests (default: the category)."
+    ),
+    category: str | None = typer.Option(
+        None,
+        help="Category the model answers for (default: the one it was trained on; required for "
+        "a network trained on several: export it once per category).",
     ),
     points: int | None = typer.Option(
         None,
@@ -36,12 +41,17 @@ def export(
 
     from itnet.export.onnx_export import export_step
     from itnet.export.quantize import quantize_step
+    from itnet.model.categories import category as category_of
     from itnet.model.train import load_checkpoint
     from itnet.model_card import ModelCard
     from itnet.service.runtime import load_model
 
     net, state = load_checkpoint(checkpoint)
     config = state["config"]
+    trained_on = str(config["category"])
+    if category is None and ("," in trained_on or trained_on == "modelnet10"):
+        raise typer.BadParameter(f"the model knows several categories ({trained_on}): --category")
+    cat = category_of(category or trained_on, config.get("symmetry"))
     points = int(config["points"]) if points is None else points
     accuracy, evaluation = {}, ""
     if report is not None:
@@ -52,11 +62,12 @@ def export(
             f"views, full SO(3), random units) of the {rep['category']} test split, "
             f"{rep['points']} points"
         )
-    name = name or str(config["category"])  # a mug model is served as 'mug', not 'chair'
+    name = name or cat.name  # a mug model is served as 'mug', not 'chair'
     out = out or Path("itnet/models") / f"{name}.onnx"
     card = ModelCard(
         name=name,
-        category=config["category"],
+        category=cat.name,
+        symmetry=cat.symmetry,
         version=version,
         points=points,
         trained_points=config["points"],
@@ -71,6 +82,7 @@ def export(
             "decay_every": config["decay_every"],
             "bf16": config["bf16"],
             "validation": state["metrics"].get("val_accuracy"),
+            "categories": trained_on,
         },
     )
     if int8:

@@ -12,7 +12,18 @@ def train(
         Path("../shared/data/modelnet10"),
         help="ModelNet-style root (DATA/CATEGORY/{train,test}) or any folder of meshes/clouds.",
     ),
-    category: str = typer.Option("chair", help="Category (sub-folder of DATA, if present)."),
+    category: str = typer.Option(
+        "chair",
+        help="Category (sub-folder of DATA, if present); a comma list or 'modelnet10' (every "
+        "class of DATA) trains one network for several categories.",
+    ),
+    symmetry: str = typer.Option(
+        "auto",
+        help="Turns about up under which the category looks alike: none | yaw180 | yaw90 | yaw; "
+        "auto: ModelNet10's table (model/categories.py), 'none' for another category. Measure "
+        "it with `python -m itnet.model.categories`.",
+    ),
+    threads: int = typer.Option(0, help="torch threads (0: torch's default)."),
     frame: str = typer.Option("modelnet", help="Frame of the files: modelnet | canonical | z-up."),
     out: Path = typer.Option(Path("runs/chair"), help="Run folder (checkpoints, log, config)."),
     steps: int = typer.Option(9000, help="Optimiser steps."),
@@ -52,7 +63,10 @@ def train(
     """
     from itnet.model.scanner import PAPER_VIEWS
     from itnet.model.train import TrainConfig
+    from itnet.symmetry import SYMMETRY_NAMES
 
+    if symmetry != "auto" and symmetry not in SYMMETRY_NAMES:
+        raise typer.BadParameter(f"--symmetry must be auto or one of {', '.join(SYMMETRY_NAMES)}")
     if val_scanner not in ("occluded", "paper"):
         raise typer.BadParameter("--val-scanner must be 'occluded' or 'paper'")
     from itnet.model.train import train as run_training
@@ -60,6 +74,8 @@ def train(
     config = TrainConfig(
         data=data,
         category=category,
+        symmetry=None if symmetry == "auto" else symmetry,
+        threads=threads,
         frame=frame,
         out=out,
         steps=steps,

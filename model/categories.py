@@ -1,0 +1,125 @@
+"""Categories: each one's canonical frame (from ModelNet10's) and its symmetry, and how both were
+decided from the shapes.
+
+Canonical frame (SPEC.md): +y up, the object's front toward -z; a bed's head end on +z; a
+category without a front has its longest horizontal extent along x. ModelNet10's files go
+through the chair's mapping ``(x, y, z) -> (-x, z, y)`` (``shapes.FRAME_ROTATIONS['modelnet']``),
+then a per-class number of quarter turns about +y (``quarter_turns``), measured on the training
+split (``python -m itnet.model.categories``):
+
+* chair, bed, toilet: the back (headboard, tank) is the upper part and leans to +z for 95-100%:
+  no turn.
+* sofa, desk, monitor: the long axis comes out along z and the front faces +x (a sofa's back
+  leans to -x for 99%; a desk's mass, hutch and back panel sit at -x for 85%; a CRT's tube and a
+  flat panel's neck are behind the screen, at -x): a +90 degree turn puts the back on +z.
+* bathtub, table, dresser, night_stand: front and back alike at scan resolution (``yaw180``), the
+  long axis along z: a quarter turn puts it along x.
+
+Symmetry is measured per shape: the Chamfer distance between two random 400-point samples of a
+shape (disjoint halves of its points), one turned by 90, by 180 and by a random other angle about
+up, over the distance between the two unturned halves (the sampling floor). A class whose median ratio for a turn is below
+``SYMMETRY_RATIO`` looks alike under that turn.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from itnet.geometry import axis_angle_to_matrix
+from itnet.model.shapes import Shape, chamfer
+from itnet.symmetry import SYMMETRY_NAMES
+
+# A turn is a symmetry when a turned half of a shape lies within 10% of the sampling floor.
+SYMMETRY_RATIO = 1.10
+
+
+@dataclass(frozen=True)
+class Category:
+    """How a category's files map to its canonical frame, and its symmetry."""
+
+    name: str
+    quarter_turns: int = 0  # turns of +90 degrees about +y after the source frame's mapping
+    symmetry: str = "none"
+
+    def __post_init__(self) -> None:
+        if self.symmetry not in SYMMETRY_NAMES:
+            raise ValueError(f"unknown symmetry {self.symmetry!r}")
+
+
+MODELNET10: dict[str, Category] = {
+    c.name: c
+    for c in (
+        Category("bathtub", 1, "yaw180"),
+        Category("bed", 0, "none"),
+        Category("chair", 0, "none"),
+        Category("desk", 1, "none"),
+        Category("dresser", 1, "yaw180"),
+        Category("monitor", 1, "none"),
+        Category("night_stand", 1, "yaw180"),
+        Category("sofa", 1, "none"),
+        Category("table", 1, "yaw180"),
+        Category("toilet", 0, "none"),
+    )
+}
+
+
+def category(name: str, symmetry: str | None = None) -> Category:
+    """The ModelNet10 entry for ``name``, or a user's category (no turn) with ``symmetry``."""
+    known = MODELNET10.get(name, Category(name))
+    if symmetry is None or symmetry == "auto":
+        return known
+    return Category(name, known.quarter_turns, symmetry)
+
+
+def self_match_ratios(
+    shapes: list[Shape], rng: np.random.Generator, sample: int = 400
+) -> dict[str, float]:
+    """Median over shapes of Chamfer(half, turned other half) / Chamfer(half, other half)
+    for turns of 90 and 180 degrees and a random angle in (17, 70) degrees."""
+    ratios: dict[str, list[float]] = {"yaw90": [], "yaw180": [], "yaw": []}
+    for shape in shapes:
+        order = rng.permutation(len(shape.points))  # two disjoint halves: independent samples
+        n = min(sample, len(order) // 2)
+        a, b = shape.points[order[:n]], shape.points[order[n : 2 * n]]
+        floor = max(chamfer(a, b), 1e-9)
+        for key, angle in (("yaw90", 90.0), ("yaw180", 180.0), ("yaw", rng.uniform(17, 70))):
+            turn = axis_angle_to_matrix([0.0, 1.0, 0.0], np.radians(angle))
+            ratios[key].append(chamfer(a, b @ turn.T) / floor)
+    return {k: round(float(np.median(v)), 3) for k, v in ratios.items()}
+
+
+def decide_symmetry(ratios: dict[str, float], threshold: float = SYMMETRY_RATIO) -> str:
+    """The largest group whose turns all keep the shapes alike (ratio below ``threshold``)."""
+    if ratios["yaw"] < threshold and ratios["yaw90"] < threshold:
+        return "yaw"
+    if ratios["yaw90"] < threshold and ratios["yaw180"] < threshold:
+        return "yaw90"
+    if ratios["yaw180"] < threshold:
+        return "yaw180"
+    return "none"
+
+
+def main() -> None:
+    """Print each ModelNet10 class's measured self-match ratios, decided and declared symmetry."""
+    from pathlib import Path
+
+    from itnet.model.data import split_files
+    from itnet.model.shapes import load_shape
+
+    data = Path("../shared/data/modelnet10")
+    rng = np.random.default_rng(0)
+    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared |")
+    print("|---|---|---|---|---|---|")
+    for name, cat in MODELNET10.items():
+        files = split_files(data, name, 0.1, 0)["train"]
+        picked = [files[i] for i in rng.choice(len(files), min(80, len(files)), replace=False)]
+        shapes = [load_shape(f, "modelnet") for f in picked]
+        ratios = self_match_ratios(shapes, rng)
+        print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
+              f"{decide_symmetry(ratios)} | {cat.symmetry} |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,98 @@
+"""One network for several categories: symmetry-aware training, per-category validation,
+evaluation and export of one model per category (tiny synthetic data, seconds)."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from itnet.cli import app
+
+
+def _chair_like(rng, n=300):
+    seat = rng.uniform([-0.5, -0.05, -0.5], [0.5, 0.05, 0.5], size=(n // 2, 3))
+    back = rng.uniform([-0.5, 0.05, 0.4], [0.5, 0.9, 0.5], size=(n - n // 2, 3))
+    return np.concatenate([seat, back]) * rng.uniform(0.8, 1.2, size=3)
+
+
+def _bench_like(rng, n=300):  # long along x, front and back alike
+    return rng.uniform([-0.9, -0.2, -0.3], [0.9, 0.2, 0.3], size=(n, 3)) * rng.uniform(0.9, 1.1, 3)
+
+
+@pytest.fixture(scope="module")
+def two_categories(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    root = tmp_path_factory.mktemp("categories")
+    for name, make in (("seat", _chair_like), ("bench", _bench_like)):
+        for split, count in (("train", 10), ("test", 3)):
+            folder = root / name / split
+            folder.mkdir(parents=True)
+            for i in range(count):
+                np.save(folder / f"{name}_{i:02d}.npy", make(rng))
+    return root
+
+
+def test_one_network_for_two_categories_with_their_symmetries(two_categories, tmp_path):
+    runner = CliRunner()
+    run, cache = tmp_path / "run", tmp_path / "cache"
+    common = ["--data", str(two_categories), "--frame", "canonical", "--cache", str(cache)]
+    # Without its symmetry, the bench's half turns cannot be told apart: every shape is dropped.
+    result = runner.invoke(app, ["train", *common, "--category", "bench", "--out", str(run)])
+    assert result.exit_code != 0 and "--symmetry yaw180" in str(result.exception)
+    result = runner.invoke(
+        app,
+        ["train", *common, "--no-check-orientation", "--category", "seat,bench", "--out", str(run), "--steps", "6",
+         "--batch", "8", "--points", "64", "--iterations", "2", "--eval-every", "3"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    lines = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    start = lines[0]
+    assert start["symmetry"] == {"seat": "none", "bench": "none"}  # unknown names: no symmetry
+    val = [line for line in lines if line.get("event") == "val"]
+    assert set(val[-1]["val_categories"]) == {"seat", "bench"}
+
+    # A network of several categories is exported (and evaluated) once per category.
+    out = tmp_path / "bench.onnx"
+    refused = runner.invoke(app, ["export", str(run / "last.pt"), "--out", str(out)])
+    assert refused.exit_code != 0 and "--category" in refused.output
+    result = runner.invoke(
+        app, ["export", str(run / "last.pt"), "--out", str(out), "--category", "bench"]
+    )
+    assert result.exit_code == 0, result.output
+    from itnet.service.runtime import load_model
+
+    card = load_model(out, warm_up=False).card
+    assert (card.name, card.category, card.symmetry) == ("bench", "bench", "none")
+    assert card.training["categories"] == "seat,bench"
+    result = runner.invoke(
+        app,
+        ["eval", "--onnx", str(out), *common, "--no-check-orientation", "--views", "2", "--iterations", "2",
+         "--out", str(tmp_path / "eval")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "eval" / "report.json").read_text())
+    assert (report["category"], report["symmetry"]) == ("bench", "none")
+
+
+def test_a_users_category_trains_with_the_symmetry_it_is_given(two_categories, tmp_path):
+    runner = CliRunner()
+    run = tmp_path / "run"
+    result = runner.invoke(
+        app,
+        ["train", "--data", str(two_categories), "--frame", "canonical", "--category", "bench",
+         "--symmetry", "yaw180", "--cache", str(tmp_path / "cache"), "--out", str(run),
+         "--steps", "2", "--batch", "4", "--points", "32", "--iterations", "1",
+         "--eval-every", "2"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    start = json.loads((run / "log.jsonl").read_text().splitlines()[0])
+    assert start["symmetry"] == {"bench": "yaw180"}
+    result = runner.invoke(app, ["export", str(run / "last.pt"), "--out", str(tmp_path / "b.onnx")])
+    assert result.exit_code == 0, result.output
+    from itnet.service.runtime import load_model
+
+    card = load_model(tmp_path / "b.onnx", warm_up=False).card
+    assert (card.name, card.symmetry) == ("bench", "yaw180")
+    bad = runner.invoke(app, ["train", "--category", "bench", "--symmetry", "c3"])
+    assert bad.exit_code != 0 and "--symmetry" in bad.output
