@@ -16,6 +16,7 @@ NORMALIZATION = "centroid, RMS radius (itnet.preprocess)"
 class ModelCard(BaseModel):
     """Metadata of one exported IT-Net step."""
 
+    kind: Literal["pose"] = Field("pose", description="a pose step ('classifier': ClassifierCard)")
     name: str = Field(description="model name used in requests, e.g. 'chair'")
     category: str
     version: str = "1"
@@ -50,3 +51,43 @@ class ModelCard(BaseModel):
     )
     evaluation: str = ""
     training: dict[str, object] = Field(default_factory=dict)
+
+
+class ClassifierCard(BaseModel):
+    """Metadata of an exported category classifier (``model: "auto"``): one graph, normalised
+    points [B, N, 3] -> class probabilities [B, C] (the canonicaliser's steps included)."""
+
+    kind: Literal["classifier"] = "classifier"
+    name: str = "classifier"
+    version: str = "1"
+    classes: list[str] = Field(description="category of each output, in order")
+    precision: str = "float32"
+    points: int = Field(
+        256, description="points the runtime subsamples a larger cloud to (a smaller one: whole)"
+    )
+    normalization: str = NORMALIZATION
+    transformer: str = Field("itnet-2", description="the canonicaliser in front of the classifier")
+    threshold: float = Field(
+        0.5, description="below this top probability a recognition is reported as unsure"
+    )
+    accuracy: float = Field(0.0, description="top-1 accuracy on the test views (fraction)")
+    mean_class_accuracy: float = 0.0
+    evaluation: str = ""
+    inputs: dict[str, str] = {"points": "float32 [B, N, 3], normalised cloud"}
+    outputs: dict[str, str] = {"probabilities": "float32 [B, C], softmax over classes"}
+    training: dict[str, object] = Field(default_factory=dict)
+
+
+def parse_card(text: str) -> ModelCard | ClassifierCard:
+    """The card stored in a model file (JSON): a classifier's when its kind says so, else a pose
+    step's (cards written before ``kind`` existed are pose steps). Raises pydantic's
+    ValidationError (a ValueError) for a corrupt card."""
+    import json
+
+    try:
+        kind = json.loads(text).get("kind", "pose")
+    except (ValueError, AttributeError):
+        kind = "pose"  # let the pose card's validation say what is wrong
+    if kind == "classifier":
+        return ClassifierCard.model_validate_json(text)
+    return ModelCard.model_validate_json(text)

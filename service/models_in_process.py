@@ -7,12 +7,22 @@ from pathlib import Path
 
 import typer
 
-from itnet.service.runtime import LoadedModel, ModelLoadError, default_model_dir, load_models
+from itnet.service.runtime import (
+    LoadedClassifier,
+    LoadedModel,
+    ModelLoadError,
+    default_model_dir,
+    load_all,
+)
 
 
 @cache
+def _loaded(model_dir: Path) -> tuple[dict[str, LoadedModel], LoadedClassifier | None]:
+    return load_all(model_dir)
+
+
 def _models(model_dir: Path) -> dict[str, LoadedModel]:
-    return load_models(model_dir)
+    return _loaded(model_dir)[0]
 
 
 def all_models(model_dir: Path | None = None) -> dict[str, LoadedModel]:
@@ -33,3 +43,17 @@ def get_model(name: str, model_dir: Path | None = None) -> LoadedModel:
         )
         raise typer.Exit(2)
     return models[name]
+
+
+def get_classifier(model_dir: Path | None = None) -> LoadedClassifier:
+    """The category classifier of the folder (default: the shipped one), or a typer error."""
+    all_models(model_dir)  # a folder that cannot be loaded says why first
+    classifier = _loaded(model_dir or default_model_dir())[1]
+    if classifier is None:
+        typer.echo(
+            f"error: no category classifier in {model_dir or default_model_dir()} "
+            "(model 'auto' and itnet classify need classifier.onnx)",
+            err=True,
+        )
+        raise typer.Exit(2)
+    return classifier

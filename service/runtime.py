@@ -21,7 +21,7 @@ import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
 
-from itnet.model_card import METADATA_KEY, ModelCard
+from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, parse_card
 from itnet.service.step_slots import StepSlots
 
 
@@ -146,34 +146,83 @@ class LoadedModel:
             self.baseline_ms = ms if self.baseline_ms == 0 else min(self.baseline_ms, ms)
 
 
-def read_card(session: ort.InferenceSession, path: Path) -> ModelCard:
+def read_card(session: ort.InferenceSession, path: Path) -> ModelCard | ClassifierCard:
+    """The card of a pose step or of the category classifier (its ``kind`` says which)."""
     meta = session.get_modelmeta().custom_metadata_map
     if METADATA_KEY not in meta:
         raise ModelLoadError(f"{path}: not an itnet model (no '{METADATA_KEY}' metadata)")
     try:
-        return ModelCard.model_validate_json(meta[METADATA_KEY])
+        return parse_card(meta[METADATA_KEY])
     except ValueError as err:  # pydantic's ValidationError: a corrupt or foreign card
         raise ModelLoadError(f"{path}: unreadable model card ({err})") from None
 
 
-def load_model(
-    path: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
-) -> LoadedModel:
-    """Load one .onnx step graph. Raises ModelLoadError with the reason. ``concurrent_steps``
-    defaults to :func:`default_concurrent_steps`."""
+@dataclass
+class LoadedClassifier:
+    """The category classifier (``model: "auto"``): normalised points -> class probabilities."""
+
+    card: ClassifierCard
+    path: Path
+    session: ort.InferenceSession
+
+    def probabilities(self, points: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Normalised points (B, N, 3) float32 -> probabilities (B, C), classes as card.classes."""
+        (probs,) = self.session.run(None, {"points": points})
+        return np.asarray(probs)
+
+    def warm_up(self, runs: int = 3) -> None:
+        x = np.random.default_rng(0).normal(size=(1, self.card.points, 3)).astype(np.float32)
+        for _ in range(runs):
+            self.probabilities(x)
+
+
+def _session(path: Path, threads: int) -> ort.InferenceSession:
     if not path.is_file():
         raise ModelLoadError(f"{path}: model file not found")
     try:
-        session = ort.InferenceSession(
+        return ort.InferenceSession(
             str(path), session_options(threads), providers=["CPUExecutionProvider"]
         )
     except Exception as err:  # onnxruntime raises its own exception types for corrupt graphs
         raise ModelLoadError(f"{path}: cannot load the ONNX graph ({err})") from err
+
+
+def load_any(
+    path: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+) -> LoadedModel | LoadedClassifier:
+    """One .onnx file: a pose step (see :func:`load_model`) or the category classifier, as its
+    card says. Raises ModelLoadError with the reason."""
+    session = _session(path, threads)
+    card = read_card(session, path)
+    if isinstance(card, ModelCard):
+        return load_model(path, threads, warm_up, concurrent_steps, session=session)
+    names = [i.name for i in session.get_inputs()]
+    if names != ["points"]:
+        raise ModelLoadError(f"{path}: a classifier takes ['points'], found {names}")
+    classifier = LoadedClassifier(card, path, session)
+    if warm_up:
+        classifier.warm_up()
+    return classifier
+
+
+def load_model(
+    path: Path,
+    threads: int = 2,
+    warm_up: bool = True,
+    concurrent_steps: int | None = None,
+    session: ort.InferenceSession | None = None,
+) -> LoadedModel:
+    """Load one .onnx step graph. Raises ModelLoadError with the reason (a classifier is not a
+    step graph). ``concurrent_steps`` defaults to :func:`default_concurrent_steps`."""
+    session = session or _session(path, threads)
+    card = read_card(session, path)
+    if not isinstance(card, ModelCard):
+        raise ModelLoadError(f"{path}: a {card.kind}, not a pose step graph")
     names = [i.name for i in session.get_inputs()]
     if names != ["points", "pose"]:
         raise ModelLoadError(f"{path}: expected inputs ['points', 'pose'], found {names}")
     steps = concurrent_steps or default_concurrent_steps(threads)
-    model = LoadedModel(read_card(session, path), path, session, concurrent_steps=steps)
+    model = LoadedModel(card, path, session, concurrent_steps=steps)
     if warm_up:
         model.warm_up()
     return model
@@ -182,9 +231,23 @@ def load_model(
 def load_models(
     directory: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
 ) -> dict[str, LoadedModel]:
-    """Every .onnx model in a directory, by card name. Raises ModelLoadError if there is none."""
+    """Every pose model (.onnx) in a directory, by card name. Raises ModelLoadError if there is
+    none. The category classifier, if there, is skipped (:func:`load_all` gives it)."""
+    return load_all(directory, threads, warm_up, concurrent_steps)[0]
+
+
+def load_all(
+    directory: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+) -> tuple[dict[str, LoadedModel], LoadedClassifier | None]:
+    """(pose models by card name, the category classifier or None) of a directory. Raises
+    ModelLoadError if there is no pose model, or more than one classifier."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
-    if not paths:
+    loaded = [load_any(p, threads, warm_up, concurrent_steps) for p in paths]
+    models = {m.card.name: m for m in loaded if isinstance(m, LoadedModel)}
+    classifiers = [m for m in loaded if isinstance(m, LoadedClassifier)]
+    if not models:
         raise ModelLoadError(f"{directory}: no .onnx models found")
-    models = [load_model(p, threads, warm_up, concurrent_steps) for p in paths]
-    return {m.card.name: m for m in models}
+    if len(classifiers) > 1:
+        names = ", ".join(c.path.name for c in classifiers)
+        raise ModelLoadError(f"{directory}: more than one classifier ({names})")
+    return models, (classifiers[0] if classifiers else None)

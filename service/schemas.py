@@ -39,7 +39,8 @@ class EstimateParams(BaseModel):
     )
     model: str | None = Field(
         default=None,
-        description="model name, see GET /v1/models (default: 'chair' or the only model)",
+        description="model name, see GET /v1/models (default: 'chair' or the only model); "
+        "'auto': classify the cloud, then run its category's model",
     )
 
 
@@ -75,6 +76,11 @@ class EstimateOut(Pose):
     update_translation: float = Field(description="translation of this update, input units")
 
 
+class Candidate(BaseModel):
+    category: str
+    probability: float
+
+
 class EstimateResponse(Pose):
     """The final pose, how it was reached, and every per-iteration estimate."""
 
@@ -83,6 +89,13 @@ class EstimateResponse(Pose):
     elapsed_ms: float = Field(description="engine time for the whole run, milliseconds")
     model: str
     estimates: list[EstimateOut]
+    category: str | None = Field(None, description='model "auto" only: the recognised category')
+    category_probability: float | None = Field(None, description='"auto": its probability')
+    candidates: list[Candidate] | None = Field(None, description='"auto": most probable first')
+    unsure: bool | None = Field(
+        None, description='"auto": the probability is below the classifier\'s threshold'
+    )
+    classify_ms: float | None = Field(None, description='"auto": time the classification took')
 
 
 class ModelInfo(BaseModel):
@@ -110,9 +123,24 @@ class ModelInfo(BaseModel):
     default: bool = Field(description="used when a request names no model")
 
 
+class AutoInfo(BaseModel):
+    """The category classifier behind ``model: "auto"``."""
+
+    classes: list[str]
+    threshold: float = Field(description="below this probability a recognition is unsure")
+    accuracy: float = Field(description="top-1 accuracy on partial test views (fraction)")
+    mean_class_accuracy: float
+    points: int
+    evaluation: str
+    models: dict[str, str | None] = Field(
+        description="the pose model 'auto' runs for each class (null: none loaded)"
+    )
+
+
 class ModelsResponse(BaseModel):
     models: list[ModelInfo]
     default_model: str | None
+    auto: AutoInfo | None = Field(None, description='model "auto" (null: no classifier loaded)')
 
 
 class Health(BaseModel):

@@ -10,6 +10,7 @@ import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 
 from numpy.typing import ArrayLike
 
@@ -18,7 +19,8 @@ from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.errors import ServiceError
 from itnet.service.handback import HandbackTimer
 from itnet.service.metrics import Metrics
-from itnet.service.runtime import LoadedModel, ModelLoadError, load_models
+from itnet.service.recognition import AUTO, RecognisedRun, recognise
+from itnet.service.runtime import LoadedClassifier, LoadedModel, ModelLoadError, load_all
 from itnet.service.schemas import EstimateParams
 from itnet.service.settings import Settings
 
@@ -61,6 +63,7 @@ class ServiceState:
     metrics: Metrics
     models: dict[str, LoadedModel] = field(default_factory=dict)
     load_error: str | None = None
+    classifier: LoadedClassifier | None = None  # the category classifier (model "auto")
 
     def __post_init__(self) -> None:
         limits = self.settings.limits
@@ -75,7 +78,7 @@ class ServiceState:
         alive but not ready (``/readyz`` says why)."""
         if not self.models:
             try:
-                self.models = load_models(
+                self.models, self.classifier = load_all(
                     self.settings.model_dir,
                     self.settings.threads,
                     self.settings.warm_up,
@@ -130,7 +133,8 @@ class ServiceState:
     ) -> AnytimeRun:
         """Validate and normalise the cloud and set up the run (CPU: call from a worker thread).
         The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in)."""
-        model = self.model(params.model)
+        auto = params.model == AUTO and AUTO not in self.models
+        model = None if auto else self.model(params.model)
         limits = self.settings.limits
         if params.budget_ms > limits.max_budget_ms:
             raise ServiceError(
@@ -145,12 +149,20 @@ class ServiceState:
                 f"max_iterations {params.max_iterations} is over the limit of "
                 f"{limits.max_iterations}",
             )
+        recognition = None
+        if model is None:  # classify first (its time counts: the run's clock started at arrival)
+            if not self.ready:
+                raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
+            recognition, model = recognise(
+                self.classifier, self.models, points, limits.engine_limits()
+            )
         model.relax_step_ms()  # a step-time estimate inflated by a past burst must not stick
         iterations = params.max_iterations or min(
             model.card.recommended_iterations, limits.max_iterations
         )
         try:
-            return AnytimeRun(
+            make = AnytimeRun if recognition is None else partial(RecognisedRun, recognition)
+            return make(
                 model,
                 points,
                 budget_ms=params.budget_ms,

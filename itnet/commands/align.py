@@ -23,7 +23,11 @@ def align(
         ..., help="Cloud A, the one to move (.ply .pcd .xyz .pts .npy)."
     ),
     cloud_b: Path = typer.Argument(..., help="Cloud B, the reference (same object, same unit)."),
-    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
+    model: str = typer.Option(
+        "chair",
+        help="Model name (a shipped one, or one in --model-dir); 'auto': classify the clouds "
+        "and use their category's model.",
+    ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
     max_iterations: int | None = typer.Option(
@@ -80,6 +84,8 @@ def align(
             _fail(str(err), code=1)
         typer.echo(f"note: no ICP refinement: {err}", err=True)
         refine = False
+    if model == "auto":
+        model = _auto_model(server, model_dir, points_a, points_b, budget_ms)
     estimate, category, close = _estimator(server, model, model_dir, budget_ms)
     options = AlignOptions(
         starts=starts,
@@ -129,6 +135,42 @@ def _exit_code(cause: BaseException | None) -> int:
     if isinstance(cause, ItnetRequestError) and cause.status is not None and cause.status < 500:
         return 2
     return 1
+
+
+def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # type: ignore[no-untyped-def]
+    """The pose model for ``--model auto``: in-process, both clouds classified together (one
+    object); with ``--server``, the service's ``model: "auto"`` on cloud A. Says which on
+    stderr; fails (exit 2) when the category has no model."""
+    if server is not None:
+        from itnet.clients import ItnetClient, ItnetClientError
+
+        with ItnetClient(server) as client:
+            try:
+                reply = client.estimate(points_a, budget_ms, max_iterations=1, model="auto").raw
+            except ItnetClientError as err:
+                _fail(f"model auto at {server}: {err}", code=_exit_code(err))
+        chosen = str(reply["model"])
+        seen = f"{reply.get('category')} ({reply.get('category_probability', 0):.2f})"
+        unsure = bool(reply.get("unsure"))
+    else:
+        from itnet.service.engine import BadCloudError
+        from itnet.service.models_in_process import all_models, get_classifier
+        from itnet.service.recognition import classify_together, pose_model_for
+
+        try:
+            recognition = classify_together(get_classifier(model_dir), [points_a, points_b])
+        except BadCloudError as err:
+            _fail(str(err))
+        loaded = pose_model_for(recognition.category, all_models(model_dir))
+        if loaded is None:
+            _fail(
+                f"the clouds look like a {recognition.category} "
+                f"({recognition.probability:.2f}) and no {recognition.category} model is loaded"
+            )
+        chosen, unsure = loaded.card.name, recognition.unsure
+        seen = f"{recognition.category} ({recognition.probability:.2f})"
+    typer.echo(f"auto: {seen}{', unsure' if unsure else ''}: model {chosen}", err=True)
+    return chosen
 
 
 def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]

@@ -10,7 +10,11 @@ import typer
 
 def pose(
     files: list[Path] = typer.Argument(..., help="Cloud files: .ply .pcd .xyz .pts .txt .npy"),
-    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
+    model: str = typer.Option(
+        "chair",
+        help="Model name (a shipped one, or one in --model-dir); 'auto': classify each cloud, "
+        "then use its category's model.",
+    ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="Time budget per file, in milliseconds."),
     max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
@@ -20,15 +24,25 @@ def pose(
     from itnet.cloud_io import CloudReadError, read_cloud
     from itnet.geometry import rotation_angle_deg
     from itnet.service.engine import AnytimeRun, BadCloudError
-    from itnet.service.models_in_process import get_model
+    from itnet.service.errors import ServiceError
+    from itnet.service.models_in_process import all_models, get_classifier, get_model
+    from itnet.service.recognition import AUTO, auto_run
 
-    loaded = get_model(model, model_dir)
+    auto = model == AUTO and AUTO not in all_models(model_dir)
+    classifier = get_classifier(model_dir) if auto else None
+    loaded = None if auto else get_model(model, model_dir)
     failed = False
     for path in files:
         try:
-            run = AnytimeRun(
-                loaded, read_cloud(path), budget_ms=budget_ms, max_iterations=max_iterations
-            )
+            cloud = read_cloud(path)
+            if loaded is None:  # the classification counts against the budget
+                run = auto_run(classifier, all_models(model_dir), cloud, budget_ms, max_iterations)
+            else:
+                run = AnytimeRun(loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations)
+        except ServiceError as err:
+            typer.echo(f"error: {path}: {err.detail}", err=True)
+            failed = True
+            continue
         except (CloudReadError, BadCloudError) as err:
             typer.echo(
                 f"error: {path}: {err}" if not str(err).startswith(str(path)) else f"error: {err}",
@@ -42,8 +56,14 @@ def pose(
             typer.echo(json.dumps(result))
         else:
             t = run.last.pose
+            seen = (
+                f"{result['category']} ({result['category_probability']:.2f}"
+                f"{', unsure' if result['unsure'] else ''}, model {result['model']}), "
+                if "category" in result
+                else ""
+            )
             typer.echo(
-                f"{path}: rotation {float(rotation_angle_deg(t[:3, :3])):.1f} deg, translation "
+                f"{path}: {seen}rotation {float(rotation_angle_deg(t[:3, :3])):.1f} deg, translation "
                 f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}], {result['iterations']} iterations "
                 f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']})"
             )

@@ -31,6 +31,7 @@ from itnet.service.api.deps import StateDep
 from itnet.service.decode import decode_json
 from itnet.service.engine import AnytimeRun
 from itnet.service.errors import ServiceError, too_large
+from itnet.service.recognition import RecognisedRun
 from itnet.service.schemas import StreamRequest
 from itnet.service.state import ServiceState
 
@@ -73,6 +74,8 @@ async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     with state.gate.slot():
         run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
         with state.drain.track(run):
+            if isinstance(run, RecognisedRun):  # model "auto": the category comes first
+                await websocket.send_json(run.category_message())
             peer = await _stream_run(websocket, run, send_timeout_s)
     stopped_by = "disconnected" if peer.disconnected else str(run.stopped_by)
     state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)

@@ -6,7 +6,8 @@ from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
 from itnet.service.api.deps import StateDep
-from itnet.service.schemas import Health, ModelInfo, ModelsResponse, Readiness
+from itnet.service.recognition import pose_model_for
+from itnet.service.schemas import AutoInfo, Health, ModelInfo, ModelsResponse, Readiness
 
 router = APIRouter(tags=["system"])
 
@@ -34,7 +35,20 @@ async def models(state: StateDep) -> ModelsResponse:
         )
         for name, m in sorted(state.models.items())
     ]
-    return ModelsResponse(models=infos, default_model=default if state.ready else None)
+    auto = None
+    if state.classifier is not None:
+        card = state.classifier.card
+        picks = {c: pose_model_for(c, state.models) for c in card.classes}
+        auto = AutoInfo(
+            classes=card.classes,
+            threshold=card.threshold,
+            accuracy=card.accuracy,
+            mean_class_accuracy=card.mean_class_accuracy,
+            points=card.points,
+            evaluation=card.evaluation,
+            models={c: None if m is None else m.card.name for c, m in picks.items()},
+        )
+    return ModelsResponse(models=infos, default_model=default if state.ready else None, auto=auto)
 
 
 @router.get("/healthz", response_model=Health, summary="Liveness: the process serves HTTP")

@@ -1,0 +1,143 @@
+"""Export a trained classifier, canonicaliser included, to one ONNX graph:
+normalised points (B, N, 3) -> class probabilities (B, C).
+
+The IT-Net canonicaliser's steps are ``ExportableStep`` (the pose models' graph), unrolled; the
+T-Net and the classifier are folded the same way (BatchNorm into the weights, channels-first
+per-point MLP, max-pool over the innermost axis). Dropout is the identity at inference.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from itnet.export.onnx_export import save_with_card
+from itnet.model.classifier import Classifier, PointNetHead
+from itnet.model.network import ExportableStep, _folded, _folded_mlp
+from itnet.model_card import ClassifierCard
+
+
+class FoldedPointNet(nn.Module):
+    """A ``PointNetHead`` in eval mode, folded for inference engines: (B, N, 3) -> (B, outputs)."""
+
+    def __init__(self, head: PointNetHead) -> None:
+        super().__init__()
+        point = _folded_mlp(head.point_mlp)
+        dense = [*_folded_mlp(head.head), _folded(head.out, None)]
+        self.point_w = nn.ParameterList([nn.Parameter(w, requires_grad=False) for w, _ in point])
+        self.point_b = nn.ParameterList(
+            [nn.Parameter(b[:, None], requires_grad=False) for _, b in point]
+        )
+        self.dense_w = nn.ParameterList(
+            [nn.Parameter(w.t().contiguous(), requires_grad=False) for w, _ in dense]
+        )
+        self.dense_b = nn.ParameterList([nn.Parameter(b, requires_grad=False) for _, b in dense])
+
+    def forward(self, points: Tensor) -> Tensor:
+        h = points.transpose(1, 2)  # (B, 3, N)
+        for w, b in zip(self.point_w[:-1], self.point_b[:-1]):
+            h = torch.relu(w @ h + b)
+        # max over points commutes with the per-channel bias and ReLU (see ExportableStep)
+        g = torch.relu((self.point_w[-1] @ h).amax(dim=-1) + self.point_b[-1][:, 0])
+        for i, (w, b) in enumerate(zip(self.dense_w, self.dense_b)):
+            g = g @ w + b
+            if i < len(self.dense_w) - 1:
+                g = torch.relu(g)
+        return g
+
+
+class ExportableClassifier(nn.Module):
+    """``Classifier`` in eval mode as one graph: points (B, N, 3) -> probabilities (B, C)."""
+
+    def __init__(self, net: Classifier) -> None:
+        super().__init__()
+        net = net.eval()
+        self.iterations = net.config.iterations
+        self.step = ExportableStep(net.itnet) if net.itnet is not None else None
+        self.tnet = FoldedPointNet(net.tnet.regressor) if net.tnet is not None else None
+        self.classifier = FoldedPointNet(net.classifier)
+
+    def forward(self, points: Tensor) -> Tensor:
+        moved = points
+        if self.step is not None:
+            pose = torch.eye(4, dtype=points.dtype).expand(points.shape[0], 4, 4)
+            for _ in range(self.iterations):
+                pose, _ = self.step(points, pose)
+            moved = points @ pose[:, :3, :3].transpose(1, 2) + pose[:, None, :3, 3]
+        elif self.tnet is not None:
+            total = torch.eye(3, dtype=points.dtype).expand(points.shape[0], 3, 3)
+            for _ in range(self.iterations):
+                update = self.tnet(points @ total.transpose(1, 2)).reshape(-1, 3, 3)
+                total = update @ total
+            moved = points @ total.transpose(1, 2)
+        return torch.softmax(self.classifier(moved), dim=-1)
+
+
+def export_classifier(net: Classifier, card: ClassifierCard, path: Path, opset: int = 20) -> Path:
+    """Write ``path`` (.onnx): the classifier graph with ``card`` as metadata. Returns the path."""
+    if len(card.classes) != net.config.classes:
+        raise ValueError(
+            f"the card names {len(card.classes)} classes, the net has {net.config.classes}"
+        )
+    graph = ExportableClassifier(net).eval()
+    batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
+    program = torch.onnx.export(
+        graph,
+        (torch.randn(2, 64, 3),),
+        dynamo=True,
+        opset_version=opset,
+        input_names=["points"],
+        output_names=["probabilities"],
+        dynamic_shapes={"points": {0: batch, 1: count}},
+        external_data=False,
+        verbose=False,
+    )
+    return save_with_card(program.model_proto, card, path)  # type: ignore[arg-type]
+
+
+def choose_threshold(
+    max_probability: list[float], correct: list[bool], target: float = 0.95
+) -> float:
+    """The lowest probability threshold (0.05 steps) at which the validation views at or above
+    it are at least ``target`` correct: below it, a recognition is reported as unsure. 0 when
+    every view already is; 0.95 when no threshold reaches the target."""
+    p, ok = np.asarray(max_probability), np.asarray(correct, dtype=bool)
+    for threshold in np.arange(0.0, 0.951, 0.05):
+        sure = p >= threshold
+        if sure.any() and ok[sure].mean() >= target:
+            return round(float(threshold), 2)
+    return 0.95
+
+
+def card_from_run(run: Path, points: int | None = None, target: float = 0.95) -> ClassifierCard:
+    """The card of a finished run (``result.json``): classes, test accuracy, the threshold
+    chosen on its validation views."""
+    result = json.loads((run / "result.json").read_text())
+    config = json.loads((run / "config.json").read_text())
+    test = result["test"]
+    threshold = choose_threshold(result["val_max_probability"], result["val_correct"], target)
+    return ClassifierCard(
+        classes=result["classes"],
+        points=points or int(config["points"]),
+        transformer=result["variant"],
+        threshold=threshold,
+        accuracy=round(test["accuracy"], 4),
+        mean_class_accuracy=round(test["mean_class_accuracy"], 4),
+        evaluation=(
+            f"{test['scans']} partial views (half occluded, half the paper's z-buffer; full "
+            f"SO(3), noise) of the ModelNet10 test split, {config['points']} points; standard "
+            f"error {100 * test['standard_error']:.1f} points; threshold: the lowest at which "
+            f"{100 * target:.0f}% of the validation views above it are right"
+        ),
+        training={
+            "steps": result["best_step"],
+            "batch": config["batch"],
+            "lr": config["lr"],
+            "decay_every": config["decay_every"],
+            "validation": round(result["val"]["accuracy"], 4),
+        },
+    )

@@ -1,0 +1,121 @@
+"""``itnet classify FILE...`` (which category is each cloud) and ``itnet classify-experiment``
+(the paper's classification table on partial ModelNet10)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+
+def classify(
+    files: list[Path] = typer.Argument(..., help="Cloud files: .ply .pcd .xyz .pts .txt .npy"),
+    model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
+    top: int = typer.Option(3, help="Candidates to print (most probable first)."),
+    as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
+) -> None:
+    """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
+    from itnet.cloud_io import CloudReadError, read_cloud
+    from itnet.service.engine import BadCloudError
+    from itnet.service.models_in_process import get_classifier
+    from itnet.service.recognition import classify as recognise
+
+    classifier = get_classifier(model_dir)
+    failed = False
+    for path in files:
+        try:
+            result = recognise(classifier, read_cloud(path), top=top)
+        except (CloudReadError, BadCloudError) as err:
+            message = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
+            typer.echo(f"error: {message}", err=True)
+            failed = True
+            continue
+        if as_json:
+            typer.echo(json.dumps({"file": str(path), **result.as_dict()}))
+        else:
+            others = ", ".join(f"{c.category} {c.probability:.3f}" for c in result.candidates[1:])
+            unsure = " (unsure)" if result.unsure else ""
+            typer.echo(
+                f"{path}: {result.category} {result.probability:.3f}{unsure}"
+                + (f"; then {others}" if others else "")
+                + f" ({result.elapsed_ms:.1f} ms)"
+            )
+    if failed:
+        raise typer.Exit(2)
+
+
+def classify_experiment(
+    data: Path = typer.Option(
+        Path("../shared/data/modelnet10"), help="ModelNet-style root (DATA/CLASS/{train,test})."
+    ),
+    out: Path = typer.Option(Path("runs/cls"), help="Folder of the rows' runs."),
+    steps: int = typer.Option(1200, help="Optimiser steps of every row (the same budget each)."),
+    batch: int = typer.Option(32, help="Views per step."),
+    points: int = typer.Option(256, help="Points per view."),
+    decay_every: int = typer.Option(240, help="Multiply the learning rate by 0.7 every N steps."),
+    eval_every: int = typer.Option(200, help="Validate and checkpoint every N steps."),
+    test_views: int = typer.Option(4, help="Fixed views per test shape (half occluded)."),
+    threads: int = typer.Option(1, help="torch threads."),
+    seed: int = typer.Option(0),
+    cache: Path = typer.Option(Path("cache"), help="Cache of shapes and fixed views."),
+    docs: Path | None = typer.Option(
+        Path("docs"), help="Write classification.md/.json and confusion.png here (none: skip)."
+    ),
+    report_only: bool = typer.Option(False, help="Only rewrite the report from finished rows."),
+) -> None:
+    """Train every row of the table (resumable: finished rows are skipped), then write the
+    report. Rows: none, T-Net (1, 2 iterations), T-Net + regulariser (1, 2), IT-Net (1, 2)."""
+    from itnet.model.classify_experiment import ORDER, run_table
+    from itnet.model.classify_train import ClassifyConfig
+
+    base = ClassifyConfig(
+        data=data,
+        cache=cache,
+        steps=steps,
+        batch=batch,
+        points=points,
+        decay_every=decay_every,
+        eval_every=eval_every,
+        test_views=test_views,
+        threads=threads,
+        seed=seed,
+    )
+    if not report_only:
+        run_table(base, out, ORDER)
+    if docs is not None:
+        from itnet.model.classify_report import write_report
+
+        for path in write_report(out, docs):
+            typer.echo(f"wrote {path}")
+
+
+def classify_export(
+    run: Path = typer.Argument(..., help="A finished run folder (best.pt, result.json)."),
+    out: Path = typer.Option(Path("itnet/models/classifier.onnx"), help="Output .onnx file."),
+    points: int | None = typer.Option(None, help="Points per cloud at serving (default: trained)."),
+    target: float = typer.Option(
+        0.95, help="Unsure threshold: the lowest at which this share of validation views is right."
+    ),
+) -> None:
+    """Export a run's best classifier (canonicaliser included) to one ONNX graph with its card,
+    then check it against torch on random clouds."""
+    import numpy as np
+    import torch
+
+    from itnet.export.classifier_export import card_from_run, export_classifier
+    from itnet.model.classify_train import load_classifier
+    from itnet.service.runtime import load_any
+
+    net, _ = load_classifier(run / "best.pt")
+    card = card_from_run(run, points, target)
+    export_classifier(net, card, out)
+    loaded = load_any(out, warm_up=False)
+    x = np.random.default_rng(0).normal(size=(4, card.points, 3)).astype(np.float32)
+    with torch.no_grad():
+        expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+    diff = float(np.abs(loaded.probabilities(x) - expected).max())  # type: ignore[union-attr]
+    typer.echo(
+        f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): {card.transformer}, test accuracy "
+        f"{100 * card.accuracy:.1f}%, threshold {card.threshold}; max |onnx - torch| {diff:.2e}"
+    )

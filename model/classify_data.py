@@ -1,0 +1,97 @@
+"""Partial, unaligned views of every ModelNet10 class, labelled by class, for the classifier.
+
+* Shapes: ``split_files`` per class (the dataset's train/test split, validation carved out of
+  train), loaded in ModelNet's frame without orientation checks (views are in full SO(3), so the
+  frame does not matter for the label).
+* Views: the project's scanner, half occluded views, half ``PAPER_VIEWS`` (as pose training).
+  Training views are fresh every step (seeded per step, so a resumed run sees the same data);
+  validation and test views are fixed and cached.
+* Every view is normalised as the runtime does (``itnet.preprocess``) and resampled to a fixed
+  point count (repeats do not change a max-pooled feature).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.model.data import cached_scan_set, load_shapes, split_files
+from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_shape
+from itnet.model.shapes import Shape
+from itnet.preprocess import estimate_normalization, resample
+
+SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
+
+
+def class_names(data: Path) -> list[str]:
+    """The class folders of a ModelNet-style root, sorted (the label order)."""
+    names = sorted(p.name for p in data.iterdir() if p.is_dir())
+    if not names:
+        raise ValueError(f"{data}: no class folders")
+    return names
+
+
+@dataclass
+class LabelledShapes:
+    """Shapes of one split with their class index (labels (S,) int64)."""
+
+    shapes: list[Shape]
+    labels: NDArray[np.int64]
+
+
+def load_splits(
+    data: Path, classes: list[str], validation_fraction: float, seed: int, cache: Path
+) -> dict[str, LabelledShapes]:
+    """{'train', 'val', 'test'} -> labelled shapes of every class."""
+    splits: dict[str, LabelledShapes] = {}
+    per_class = [split_files(data, name, validation_fraction, seed) for name in classes]
+    for split in ("train", "val", "test"):
+        shapes, labels = [], []
+        for label, files in enumerate(per_class):
+            loaded, _ = load_shapes(files[split], "modelnet", cache, check_orientation=False)
+            shapes += loaded
+            labels += [label] * len(loaded)
+        splits[split] = LabelledShapes(shapes, np.array(labels, dtype=np.int64))
+    return splits
+
+
+def normalised_view(cloud: NDArray, points: int, rng: np.random.Generator) -> NDArray[np.float32]:
+    """A scan (K, 3), any unit -> (points, 3) float32, normalised as the runtime does."""
+    return resample(estimate_normalization(cloud).apply(cloud), points, rng)
+
+
+def training_batch(
+    data: LabelledShapes,
+    batch: int,
+    points: int,
+    rng: np.random.Generator,
+    configs: list[ScanConfig],
+) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    """Fresh random views -> (points (B, points, 3), labels (B,)). Shapes are drawn uniformly,
+    so classes come in proportion to their share of the split."""
+    index = rng.integers(len(data.shapes), size=batch)
+    x = np.empty((batch, points, 3), np.float32)
+    for b, i in enumerate(index):
+        shape = data.shapes[i]
+        config = configs[int(rng.integers(len(configs)))]
+        cloud, _ = scan_shape(shape.points, rng, config, shape.triangles)
+        x[b] = normalised_view(cloud, points, rng)
+    return x, data.labels[index]
+
+
+def fixed_views(
+    data: LabelledShapes, views: int, points: int, seed: int, cache: Path
+) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    """``views`` fixed views per shape (half occluded, half the paper's; at least one each)
+    -> (points (V, points, 3), labels (V,)). The scans are cached."""
+    per_config = max(1, views // 2)
+    xs, ys = [], []
+    rng = np.random.default_rng(seed + 11)
+    for k, overrides in enumerate(SCAN_MIX):
+        scans = cached_scan_set(data.shapes, per_config, seed + k, scan_config(overrides), cache)
+        xs += [normalised_view(c, points, rng) for c in scans.clouds]
+        ys.append(np.repeat(data.labels, per_config))
+    return np.stack(xs), np.concatenate(ys)

@@ -1,0 +1,249 @@
+"""Training one classifier variant: cross-entropy only, validation, checkpoints, resume, test.
+
+A run folder holds ``config.json``, ``log.jsonl`` (one line per logged step, validation lines
+included), ``last.pt`` (resume), ``best.pt`` (best validation accuracy) and, once finished,
+``result.json`` (validation and test metrics of ``best.pt``; the test split is evaluated once,
+after training, never used for a choice).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pydantic import BaseModel
+
+from itnet.model.classifier import VARIANTS, Classifier, ClassifierConfig
+from itnet.model.classify_data import (
+    SCAN_MIX,
+    class_names,
+    fixed_views,
+    load_splits,
+    training_batch,
+)
+from itnet.model.scanner import scan_config
+
+
+class ClassifyConfig(BaseModel):
+    """Everything a run depends on; dumped to config.json and stored in every checkpoint."""
+
+    data: Path = Path("../shared/data/modelnet10")
+    variant: str = "itnet-2"
+    out: Path = Path("runs/cls/itnet-2")
+    cache: Path = Path("cache")
+    steps: int = 1200
+    batch: int = 32
+    points: int = 256
+    lr: float = 1e-3
+    lr_decay: float = 0.7
+    decay_every: int = 240
+    bn_momentum: tuple[float, float] = (0.5, 0.01)  # start -> floor, halves every decay_every
+    validation_fraction: float = 0.1
+    val_views: int = 2
+    test_views: int = 4
+    eval_every: int = 200
+    log_every: int = 25
+    seed: int = 0
+    threads: int = 1
+    bf16: bool = True  # autocast matmuls to bfloat16 (the transforms' math stays float32)
+    widths: tuple[tuple[int, ...], tuple[int, ...]] | None = None  # (point, head) for tiny tests
+    max_shapes_per_class: int | None = None  # tiny tests: a few shapes of each class
+
+
+def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
+    base = VARIANTS[config.variant]
+    widths = {}
+    if config.widths is not None:
+        widths = {"point_channels": config.widths[0], "head_channels": config.widths[1]}
+    return ClassifierConfig(**{**vars(base), "classes": classes, **widths})
+
+
+@torch.no_grad()
+def predict(net: Classifier, x: NDArray[np.float32], batch: int = 256) -> NDArray[np.float64]:
+    """Class probabilities (V, C) of normalised views (V, N, 3), eval mode."""
+    net.eval()
+    out = [
+        torch.softmax(net(torch.from_numpy(x[i : i + batch]))[0].float(), -1)
+        for i in range(0, len(x), batch)
+    ]
+    return torch.cat(out).double().numpy()
+
+
+def metrics(probs: NDArray, labels: NDArray, classes: list[str]) -> dict:
+    """Top-1 accuracy (+ standard error), per-class accuracy, mean class accuracy, confusion
+    matrix (rows: true class, columns: predicted)."""
+    predicted = probs.argmax(1)
+    confusion = np.zeros((len(classes), len(classes)), dtype=np.int64)
+    np.add.at(confusion, (labels, predicted), 1)
+    correct = predicted == labels
+    per_class = {
+        name: float(correct[labels == k].mean())
+        for k, name in enumerate(classes)
+        if (labels == k).any()
+    }
+    accuracy = float(correct.mean())
+    return {
+        "accuracy": accuracy,
+        "standard_error": math.sqrt(accuracy * (1 - accuracy) / len(labels)),
+        "scans": len(labels),
+        "mean_class_accuracy": float(np.mean(list(per_class.values()))),
+        "per_class": per_class,
+        "confusion": confusion.tolist(),
+    }
+
+
+def _save(path: Path, net: Classifier, opt, step: int, config: ClassifyConfig, extra: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    state = {
+        "model": net.state_dict(),
+        "optimizer": opt.state_dict(),
+        "step": step,
+        "config": config.model_dump(mode="json"),
+        "network": vars(net.config),
+        **extra,
+    }
+    torch.save(state, tmp)
+    tmp.replace(path)
+
+
+def load_classifier(path: Path) -> tuple[Classifier, dict]:
+    """A trained classifier (eval mode, CPU) and its checkpoint dict."""
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in state["network"].items()}
+    net = Classifier(ClassifierConfig(**fields))
+    net.load_state_dict(state["model"])
+    return net.eval(), state
+
+
+def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
+    """Train (or resume) one variant; returns ``result.json``'s content (val + test of best.pt)."""
+    torch.set_num_threads(config.threads)
+    config.out.mkdir(parents=True, exist_ok=True)
+    (config.out / "config.json").write_text(config.model_dump_json(indent=2))
+    classes = class_names(config.data)
+    splits = load_splits(
+        config.data, classes, config.validation_fraction, config.seed, config.cache
+    )
+    if config.max_shapes_per_class is not None:
+        for split in splits.values():
+            keep = np.concatenate(
+                [
+                    np.flatnonzero(split.labels == k)[: config.max_shapes_per_class]
+                    for k in range(len(classes))
+                ]
+            )
+            split.shapes, split.labels = [split.shapes[i] for i in keep], split.labels[keep]
+    scan_configs = [scan_config(o) for o in SCAN_MIX]
+    val_x, val_y = fixed_views(
+        splits["val"], config.val_views, config.points, config.seed + 7, config.cache
+    )
+
+    torch.manual_seed(config.seed)
+    net = Classifier(network_config(config, len(classes)))
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    step, best = 0, {"val_accuracy": -1.0}
+    last = config.out / "last.pt"
+    if last.exists():
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        step, best = state["step"], state["best"]
+    log = (config.out / "log.jsonl").open("a")
+
+    def write(entry: dict) -> None:
+        log.write(json.dumps(entry) + "\n")
+        log.flush()
+        if log_progress:
+            print(json.dumps(entry), flush=True)
+
+    write(
+        {
+            "event": "start",
+            "step": step,
+            "variant": config.variant,
+            "train_shapes": len(splits["train"].shapes),
+            "val_scans": len(val_y),
+        }
+    )
+    losses: list[float] = []
+    started = time.time()
+    while step < config.steps:
+        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
+        x, y = training_batch(splits["train"], config.batch, config.points, rng, scan_configs)
+        lr = config.lr * config.lr_decay ** (step / config.decay_every)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        momentum = max(
+            config.bn_momentum[1], config.bn_momentum[0] * 0.5 ** (step / config.decay_every)
+        )
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):
+                module.momentum = momentum
+        net.train()
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.bf16):
+            logits, penalty = net(torch.from_numpy(x))
+        loss = torch.nn.functional.cross_entropy(logits.float(), torch.from_numpy(y)) + penalty
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        losses.append(float(loss.detach()))
+        if not math.isfinite(losses[-1]):
+            raise FloatingPointError(f"loss is not finite at step {step}")
+        if step % config.log_every == 0:
+            mean = float(np.mean(losses[-config.log_every :]))
+            write(
+                {"step": step, "loss": mean, "lr": lr, "seconds": round(time.time() - started, 1)}
+            )
+        if step % config.eval_every == 0 or step == config.steps:
+            val = metrics(predict(net, val_x), val_y, classes)
+            entry = {
+                "step": step,
+                "val_accuracy": val["accuracy"],
+                "val_mean_class": val["mean_class_accuracy"],
+            }
+            if entry["val_accuracy"] > best["val_accuracy"]:
+                best = entry
+                _save(
+                    config.out / "best.pt",
+                    net,
+                    opt,
+                    step,
+                    config,
+                    {"best": best, "classes": classes},
+                )
+            _save(last, net, opt, step, config, {"best": best, "classes": classes})
+            write({"event": "val", **entry})
+    result = evaluate_run(config, classes, splits, val_x, val_y)
+    write({"event": "done", "test_accuracy": result["test"]["accuracy"]})
+    log.close()
+    return result
+
+
+def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x, val_y) -> dict:
+    """Validation and test metrics of the run's best.pt -> result.json (cached)."""
+    path = config.out / "result.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    net, state = load_classifier(config.out / "best.pt")
+    test_x, test_y = fixed_views(
+        splits["test"], config.test_views, config.points, config.seed + 13, config.cache
+    )
+    val_probs = predict(net, val_x)
+    result = {
+        "variant": config.variant,
+        "classes": classes,
+        "best_step": state["step"],
+        "steps": config.steps,
+        "val": metrics(val_probs, val_y, classes),
+        "val_max_probability": val_probs.max(1).tolist(),
+        "val_correct": (val_probs.argmax(1) == val_y).tolist(),
+        "test": metrics(predict(net, test_x), test_y, classes),
+    }
+    path.write_text(json.dumps(result))
+    return result

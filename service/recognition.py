@@ -1,0 +1,191 @@
+"""``model: "auto"``: classify the cloud, then run the winning category's pose model.
+
+One place for the logic; the HTTP route and the WebSocket (through ``ServiceState.start_run``),
+``itnet pose --model auto``, ``itnet-align --model auto`` and ``itnet classify`` all call it.
+
+* The classifier (an IT-Net canonicaliser + PointNet classifier, one ONNX graph) sees the cloud
+  normalised as the pose models see it (``itnet.preprocess``), capped at its card's point count.
+* Its time counts against the request's budget: the pose run's clock starts when the request
+  arrived, before the classification.
+* The winning category's pose model is the loaded model named after it, else any loaded model
+  whose card has that category. None loaded: a 422 (``kind: no_pose_model``) that names the
+  category, its probability, the candidates and the loaded models.
+* Unsure: when the top probability is below the card's ``threshold`` (chosen on validation views,
+  see docs/classification.md), the pose model still runs, and the reply says ``unsure: true``
+  beside the candidates, so a client can decide.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from itnet.preprocess import DegenerateCloudError, cap_points, estimate_normalization
+from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud
+from itnet.service.errors import ServiceError
+from itnet.service.runtime import LoadedClassifier, LoadedModel
+
+AUTO = "auto"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    category: str
+    probability: float
+
+
+@dataclass(frozen=True)
+class Recognition:
+    """What the classifier says about one cloud: candidates (most probable first, ``top`` of
+    them), whether the winner's probability is below the threshold, and the time it took."""
+
+    candidates: list[Candidate]
+    threshold: float
+    elapsed_ms: float
+
+    @property
+    def category(self) -> str:
+        return self.candidates[0].category
+
+    @property
+    def probability(self) -> float:
+        return self.candidates[0].probability
+
+    @property
+    def unsure(self) -> bool:
+        return self.probability < self.threshold
+
+    def as_dict(self) -> dict[str, Any]:
+        """The reply's fields: category, category_probability, candidates, unsure, timing."""
+        return {
+            "category": self.category,
+            "category_probability": round(self.probability, 6),
+            "candidates": [
+                {"category": c.category, "probability": round(c.probability, 6)}
+                for c in self.candidates
+            ],
+            "unsure": self.unsure,
+            "classify_ms": round(self.elapsed_ms, 3),
+        }
+
+
+def classify(
+    classifier: LoadedClassifier,
+    points: ArrayLike,
+    top: int = 3,
+    limits: Limits = Limits(),
+    seed: int = 0,
+) -> Recognition:
+    """A cloud (N, 3), any unit -> its Recognition. Raises BadCloudError for a bad cloud."""
+    return classify_together(classifier, [points], top, limits, seed)
+
+
+def classify_together(
+    classifier: LoadedClassifier,
+    clouds: list[ArrayLike],
+    top: int = 3,
+    limits: Limits = Limits(),
+    seed: int = 0,
+) -> Recognition:
+    """Several clouds of one object (e.g. the two clouds of an alignment) -> one Recognition:
+    the product of the per-cloud probabilities, renormalised. Raises BadCloudError."""
+    start = time.perf_counter()
+    log_probs = np.zeros(len(classifier.card.classes))
+    for points in clouds:
+        cloud = validate_cloud(points, limits)
+        try:
+            norm = estimate_normalization(cloud)
+        except DegenerateCloudError as err:
+            raise BadCloudError(str(err)) from None
+        x = cap_points(norm.apply(cloud), classifier.card.points, np.random.default_rng(seed))
+        probs = classifier.probabilities(x[None].astype(np.float32))[0]
+        log_probs += np.log(np.maximum(probs, 1e-12))
+    probs = np.exp(log_probs - log_probs.max())
+    probs /= probs.sum()
+    order = np.argsort(-probs, kind="stable")[: max(1, top)]
+    candidates = [Candidate(classifier.card.classes[i], float(probs[i])) for i in order]
+    return Recognition(candidates, classifier.card.threshold, (time.perf_counter() - start) * 1e3)
+
+
+def pose_model_for(category: str, models: dict[str, LoadedModel]) -> LoadedModel | None:
+    """The loaded pose model of a category: the one named after it, else the first (by name)
+    whose card has that category, else None."""
+    if category in models and models[category].card.category == category:
+        return models[category]
+    return next((models[n] for n in sorted(models) if models[n].card.category == category), None)
+
+
+def recognise(
+    classifier: LoadedClassifier | None,
+    models: dict[str, LoadedModel],
+    points: ArrayLike,
+    limits: Limits = Limits(),
+) -> tuple[Recognition, LoadedModel]:
+    """Classify a cloud and pick its pose model. Raises ServiceError: 422 ``no_classifier`` when
+    none is loaded, 422 ``bad_cloud``, 422 ``no_pose_model`` when the category has no model."""
+    if classifier is None:
+        raise ServiceError(
+            422,
+            "no_classifier",
+            'model "auto" needs the category classifier, and none is loaded; name a model '
+            f"({', '.join(sorted(models))})",
+        )
+    try:
+        recognition = classify(classifier, points, limits=limits)
+    except BadCloudError as err:
+        raise ServiceError(422, "bad_cloud", str(err)) from None
+    model = pose_model_for(recognition.category, models)
+    if model is None:
+        candidates = ", ".join(f"{c.category} {c.probability:.2f}" for c in recognition.candidates)
+        raise ServiceError(
+            422,
+            "no_pose_model",
+            f"the cloud looks like a {recognition.category} (probability "
+            f"{recognition.probability:.2f}; candidates: {candidates}), and no {recognition.category} "
+            f"pose model is loaded (loaded: {', '.join(sorted(models))})",
+        )
+    return recognition, model
+
+
+class RecognisedRun(AnytimeRun):
+    """The anytime run of the recognised category's model; its result adds the recognition."""
+
+    def __init__(self, recognition: Recognition, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.recognition = recognition
+
+    def result(self) -> dict:
+        return {**super().result(), **self.recognition.as_dict()}
+
+    def category_message(self) -> dict[str, Any]:
+        """The stream's first message: the category, before the first estimate."""
+        return {"type": "category", "model": self.model.card.name, **self.recognition.as_dict()}
+
+
+def auto_run(
+    classifier: LoadedClassifier | None,
+    models: dict[str, LoadedModel],
+    points: ArrayLike,
+    budget_ms: float,
+    max_iterations: int | None = None,
+    started: float | None = None,
+    **kwargs: Any,
+) -> RecognisedRun:
+    """Classify, then set up the category model's run on one clock (``started``, default now):
+    the classification's time counts against ``budget_ms``. Raises ServiceError (see
+    :func:`recognise`) or BadCloudError."""
+    started = time.perf_counter() if started is None else started
+    recognition, model = recognise(classifier, models, points)
+    return RecognisedRun(
+        recognition,
+        model,
+        points,
+        budget_ms=budget_ms,
+        max_iterations=max_iterations,
+        started=started,
+        **kwargs,
+    )

@@ -1,0 +1,140 @@
+"""``model: "auto"`` through HTTP, the WebSocket stream and the CLI, with classifier graphs whose
+answer is fixed (always 'chair', always 'table', leaning to 'chair' below the threshold)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from itnet.cli import app as cli
+from itnet.service.app import create_app
+from itnet.service.settings import Settings
+
+
+def _client(folder: Path) -> Iterator[TestClient]:
+    with TestClient(create_app(Settings(model_dir=folder, warm_up=False))) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def chair_client(chair_dir: Path) -> Iterator[TestClient]:
+    yield from _client(chair_dir)
+
+
+def _post(client: TestClient, cloud: np.ndarray, **fields: object) -> dict:
+    reply = client.post("/v1/estimate", json={"points": cloud.tolist(), **fields})
+    return {"status": reply.status_code, **reply.json()}
+
+
+def test_post_auto_runs_the_model_the_classifier_names(chair_client, box_cloud) -> None:
+    reply = _post(chair_client, box_cloud, model="auto", budget_ms=2000, max_iterations=3)
+    assert reply["status"] == 200, reply
+    assert reply["category"] == "chair" and reply["model"] == "chair"
+    assert reply["category_probability"] > 0.99 and reply["unsure"] is False
+    assert reply["candidates"][0]["category"] == "chair"
+    assert len(reply["candidates"]) == 3
+    probabilities = [c["probability"] for c in reply["candidates"]]
+    assert probabilities == sorted(probabilities, reverse=True)
+    assert reply["iterations"] == 3 and len(reply["estimates"]) == 3
+    # the classification is inside the request's time, which the budget bounds
+    assert 0 < reply["classify_ms"] <= reply["elapsed_ms"]
+    named = _post(chair_client, box_cloud, model="chair", budget_ms=2000, max_iterations=3)
+    np.testing.assert_allclose(
+        named["T_canonical_from_input"], reply["T_canonical_from_input"], atol=1e-6
+    )
+    assert "category" not in named or named["category"] is None
+
+
+def test_auto_classification_counts_against_the_budget(chair_client, box_cloud) -> None:
+    reply = _post(chair_client, box_cloud, model="auto", budget_ms=0.001)
+    assert reply["status"] == 200 and reply["category"] == "chair"
+    assert reply["iterations"] == 0 and reply["stopped_by"] == "budget"
+
+
+def test_stream_says_the_category_first(chair_client, box_cloud) -> None:
+    request = {"points": box_cloud.tolist(), "model": "auto", "budget_ms": 2000,
+               "max_iterations": 2}  # fmt: skip
+    with chair_client.websocket_connect("/v1/estimate/stream") as ws:
+        ws.send_text(json.dumps(request))
+        messages = [ws.receive_json()]
+        while messages[-1]["type"] != "result":
+            messages.append(ws.receive_json())
+    assert [m["type"] for m in messages] == ["category", "estimate", "estimate", "result"]
+    assert messages[0]["category"] == "chair" and messages[0]["model"] == "chair"
+    assert messages[0]["unsure"] is False and len(messages[0]["candidates"]) == 3
+    assert messages[-1]["category"] == "chair" and messages[-1]["iterations"] == 2
+
+
+def test_models_lists_auto(chair_client) -> None:
+    auto = chair_client.get("/v1/models").json()["auto"]
+    assert auto["classes"] == ["chair", "table", "sofa"]
+    assert auto["threshold"] == 0.5 and auto["accuracy"] == 0.9
+    assert auto["models"] == {"chair": "chair", "table": None, "sofa": None}
+
+
+def test_category_without_a_pose_model_is_a_clear_422(table_dir: Path, box_cloud) -> None:
+    for client in _client(table_dir):
+        reply = _post(client, box_cloud, model="auto")
+        assert reply["status"] == 422 and reply["kind"] == "no_pose_model"
+        assert "table" in reply["detail"] and "sofa" in reply["detail"]  # candidates named
+        assert "loaded: chair" in reply["detail"]
+        with client.websocket_connect("/v1/estimate/stream") as ws:
+            ws.send_text(json.dumps({"points": box_cloud.tolist(), "model": "auto"}))
+            message = ws.receive_json()
+        assert message["type"] == "error" and message["kind"] == "no_pose_model"
+        # the service keeps serving: a named model still works
+        assert _post(client, box_cloud, model="chair")["status"] == 200
+
+
+def test_unsure_recognition_says_so(unsure_dir: Path, box_cloud) -> None:
+    for client in _client(unsure_dir):
+        reply = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
+        assert reply["status"] == 200 and reply["category"] == "chair"
+        assert reply["unsure"] is True and reply["category_probability"] < 0.6
+
+
+def test_auto_without_a_classifier_says_none_is_loaded(pose_dir: Path, box_cloud) -> None:
+    for client in _client(pose_dir):
+        assert client.get("/v1/models").json()["auto"] is None
+        reply = _post(client, box_cloud, model="auto")
+        assert reply["status"] == 422 and reply["kind"] == "no_classifier"
+
+
+def _write_cloud(path: Path, cloud: np.ndarray) -> Path:
+    np.save(path, cloud)
+    return path
+
+
+def test_cli_pose_classify_and_align_auto(chair_dir: Path, table_dir: Path, tmp_path, box_cloud):
+    runner = CliRunner()
+    a = _write_cloud(tmp_path / "a.npy", box_cloud)
+    b = _write_cloud(tmp_path / "b.npy", box_cloud[::-1] + 1.0)
+    common = ["--model-dir", str(chair_dir), "--json"]
+    out = runner.invoke(cli, ["pose", str(a), str(b), "--model", "auto", *common])
+    assert out.exit_code == 0, out.output
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    assert len(lines) == 2 and all(
+        r["category"] == "chair" and r["model"] == "chair" for r in lines
+    )
+
+    out = runner.invoke(cli, ["classify", str(a), str(b), *common])
+    assert out.exit_code == 0, out.output
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    assert [r["file"] for r in lines] == [str(a), str(b)]
+    assert all(r["category"] == "chair" and len(r["candidates"]) == 3 for r in lines)
+
+    out = runner.invoke(cli, ["pose", str(a), "--model", "auto", "--model-dir", str(table_dir)])
+    assert out.exit_code == 2 and "no table pose model" in out.output
+
+    out = runner.invoke(
+        cli, ["align", str(a), str(b), "--model", "auto", *common, "--no-refine", "--starts", "1"]
+    )
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.stdout.splitlines()[-1])["model"] == "chair"
+    assert "auto: chair" in out.output

@@ -1,0 +1,76 @@
+"""The exported classifier graph (canonicaliser + classifier) against torch, and the loader
+telling it apart from the pose models."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from cls_helpers import CLASSES, tiny_classifier
+
+from itnet.export.classifier_export import choose_threshold, export_classifier
+from itnet.model_card import ClassifierCard
+from itnet.service.runtime import (
+    LoadedClassifier,
+    LoadedModel,
+    ModelLoadError,
+    load_all,
+    load_any,
+    load_model,
+)
+
+
+def _randomised(net: torch.nn.Module, seed: int) -> torch.nn.Module:
+    """Random weights (the transformer's last layer included: not the identity) and random
+    BatchNorm statistics, eval mode."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.Linear):
+                m.weight.copy_(torch.randn(m.weight.shape, generator=gen) * 0.3)
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
+                m.running_var.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
+                m.weight.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
+                m.bias.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
+    return net.eval()
+
+
+@pytest.mark.parametrize(
+    ("transformer", "iterations", "regularizer"),
+    [("none", 1, 0.0), ("tnet", 2, 0.001), ("itnet", 2, 0.0)],
+)
+def test_untrained_classifier_exports_and_matches_torch(
+    tmp_path: Path, transformer: str, iterations: int, regularizer: float
+) -> None:
+    net = _randomised(tiny_classifier(transformer, iterations, regularizer=regularizer), 7)
+    card = ClassifierCard(classes=CLASSES, points=100)
+    loaded = load_any(export_classifier(net, card, tmp_path / "c.onnx"), warm_up=False)
+    assert isinstance(loaded, LoadedClassifier) and loaded.card.classes == CLASSES
+    x = torch.randn(5, 100, 3, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        expected = torch.softmax(net(x)[0], -1).numpy()
+    got = loaded.probabilities(x.numpy())
+    assert got.shape == (5, 3)
+    np.testing.assert_allclose(got, expected, atol=2e-5)
+    np.testing.assert_allclose(got.sum(1), 1.0, atol=1e-5)
+    assert np.ptp(got, axis=0).max() > 1e-3  # the clouds get different answers: a real graph
+
+
+def test_pose_loader_does_not_take_the_classifier_for_a_pose_model(chair_dir: Path) -> None:
+    with pytest.raises(ModelLoadError, match="classifier"):
+        load_model(chair_dir / "classifier.onnx", warm_up=False)
+    models, classifier = load_all(chair_dir, warm_up=False)
+    assert list(models) == ["chair"] and isinstance(models["chair"], LoadedModel)
+    assert isinstance(classifier, LoadedClassifier) and classifier.card.kind == "classifier"
+
+
+def test_threshold_is_the_lowest_that_reaches_the_target() -> None:
+    # wrong views up to 0.57: below 0.6 at least 3 of ~27 are wrong (< 95%); from 0.6, none
+    p = [0.3, 0.55, 0.56, 0.57, 0.6, 0.7, 0.9] + [0.99] * 20
+    ok = [False, False, False, False, True, True, True] + [True] * 20
+    assert choose_threshold(p, ok, 0.95) == 0.6
+    assert choose_threshold([0.9, 0.8], [True, True], 0.95) == 0.0
+    assert choose_threshold([0.99, 0.99], [False, False], 0.95) == 0.95
