@@ -5,12 +5,18 @@
   point), with ``budget_ms``, ``max_iterations`` and ``model`` in the query string.
 
 Both raise :class:`ServiceError` (400/415/422) saying what is wrong. CPU-bound for large bodies:
-call from a worker thread.
+call from a worker thread. :class:`Decoder` adds what a server needs on top: a JSON body that
+holds more point arrays than ``max_points`` is refused from a count of its brackets (one pass of
+``bytes.count``, about 6 ms for 16 MB) before it is parsed, and large JSON bodies are parsed one
+at a time (pydantic holds the GIL for the whole parse: about 0.3 s for 250,000 points, during
+which every other request of the process waits).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import threading
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,7 +81,15 @@ def decode_http(
 ) -> tuple[NDArray[np.floating], EstimateParams]:
     """Dispatch on the Content-Type; anything but JSON or octet-stream is a 415."""
     kind = media_type(content_type)
-    if kind in JSON_TYPES or kind.endswith("+json"):
+    if is_json(content_type):
+        if query:
+            names = ", ".join(shorten(name, 32) for name in list(query)[:3])
+            raise ServiceError(
+                422,
+                "invalid_request",
+                f"query parameters ({names}) are read only with a binary body: put them in the "
+                "JSON body",
+            )
         return decode_json(body)
     if kind in BINARY_TYPES:
         return decode_binary(body, query)
@@ -86,6 +100,71 @@ def decode_http(
         f"{problem}: send application/json or application/octet-stream "
         "(little-endian float32 N x 3)",
     )
+
+
+def is_json(content_type: str | None) -> bool:
+    kind = media_type(content_type)
+    return kind in JSON_TYPES or kind.endswith("+json")
+
+
+def shorten(text: str, limit: int = 64) -> str:
+    """``text`` as ``repr`` shows it, cut to about ``limit`` characters (never echo 1 MB)."""
+    return repr(text) if len(text) <= limit else f"{text[:limit]!r}... ({len(text)} characters)"
+
+
+class Decoder:
+    """Decoding under a server's limits: the point count bounded before parsing, large JSON
+    bodies parsed ``lanes`` at a time (a request that finds them taken gets a 503 at once)."""
+
+    def __init__(self, max_points: int, heavy_bytes: int, lanes: int, retry_after_s: int) -> None:
+        self.max_points, self.heavy_bytes, self.retry_after_s = (
+            max_points,
+            heavy_bytes,
+            retry_after_s,
+        )
+        self._lanes = threading.BoundedSemaphore(lanes)
+
+    def http(
+        self, body: bytes, content_type: str | None, query: Mapping[str, str]
+    ) -> tuple[NDArray[np.floating], EstimateParams]:
+        if not is_json(content_type):
+            return decode_http(body, content_type, query)
+        with self._bounded(body):
+            return decode_http(body, content_type, query)
+
+    def json(
+        self, body: bytes | str, schema: type[EstimateRequest] = EstimateRequest
+    ) -> tuple[NDArray[np.float64], EstimateRequest]:
+        with self._bounded(body):
+            return decode_json(body, schema)
+
+    @contextmanager
+    def _bounded(self, body: bytes | str) -> Iterator[None]:
+        # Every point is one "[": more than max_points + 1 of them (the list's own) and the
+        # cloud is too large, whatever else the body says. Counting is ~50x cheaper than parsing.
+        arrays = body.count(b"[" if isinstance(body, bytes) else "[") - 1
+        if arrays > self.max_points:
+            raise ServiceError(
+                422,
+                "bad_cloud",
+                f"too many points: the body holds {arrays} arrays, the maximum is "
+                f"{self.max_points} points (refused before parsing)",
+            )
+        if len(body) < self.heavy_bytes:
+            yield
+            return
+        if not self._lanes.acquire(blocking=False):
+            raise ServiceError(
+                503,
+                "overloaded",
+                f"another large JSON body is being parsed; retry in {self.retry_after_s} s, or "
+                "send the cloud as binary (application/octet-stream, 12 bytes a point)",
+                headers={"Retry-After": str(self.retry_after_s)},
+            )
+        try:
+            yield
+        finally:
+            self._lanes.release()
 
 
 def _non_empty(points: NDArray) -> NDArray:

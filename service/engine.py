@@ -35,6 +35,9 @@ from itnet.preprocess import (
 from itnet.service.runtime import LoadedModel
 
 STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
+# Larger coordinates overflow the normalisation's squares (1e200 ** 2 is inf in float64) and
+# would be called degenerate; 1e12 leaves float64 room for any physical unit.
+MAX_COORDINATE = 1e12
 
 
 class BadCloudError(ValueError):
@@ -101,6 +104,11 @@ def validate_cloud(points: ArrayLike, limits: Limits) -> NDArray[np.float64]:
         raise BadCloudError(f"{len(cloud)} points is too few (the minimum is {limits.min_points})")
     if len(cloud) > limits.max_points:
         raise BadCloudError(f"{len(cloud)} points is too many (the maximum is {limits.max_points})")
+    if np.abs(cloud).max(initial=0.0) > MAX_COORDINATE:
+        raise BadCloudError(
+            f"coordinates out of range: |x|, |y|, |z| must be at most {MAX_COORDINATE:g} "
+            f"(got {np.abs(cloud).max():.3g}); send the cloud in a smaller unit"
+        )
     return cloud
 
 

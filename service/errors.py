@@ -61,6 +61,9 @@ def describe_errors(errors: Sequence[Mapping[str, Any]], shown: int = 3) -> str:
     return "; ".join(parts)
 
 
-def _location(loc: Iterable[Any]) -> str:
+def _location(loc: Iterable[Any], limit: int = 64) -> str:
+    """``('body', 'points', 0)`` -> ``'points.0'``; a part longer than ``limit`` (a client's
+    field name may be a megabyte) is cut, never echoed whole."""
     parts = [str(p) for p in loc if p not in ("body", "query")]
+    parts = [p if len(p) <= limit else f"{p[:limit]}... ({len(p)} characters)" for p in parts]
     return ".".join(parts) or "request"

@@ -119,7 +119,7 @@ class RequestMetricsMiddleware:
             await self.app(scope, receive, send)
             return
         start, status = time.perf_counter(), 500
-        scope[ARRIVED] = start
+        scope.setdefault(ARRIVED, start)  # the protocol records the first byte's arrival
 
         async def send_recording_status(message: Message) -> None:
             nonlocal status

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 # fail_fast: a million bad points give one error, not a million.
+# Strict: a number (integer or not), never a boolean or a numeric string.
 Point = Annotated[
-    list[float], Field(min_length=3, max_length=3, fail_fast=True, description="[x, y, z]")
+    list[StrictFloat], Field(min_length=3, max_length=3, fail_fast=True, description="[x, y, z]")
 ]
 Matrix4 = Annotated[list[list[float]], Field(description="4x4 row-major rigid transform")]
 StopReason = Literal["budget", "max_iterations", "converged", "cancelled"]

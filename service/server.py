@@ -20,6 +20,7 @@ from itnet.service.app import create_app
 from itnet.service.protocol import GuardedHttpToolsProtocol
 from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
+from itnet.service.ws_protocol import GuardedWebSocketProtocol
 
 FACTORY = "itnet.service.server:app_from_env"
 log = logging.getLogger("itnet.service")
@@ -36,13 +37,18 @@ def uvicorn_options(settings: Settings) -> dict[str, Any]:
     """``Settings`` -> keyword arguments of ``uvicorn.run``: every connection-level limit."""
     server, limits = settings.server, settings.limits
     return {
-        "http": GuardedHttpToolsProtocol,  # header timeout and size cap (protocol.py)
+        # The connection table, the head's deadline and size cap (protocol.py), the WebSocket
+        # message budget (ws_protocol.py).
+        "http": GuardedHttpToolsProtocol,
+        "ws": GuardedWebSocketProtocol,
         # Our own size check answers with an error message first; uvicorn's is the backstop.
         "ws_max_size": limits.max_ws_message_bytes + 4096,
         "ws_max_queue": server.ws_max_queue,
         "ws_ping_interval": server.ws_ping_interval_s,
         "ws_ping_timeout": server.ws_ping_timeout_s,
-        "limit_concurrency": server.max_connections,
+        # Not uvicorn's limit_concurrency: the connection table counts WebSockets too, lets a
+        # newcomer evict an idle connection, and keeps a lane for probes (connections.py).
+        "limit_concurrency": None,
         "backlog": server.backlog,
         "timeout_keep_alive": server.keep_alive_s,
         "timeout_graceful_shutdown": server.graceful_shutdown_s,

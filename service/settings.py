@@ -47,7 +47,24 @@ class LimitSettings(BaseModel):
         description="a stream message the client has not taken in this time: it is gone, seconds",
     )
     body_timeout_s: float = Field(
-        default=30.0, gt=0, description="the whole HTTP body must arrive within this, seconds"
+        default=30.0,
+        gt=0,
+        description="the whole HTTP body must arrive within this of the request's first byte, "
+        "seconds",
+    )
+    max_buffered_bytes: int = Field(
+        default=256 * 2**20,
+        ge=1024,
+        description="request bodies and WebSocket requests held at once, all requests together, "
+        "bytes; a request that does not fit: 503 + Retry-After before its body is read",
+    )
+    heavy_json_bytes: int = Field(
+        default=2**20,
+        ge=1,
+        description="JSON bodies at least this large are parsed one at a time (json_parse_lanes)",
+    )
+    json_parse_lanes: int = Field(
+        default=1, ge=1, description="large JSON bodies parsed at once; the others wait or get 503"
     )
 
     @model_validator(mode="after")
@@ -72,7 +89,20 @@ class ServerSettings(BaseModel):
     max_connections: int = Field(
         default=256,
         ge=1,
-        description="open connections + tasks (uvicorn limit_concurrency); beyond: a plain 503",
+        description="open connections, HTTP and WebSocket; a newcomer evicts the stalest idle "
+        "one (service/connections.py)",
+    )
+    probe_connections: int = Field(
+        default=16,
+        ge=1,
+        description="connections beyond max_connections that may ask /healthz or /readyz when "
+        "every other connection is busy",
+    )
+    ws_buffer_bytes: int = Field(
+        default=64 * 2**20,
+        ge=1024,
+        description="bytes of unfinished WebSocket messages held, all connections together; "
+        "beyond: close 1013",
     )
     backlog: int = Field(default=512, ge=1, description="TCP accept queue length")
     keep_alive_s: int = Field(default=5, ge=1, description="idle keep-alive connection, seconds")

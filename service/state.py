@@ -14,6 +14,8 @@ from functools import partial
 
 from numpy.typing import ArrayLike
 
+from itnet.service.byte_budget import ByteBudget
+from itnet.service.decode import Decoder, shorten
 from itnet.service.draining import StreamDrain
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.errors import ServiceError
@@ -71,6 +73,10 @@ class ServiceState:
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics
         )
         self.handback = HandbackTimer()
+        # Request bytes held at once (service/byte_budget.py), and decoding under the limits.
+        self.buffers = ByteBudget(limits.max_buffered_bytes)
+        self.decoder = Decoder(limits.max_points, limits.heavy_json_bytes,
+                               limits.json_parse_lanes, limits.retry_after_s)  # fmt: skip
         self.drain = StreamDrain()
 
     def load(self) -> None:
@@ -120,7 +126,7 @@ class ServiceState:
                 )
         if name not in self.models:
             raise ServiceError(
-                404, "unknown_model", f"unknown model {name!r} (loaded: {available})"
+                404, "unknown_model", f"unknown model {shorten(name)} (loaded: {available})"
             )
         return self.models[name]
 

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import time
+from collections.abc import AsyncIterator
 from typing import Annotated
 
-import anyio
 from fastapi import Depends, Request
-from starlette.requests import ClientDisconnect, HTTPConnection
+from starlette.requests import HTTPConnection
 
-from itnet.service.errors import ServiceError, too_large
+from itnet.service.body import limited_body
 from itnet.service.metrics import ARRIVED
 from itnet.service.state import ServiceState
 
@@ -22,34 +22,12 @@ def get_state(connection: HTTPConnection) -> ServiceState:
 StateDep = Annotated[ServiceState, Depends(get_state)]
 
 
-async def read_body(request: Request, state: StateDep) -> bytes:
-    """The request body, refused with a 413 as soon as it is known to exceed the limit: from the
-    Content-Length header before reading, or while streaming a chunked body."""
-    limit = state.settings.limits.max_body_bytes
-    declared = request.headers.get("content-length")
-    if declared is not None:
-        if not declared.isdigit():
-            raise ServiceError(400, "invalid_request", f"invalid Content-Length {declared!r}")
-        if int(declared) > limit:
-            raise too_large(int(declared), limit)
-    chunks, size = [], 0
-    timeout = state.settings.limits.body_timeout_s
-    try:
-        with anyio.fail_after(timeout):  # a client that trickles its body must not hold a slot
-            async for chunk in request.stream():
-                size += len(chunk)
-                if size > limit:
-                    raise too_large(size, limit, what="request body (at least)")
-                chunks.append(chunk)
-    except TimeoutError:
-        raise ServiceError(
-            408, "timeout", f"the request body did not arrive within {timeout:g} s"
-        ) from None
-    except ClientDisconnect:  # nobody is left to answer; 499 is nginx's code, kept for metrics
-        raise ServiceError(
-            499, "disconnected", "the client disconnected before its body arrived"
-        ) from None
-    return b"".join(chunks)
+async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
+    """The request body under the server's limits (``service/body.py``: size, encoding, the
+    byte budget, a deadline from the first byte), held in the budget until the request ends."""
+    limits = state.settings.limits
+    async with limited_body(request, limits, state.buffers, arrival(request)) as body:
+        yield body
 
 
 def arrival(connection: HTTPConnection) -> float:

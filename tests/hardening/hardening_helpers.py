@@ -36,9 +36,12 @@ LIMITS = LimitSettings(
     ws_request_timeout_s=1.0,
     ws_send_timeout_s=0.5,
     body_timeout_s=0.5,
+    max_buffered_bytes=512 * 1024,
 )
 SERVER = ServerSettings(
     max_connections=32,
+    probe_connections=4,
+    ws_buffer_bytes=256 * 1024,
     keep_alive_s=1,
     header_timeout_s=0.5,
     max_header_bytes=4096,

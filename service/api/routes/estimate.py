@@ -12,7 +12,6 @@ import anyio
 from fastapi import APIRouter, Request, Response
 
 from itnet.service.api.deps import ArrivedDep, BodyDep, StateDep
-from itnet.service.decode import decode_http
 from itnet.service.engine import AnytimeRun
 from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
 from itnet.service.state import ServiceState
@@ -143,7 +142,7 @@ def _decode_and_run(
     the loop's end, model, iterations, stop reason). The error is returned, not raised: an
     exception would leave the task group wrapped in an ExceptionGroup."""
     try:
-        points, params = decode_http(body, content_type, query)
+        points, params = state.decoder.http(body, content_type, query)
         run = state.start_run(points, params, arrived, reserve_ms=state.handback.reserve_ms())
     except Exception as err:
         return err

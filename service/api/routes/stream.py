@@ -28,9 +28,9 @@ from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
 from itnet.service.api.deps import StateDep
-from itnet.service.decode import decode_json
 from itnet.service.engine import AnytimeRun
 from itnet.service.errors import ServiceError, too_large
+from itnet.service.metrics import ARRIVED
 from itnet.service.recognition import RecognisedRun
 from itnet.service.schemas import StreamRequest
 from itnet.service.state import ServiceState
@@ -65,14 +65,15 @@ async def stream(websocket: WebSocket, state: StateDep) -> None:
 
 async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     """Read the request, run it, stream it. Returns the close code (1006: the client left)."""
-    text = await _first_message(websocket, state)
-    if text is None:
+    first = await _first_message(websocket, state)
+    if first is None:
         return 1006
-    arrived, send_timeout_s = time.perf_counter(), state.settings.limits.ws_send_timeout_s
+    (text, arrived), send_timeout_s = first, state.settings.limits.ws_send_timeout_s
     if state.drain.draining.is_set():
         raise ServiceError(503, "shutting_down", "the server is shutting down")
     with state.gate.slot():
-        run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
+        with state.buffers.hold(len(text), state.settings.limits.retry_after_s):
+            run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
         with state.drain.track(run):
             if isinstance(run, RecognisedRun):  # model "auto": the category comes first
                 await websocket.send_json(run.category_message())
@@ -91,8 +92,8 @@ async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     return code
 
 
-async def _first_message(websocket: WebSocket, state: ServiceState) -> str | None:
-    """The request text, or None if the client left first."""
+async def _first_message(websocket: WebSocket, state: ServiceState) -> tuple[str, float] | None:
+    """The request text and when its first byte was read, or None if the client left first."""
     limits = state.settings.limits
     try:
         with anyio.fail_after(limits.ws_request_timeout_s):
@@ -111,11 +112,11 @@ async def _first_message(websocket: WebSocket, state: ServiceState) -> str | Non
     size = len(text) if text.isascii() else len(text.encode("utf-8"))
     if size > limits.max_ws_message_bytes:
         raise too_large(size, limits.max_ws_message_bytes, what="message")
-    return text
+    return text, float(message.get(ARRIVED, time.perf_counter()))
 
 
 def _prepare(state: ServiceState, text: str, arrived: float) -> AnytimeRun:
-    points, request = decode_json(text, schema=StreamRequest)
+    points, request = state.decoder.json(text, schema=StreamRequest)
     return state.start_run(points, request, arrived)
 
 

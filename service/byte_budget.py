@@ -1,0 +1,66 @@
+"""A budget of request bytes held in memory, shared by every request of a server.
+
+A request body (or a WebSocket message) takes its bytes from the budget *before* they are
+buffered: all at once from a declared ``Content-Length``, or chunk by chunk as a body without
+one arrives. A request that does not fit is refused at once (503 ``overloaded`` with
+``Retry-After``) instead of being buffered, so the memory that uploads can pin is bounded by the
+budget, whatever their number or speed. Bytes go back when the request is done with them.
+Thread-safe (a worker thread may hand bytes back).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from itnet.service.errors import ServiceError
+
+
+class ByteBudget:
+    """``total`` bytes; ``take(n)`` -> whether they were granted; ``give(n)`` returns them."""
+
+    def __init__(self, total: int) -> None:
+        if total < 1:
+            raise ValueError(f"a byte budget needs at least one byte, got {total}")
+        self.total = total
+        self._held = 0
+        self._lock = threading.Lock()
+        self.refused = 0
+
+    @property
+    def held(self) -> int:
+        return self._held
+
+    def take(self, n: int) -> bool:
+        with self._lock:
+            if n > self.total - self._held:
+                self.refused += 1
+                return False
+            self._held += n
+            return True
+
+    def give(self, n: int) -> None:
+        with self._lock:
+            self._held = max(0, self._held - n)
+
+    @contextmanager
+    def hold(self, n: int, retry_after_s: int) -> Iterator[None]:
+        """Hold ``n`` bytes for the block, or raise the 503 that says the server is full."""
+        if not self.take(n):
+            raise self.full(n, retry_after_s)
+        try:
+            yield
+        finally:
+            self.give(n)
+
+    def full(self, n: int, retry_after_s: int) -> ServiceError:
+        mib = 2**20
+        return ServiceError(
+            503,
+            "overloaded",
+            f"the server holds {self.held / mib:.0f} MiB of requests (the limit is "
+            f"{self.total / mib:.0f} MiB) and this one needs {n / mib:.1f} MiB more; retry in "
+            f"{retry_after_s} s",
+            headers={"Retry-After": str(retry_after_s), "Connection": "close"},
+        )

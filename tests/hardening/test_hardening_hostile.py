@@ -1,0 +1,243 @@
+"""Hostile clients against a real server on loopback (issue 14's findings, scaled down: 32
+connections, 0.5 s head and body deadlines, 512 KiB of request bytes, 256 KiB of unfinished
+WebSocket messages). Each test failed on the code before the connection table, the byte
+budgets and the deadlines from the first byte.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import struct
+import time
+
+import httpx
+from hardening_helpers import LIMITS, SERVER, LiveServer, wait_for
+
+
+def head(path: str = "/v1/estimate", length: int | None = None, extra: str = "") -> bytes:
+    lines = [f"POST {path} HTTP/1.1", "Host: x", "Content-Type: application/json"]
+    if length is not None:
+        lines.append(f"Content-Length: {length}")
+    return ("\r\n".join(lines) + "\r\n" + extra + "\r\n").encode()
+
+
+async def slowloris(port: int, stop: float, opened: list[int]) -> None:
+    """One attacker: a request head a byte every 0.1 s, reconnecting whenever it is closed."""
+    data = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: " + b"a" * 1000
+    while time.perf_counter() < stop:
+        try:
+            reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        except OSError:
+            await asyncio.sleep(0.05)
+            continue
+        opened[0] += 1
+        try:
+            for byte in data:
+                if time.perf_counter() > stop or reader.at_eof():
+                    break
+                writer.write(bytes([byte]))
+                await writer.drain()
+                await asyncio.sleep(0.1)
+        except OSError:
+            pass
+        finally:
+            writer.close()
+
+
+def test_slowloris_beyond_max_connections_cannot_take_the_service(
+    slow_server: LiveServer, points: list
+) -> None:
+    """1.5x max_connections slow-loris sockets for 2 s: estimates and /healthz on fresh
+    connections are still answered 200 (before: 503 once the sockets filled the limit)."""
+    port = slow_server.host_port[1]
+    request = {"points": points, "budget_ms": 60, "max_iterations": 2}
+
+    async def attack() -> tuple[list[int], list[int], int]:
+        stop, opened = time.perf_counter() + 2.0, [0]
+        attackers = [
+            asyncio.create_task(slowloris(port, stop, opened))
+            for _ in range(SERVER.max_connections * 3 // 2)
+        ]
+        await asyncio.sleep(0.5)  # the table is full of them
+        estimates, probes = [], []
+        while time.perf_counter() < stop:
+            async with httpx.AsyncClient(base_url=slow_server.url, timeout=5) as http:
+                estimates.append((await http.post("/v1/estimate", json=request)).status_code)
+            async with httpx.AsyncClient(base_url=slow_server.url, timeout=5) as http:
+                probes.append((await http.get("/healthz")).status_code)
+            await asyncio.sleep(0.05)
+        await asyncio.gather(*attackers)
+        return estimates, probes, opened[0]
+
+    estimates, probes, opened = asyncio.run(attack())
+    assert opened > SERVER.max_connections  # the attack did fill the table
+    assert probes and probes.count(200) == len(probes), probes
+    assert len(estimates) >= 5 and estimates.count(200) >= 0.95 * len(estimates), estimates
+    assert wait_for(lambda: slow_server.state.gate.active == 0)
+
+
+def ws_handshake(port: int) -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    sock.sendall(
+        b"GET /v1/estimate/stream HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+        b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+        b"Sec-WebSocket-Version: 13\r\n\r\n"
+    )
+    reply = sock.recv(4096)
+    assert reply.startswith(b"HTTP/1.1 101"), reply[:100]
+    return sock
+
+
+def closed(sock: socket.socket, timeout_s: float = 0.5) -> bool:
+    """Whether the server has closed ``sock`` (it reads EOF, maybe after a close frame)."""
+    sock.settimeout(timeout_s)
+    try:
+        while chunk := sock.recv(65536):
+            if b"\x88" not in chunk[:1]:
+                continue
+        return True
+    except TimeoutError:
+        return False
+    except OSError:
+        return True
+
+
+def test_idle_websockets_count_and_give_way(slow_server: LiveServer, points: list) -> None:
+    """More idle WebSockets than max_connections: they count against it (the oldest are closed
+    to make room, before: every one was kept), and HTTP requests still get in."""
+    port = slow_server.host_port[1]
+    idle = [ws_handshake(port) for _ in range(SERVER.max_connections + 8)]
+    try:
+        assert sum(closed(sock, 0.2) for sock in idle[:8]) == 8  # the first eight made room
+        reply = httpx.post(f"{slow_server.url}/v1/estimate", json={"points": points,
+                           "budget_ms": 60, "max_iterations": 1}, timeout=5)  # fmt: skip
+        assert reply.status_code == 200
+        assert httpx.get(f"{slow_server.url}/healthz", timeout=5).status_code == 200
+    finally:
+        for sock in idle:
+            sock.close()
+
+
+def masked_frame_head(length: int, opcode: int = 0x1) -> bytes:
+    """A client frame header (FIN, ``opcode``) announcing ``length`` payload bytes, zero mask."""
+    if length < 126:
+        return bytes([0x80 | opcode, 0x80 | length]) + b"\0\0\0\0"
+    return bytes([0x80 | opcode, 0x80 | 126]) + struct.pack("!H", length) + b"\0\0\0\0"
+
+
+def test_stalled_large_websocket_frames_are_bounded(slow_server: LiveServer) -> None:
+    """Frames announcing 60 KiB, sent but for their last byte, then stalled: the server holds
+    at most its WebSocket budget (256 KiB) of them, closing the rest with 1013 (before: all
+    were held until their last byte)."""
+    port = slow_server.host_port[1]
+    size = 60 * 1024
+    socks = [ws_handshake(port) for _ in range(8)]
+    try:
+        for sock in socks:
+            sock.sendall(masked_frame_head(size) + b" " * (size - 1))
+        refused = [sock for sock in socks if closed(sock, 0.3)]
+        kept = SERVER.ws_buffer_bytes // size
+        assert len(refused) >= len(socks) - kept, (len(refused), kept)
+        assert httpx.get(f"{slow_server.url}/healthz", timeout=5).status_code == 200
+    finally:
+        for sock in socks:
+            sock.close()
+
+
+def test_stalled_uploads_are_refused_beyond_the_byte_budget(slow_server: LiveServer) -> None:
+    """Uploads that announce 60 KiB and stall one byte short: those beyond the 512 KiB budget
+    get a 503 with Retry-After at once, before their bodies are read (before: every one was
+    buffered until the body deadline)."""
+    port = slow_server.host_port[1]
+    size = 60 * 1024
+    socks = []
+    for _ in range(12):
+        sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        sock.sendall(head(length=size) + b" " * (size - 1))
+        socks.append(sock)
+        time.sleep(0.01)
+    try:
+        replies = []
+        for sock in socks:
+            sock.settimeout(0.15)
+            try:
+                replies.append(sock.recv(4096))
+            except TimeoutError:
+                replies.append(b"")
+        refused = [r for r in replies if r.startswith(b"HTTP/1.1 503")]
+        assert len(refused) >= 12 - LIMITS.max_buffered_bytes // size, replies
+        assert all(b"retry-after: 1" in r.lower() and b"overloaded" in r for r in refused)
+    finally:
+        for sock in socks:
+            sock.close()
+    assert wait_for(lambda: slow_server.state.buffers.held == 0, 3.0)
+
+
+def test_probes_are_answered_when_every_connection_is_busy(slow_server: LiveServer) -> None:
+    """Every slot held by a request whose body is under way: /healthz and /readyz are still
+    answered (the probe lane), an estimate gets the JSON 503, and beyond the lane a newcomer is
+    refused at once."""
+    port = slow_server.host_port[1]
+    busy = []
+    for _ in range(SERVER.max_connections):
+        sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        sock.sendall(head(length=100) + b'{"points": ')
+        busy.append(sock)
+    try:
+        time.sleep(0.05)
+        assert httpx.get(f"{slow_server.url}/healthz", timeout=2).status_code == 200
+        assert httpx.get(f"{slow_server.url}/readyz", timeout=2).status_code == 200
+        refused = httpx.post(f"{slow_server.url}/v1/estimate", json={"points": []}, timeout=2)
+        assert refused.status_code == 503 and refused.json()["kind"] == "overloaded"
+        assert refused.headers["retry-after"] == "1"
+    finally:
+        for sock in busy:
+            sock.close()
+
+
+def test_elapsed_ms_counts_from_the_first_byte(slow_server: LiveServer, points: list) -> None:
+    """A request whose head took 200 ms to arrive, with a 100 ms budget: its reply says so
+    (elapsed >= 200 ms, no step) and comes at once (before: the clock started when the head was
+    complete, and the run spent another 100 ms)."""
+    port = slow_server.host_port[1]
+    body = json.dumps({"points": points, "budget_ms": 100}).encode()
+    full = head(length=len(body)) + body
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    sock.sendall(full[:10])
+    time.sleep(0.2)
+    sent = time.perf_counter()
+    sock.sendall(full[10:])
+    sock.settimeout(5)
+    reply = b""
+    while b"}" not in reply[-4:]:
+        reply += sock.recv(65536)
+    waited_ms = (time.perf_counter() - sent) * 1e3
+    sock.close()
+    data = json.loads(reply.split(b"\r\n\r\n", 1)[1])
+    assert data["elapsed_ms"] >= 200 and data["iterations"] == 0, data["elapsed_ms"]
+    assert waited_ms < 60
+
+
+def test_a_body_trickled_within_the_idle_time_still_meets_its_deadline(
+    slow_server: LiveServer,
+) -> None:
+    """A byte every 0.1 s never leaves the connection idle for long, yet the body's deadline
+    (0.5 s from the first byte) ends it with a 408."""
+    port = slow_server.host_port[1]
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    sock.sendall(head(length=1000))
+    start, reply = time.perf_counter(), b""
+    sock.settimeout(0.1)
+    while time.perf_counter() - start < 3 and not reply:
+        try:
+            sock.sendall(b" ")
+            reply = sock.recv(4096)
+        except TimeoutError:
+            continue
+        except OSError:
+            break
+    sock.close()
+    assert reply.startswith(b"HTTP/1.1 408"), reply[:80]
+    assert time.perf_counter() - start < LIMITS.body_timeout_s + 0.5
