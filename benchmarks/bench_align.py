@@ -81,7 +81,7 @@ def itnet_methods(
     """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info)."""
     model = load_models(model_dir or default_model_dir())[model_name]
     estimate = in_process_estimator(model, budget_ms)
-    symmetry = category_symmetry(model.card.category)
+    symmetry = category_symmetry(model.card.category, model.card.symmetry)
     variants = {
         "itnet-align": AlignOptions(symmetry=symmetry),
         "itnet-align --refine": AlignOptions(symmetry=symmetry, refine=True),

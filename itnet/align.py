@@ -38,6 +38,7 @@ SYMMETRIES: dict[str, tuple[float, ...]] = {
     "none": (),
     "yaw180": (180.0,),
     "yaw90": (90.0, 180.0, 270.0),
+    "yaw": tuple(float(a) for a in range(30, 360, 30)),  # round objects: every 30 degrees
 }
 CATEGORY_SYMMETRY = {"chair": "yaw90", "sofa": "yaw180", "bed": "yaw180", "toilet": "yaw180",
                      "monitor": "yaw180", "bathtub": "yaw180", "table": "yaw90",
@@ -59,9 +60,13 @@ def symmetry_rotations(name: str) -> NDArray[np.float64]:
     return out
 
 
-def category_symmetry(category: str) -> str:
-    """The symmetry set assumed for a category (``yaw180`` when unknown). A chair's seat is
-    nearly square, so a partial view of it is often explained as well by a quarter turn."""
+def category_symmetry(category: str, declared: str = "none") -> str:
+    """The hypothesis set for a category whose model card declares the symmetry ``declared``
+    (``itnet.symmetry``): the declared group's turns when it has more than the category's usual
+    confusions (``yaw180`` when unknown). A chair's seat is nearly square, so a partial view of
+    it is often explained as well by a quarter turn."""
+    if declared in ("yaw", "yaw90"):
+        return declared
     return CATEGORY_SYMMETRY.get(category, "yaw180")
 
 

@@ -14,7 +14,7 @@ from typing import NoReturn
 
 import typer
 
-SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90")
+SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
 LOW_CONFIDENCE = 0.3
 
 
@@ -51,7 +51,8 @@ def align(
         12, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
     ),
     symmetry: str = typer.Option(
-        "auto", help="Symmetry hypotheses: auto (from the model's category), none, yaw180, yaw90."
+        "auto",
+        help="Symmetry hypotheses: auto (from the model's category and card), none, yaw180, yaw90, yaw.",
     ),
     finalists: int = typer.Option(
         4, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
@@ -86,11 +87,11 @@ def align(
         refine = False
     if model == "auto":
         model = _auto_model(server, model_dir, points_a, points_b, budget_ms)
-    estimate, category, close = _estimator(server, model, model_dir, budget_ms)
+    estimate, (category, declared), close = _estimator(server, model, model_dir, budget_ms)
     options = AlignOptions(
         starts=starts,
         iterations=max_iterations,
-        symmetry=category_symmetry(category) if symmetry == "auto" else symmetry,
+        symmetry=category_symmetry(category, declared) if symmetry == "auto" else symmetry,
         refine=refine,
         candidates=candidates,
         finalists=finalists,
@@ -174,7 +175,8 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # typ
 
 
 def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]
-    """(pose estimator, the model's category, a close function) for in-process or --server."""
+    """(pose estimator, (the model's category, its declared symmetry), a close function) for
+    in-process or --server."""
     from itnet.estimators import client_estimator, in_process_estimator
 
     if server is None:
@@ -182,7 +184,7 @@ def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-
 
         loaded = get_model(model, model_dir)
         estimate = in_process_estimator(loaded, budget_ms)
-        return estimate, loaded.card.category, lambda: None
+        return estimate, (loaded.card.category, loaded.card.symmetry), lambda: None
 
     from itnet.clients import ItnetClient, ItnetClientError
 
@@ -199,8 +201,9 @@ def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-
     )
 
 
-def _category(listed: object, model: str) -> str:
-    """The category of ``model`` in a ``GET /v1/models`` reply ('' when it does not say)."""
+def _category(listed: object, model: str) -> tuple[str, str]:
+    """The category and symmetry of ``model`` in a ``GET /v1/models`` reply ('' and 'none' when
+    it does not say)."""
     entries = listed.get("models", listed) if isinstance(listed, dict) else listed
     if isinstance(entries, dict):
         entries = [
@@ -208,8 +211,8 @@ def _category(listed: object, model: str) -> str:
         ]
     for entry in entries if isinstance(entries, list) else []:
         if isinstance(entry, dict) and entry.get("name") == model:
-            return str(entry.get("category", ""))
-    return ""
+            return str(entry.get("category", "")), str(entry.get("symmetry", "none"))
+    return "", "none"
 
 
 def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
