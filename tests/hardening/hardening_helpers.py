@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -125,3 +126,22 @@ def with_card(source: Path, target: Path, card: str | None) -> None:
 def scaled(examples: int) -> int:
     """A fuzz test's example count times ``ITNET_FUZZ_SCALE`` (default 1; e.g. 30 for a long run)."""
     return max(1, round(examples * float(os.environ.get("ITNET_FUZZ_SCALE", "1"))))
+
+
+def ws_handshake(port: int) -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    sock.sendall(
+        b"GET /v1/estimate/stream HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+        b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+        b"Sec-WebSocket-Version: 13\r\n\r\n"
+    )
+    reply = sock.recv(4096)
+    assert reply.startswith(b"HTTP/1.1 101"), reply[:100]
+    return sock
+
+
+def masked_frame_head(length: int, opcode: int = 0x1) -> bytes:
+    """A client frame header (FIN, ``opcode``) announcing ``length`` payload bytes, zero mask."""
+    if length < 126:
+        return bytes([0x80 | opcode, 0x80 | length]) + b"\0\0\0\0"
+    return bytes([0x80 | opcode, 0x80 | 126]) + struct.pack("!H", length) + b"\0\0\0\0"

@@ -9,11 +9,10 @@ from __future__ import annotations
 import asyncio
 import json
 import socket
-import struct
 import time
 
 import httpx
-from hardening_helpers import LIMITS, SERVER, LiveServer, wait_for
+from hardening_helpers import LIMITS, SERVER, LiveServer, masked_frame_head, wait_for, ws_handshake
 
 
 def head(path: str = "/v1/estimate", length: int | None = None, extra: str = "") -> bytes:
@@ -78,18 +77,6 @@ def test_slowloris_beyond_max_connections_cannot_take_the_service(
     assert wait_for(lambda: slow_server.state.gate.active == 0)
 
 
-def ws_handshake(port: int) -> socket.socket:
-    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
-    sock.sendall(
-        b"GET /v1/estimate/stream HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
-        b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
-        b"Sec-WebSocket-Version: 13\r\n\r\n"
-    )
-    reply = sock.recv(4096)
-    assert reply.startswith(b"HTTP/1.1 101"), reply[:100]
-    return sock
-
-
 def closed(sock: socket.socket, timeout_s: float = 0.5) -> bool:
     """Whether the server has closed ``sock`` (it reads EOF, maybe after a close frame)."""
     sock.settimeout(timeout_s)
@@ -118,13 +105,6 @@ def test_idle_websockets_count_and_give_way(slow_server: LiveServer, points: lis
     finally:
         for sock in idle:
             sock.close()
-
-
-def masked_frame_head(length: int, opcode: int = 0x1) -> bytes:
-    """A client frame header (FIN, ``opcode``) announcing ``length`` payload bytes, zero mask."""
-    if length < 126:
-        return bytes([0x80 | opcode, 0x80 | length]) + b"\0\0\0\0"
-    return bytes([0x80 | opcode, 0x80 | 126]) + struct.pack("!H", length) + b"\0\0\0\0"
 
 
 def test_stalled_large_websocket_frames_are_bounded(slow_server: LiveServer) -> None:
