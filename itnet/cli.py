@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 
 from itnet import __version__
-from itnet.commands import align, bench, classify, evaluate, export, pose, serve, train
+from itnet.commands import align, batch, bench, classify, evaluate, export, pose, serve, train
 
 app = typer.Typer(
     help="Anytime pose estimation and alignment of partial point clouds (IT-Net).",
@@ -36,6 +36,7 @@ app.command("train")(train.train)
 app.command("eval")(evaluate.evaluate)
 app.command("export")(export.export)
 app.command("bench")(bench.bench)
+app.add_typer(batch.app, name="batch")
 app.command("classify")(classify.classify)
 app.command("classify-experiment")(classify.classify_experiment)
 app.command("classify-export")(classify.classify_export)

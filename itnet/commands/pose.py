@@ -3,9 +3,17 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from itnet.service.engine import AnytimeRun
 
 
 def pose(
@@ -21,7 +29,9 @@ def pose(
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Estimate T_canonical_from_input for each file. Bad files are reported and skipped (exit 2)."""
-    from itnet.cloud_io import CloudReadError, read_cloud
+    import numpy as np
+
+    from itnet.cloud_io import CloudReadError
     from itnet.geometry import rotation_angle_deg
     from itnet.service.engine import AnytimeRun, BadCloudError
     from itnet.service.errors import ServiceError
@@ -31,14 +41,16 @@ def pose(
     auto = model == AUTO and AUTO not in all_models(model_dir)
     classifier = get_classifier(model_dir) if auto else None
     loaded = None if auto else get_model(model, model_dir)
+
+    def start(cloud: NDArray[np.float64]) -> AnytimeRun:
+        if loaded is None:  # the classification counts against the budget
+            return auto_run(classifier, all_models(model_dir), cloud, budget_ms, max_iterations)
+        return AnytimeRun(loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations)
+
     failed = False
     for path in files:
         try:
-            cloud = read_cloud(path)
-            if loaded is None:  # the classification counts against the budget
-                run = auto_run(classifier, all_models(model_dir), cloud, budget_ms, max_iterations)
-            else:
-                run = AnytimeRun(loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations)
+            result = pose_row(path, start)
         except ServiceError as err:
             typer.echo(f"error: {path}: {err.detail}", err=True)
             failed = True
@@ -50,12 +62,10 @@ def pose(
             )
             failed = True
             continue
-        run.run_to_end()
-        result = {"file": str(path), **run.result()}
         if as_json:
             typer.echo(json.dumps(result))
         else:
-            t = run.last.pose
+            t = np.asarray(result["T_canonical_from_input"])
             seen = (
                 f"{result['category']} ({result['category_probability']:.2f}"
                 f"{', unsure' if result['unsure'] else ''}, model {result['model']}), "
@@ -69,3 +79,15 @@ def pose(
             )
     if failed:
         raise typer.Exit(2)
+
+
+def pose_row(path: Path, start: Callable[[NDArray[np.float64]], AnytimeRun]) -> dict[str, Any]:
+    """One cloud file -> the row that ``itnet pose --json`` prints and ``itnet batch pose``
+    writes: file, the pose fields, iterations, stopped_by, elapsed_ms, model. ``start`` sets up
+    the run on the cloud (N, 3). Raises CloudReadError or BadCloudError (a file or cloud that
+    cannot be used), or what ``start`` raises."""
+    from itnet.cloud_io import read_cloud
+
+    run = start(read_cloud(path))
+    run.run_to_end()
+    return {"file": str(path), **run.result()}

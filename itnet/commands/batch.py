@@ -1,0 +1,151 @@
+"""``itnet batch pose|align``: poses (or alignments) of whole collections of clouds on Ray Data.
+
+One table out (Parquet, or JSON Lines by the suffix), a row per cloud (pair) with the fields of
+``itnet pose --json`` (``itnet align --json``); a file that cannot be used becomes a row with an
+``error``. Resumable: run the same command again after a stop and it skips what is written
+(``itnet.scale.table``). Needs the ``ray`` extra: ``pip install 'itnet[ray]'``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, NoReturn
+
+import typer
+
+app = typer.Typer(
+    help="Poses or alignments of many clouds on Ray Data (needs the 'ray' extra).",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+OUTPUT_HELP = "Output table: .parquet or .jsonl (parts in <output>.parts/ until done)."
+WORKERS_HELP = "Worker actors, each with its own copy of the model."
+RAY_HELP = "Address of a running Ray cluster (default: start Ray on this machine)."
+THREADS_HELP = "onnxruntime threads per worker (default: local cores // workers; 1 on a cluster)."
+
+
+def _fail(message: str) -> NoReturn:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _require_ray() -> None:
+    try:
+        import pyarrow  # noqa: F401
+        import ray  # noqa: F401
+    except ImportError as err:
+        _fail(f"itnet batch needs the 'ray' extra (pip install 'itnet[ray]'): {err}")
+
+
+@app.command("pose")
+def pose(
+    inputs: list[str] = typer.Argument(..., help="Cloud files, folders (recursive) or globs."),
+    output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
+    workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
+    ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
+    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
+    model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
+    budget_ms: float = typer.Option(1000.0, help="Time budget per cloud, in milliseconds."),
+    max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
+    threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
+    batch_size: int = typer.Option(32, min=1, help="Clouds per worker call."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """The canonical pose of every cloud, as `itnet pose --json` gives it, in one table."""
+    _require_ray()
+    from itnet.scale.inputs import InputError, expand_inputs
+    from itnet.scale.workers import PoseWorker
+
+    try:
+        files = expand_inputs(inputs)
+    except InputError as err:
+        _fail(str(err))
+    args = {"model": model, "model_dir": _dir(model_dir), "budget_ms": budget_ms,
+            "max_iterations": max_iterations}  # fmt: skip
+    items = [{"file": f} for f in files]
+    _run(PoseWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
+         progress, "clouds")  # fmt: skip
+
+
+@app.command("align")
+def align(
+    manifest: Path = typer.Argument(..., help="Pairs: CSV with columns a,b, or .jsonl {a, b}."),
+    output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
+    workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
+    ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
+    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
+    model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
+    budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
+    max_iterations: int | None = typer.Option(None, help="IT-Net iterations per run."),
+    refine: bool | None = typer.Option(
+        None,
+        "--refine/--no-refine",
+        show_default=False,
+        help="ICP refinement (open3d), as in itnet align: default on when open3d is installed.",
+    ),
+    starts: int = typer.Option(4, min=1, max=16, help="IT-Net runs per cloud."),
+    candidates: int = typer.Option(12, min=1, max=64, help="Hypotheses kept after ranking."),
+    symmetry: str = typer.Option("auto", help="auto (the model's category), none, yaw180, yaw90."),
+    finalists: int = typer.Option(4, min=1, max=64, help="With refinement: ICP's fine stage."),
+    threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
+    batch_size: int = typer.Option(8, min=1, help="Pairs per worker call."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """T_b_from_a of every pair of a manifest, as `itnet align --json` gives it, in one table."""
+    _require_ray()
+    from itnet.commands.align import SYMMETRY_CHOICES
+    from itnet.refine import RefineUnavailable, require_open3d
+    from itnet.scale.inputs import InputError, read_manifest
+    from itnet.scale.workers import AlignWorker
+
+    if symmetry not in SYMMETRY_CHOICES:
+        _fail(f"--symmetry must be one of {', '.join(SYMMETRY_CHOICES)}, got {symmetry!r}")
+    try:
+        pairs = read_manifest(manifest)
+    except InputError as err:
+        _fail(str(err))
+    if refine is not False:
+        try:
+            require_open3d()
+            refine = True
+        except RefineUnavailable as err:
+            if refine:
+                _fail(str(err))
+            typer.echo(f"note: no ICP refinement: {err}", err=True)
+            refine = False
+    options = {"starts": starts, "iterations": max_iterations, "symmetry": symmetry,
+               "refine": refine, "candidates": candidates, "finalists": finalists}  # fmt: skip
+    args = {"model": model, "model_dir": _dir(model_dir), "budget_ms": budget_ms,
+            "options": options}  # fmt: skip
+    items = [{"cloud_a": a, "cloud_b": b} for a, b in pairs]
+    _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,
+         batch_size, progress, "pairs")  # fmt: skip
+
+
+def _dir(path: Path | None) -> str | None:
+    return None if path is None else str(path.resolve())
+
+
+def _run(worker: type, args: dict[str, Any], items: list[dict[str, str]], key: tuple[str, ...],
+         output: Path, workers: int, address: str | None, threads: int | None, batch_size: int,
+         progress: bool, what: str) -> None:  # fmt: skip
+    from itnet.scale.batch import run_batch, worker_threads
+    from itnet.scale.table import BatchTable, OutputError
+    from itnet.service.models_in_process import get_model
+    from itnet.service.runtime import ModelLoadError
+
+    model_dir = args["model_dir"]
+    get_model(args["model"], None if model_dir is None else Path(model_dir))  # exit 2 if unknown
+    try:
+        table = BatchTable(output, key)
+        stats = run_batch(worker, args, items, table, key, workers, address,
+                          worker_threads(workers, threads, address), batch_size, progress)  # fmt: skip
+    except (OutputError, ModelLoadError) as err:
+        _fail(str(err))
+    rate = f", {stats.steady_per_second:.1f} {what}/s steady" if stats.steady_per_second else ""
+    typer.echo(
+        f"{output}: {stats.rows} rows ({stats.done} new, {stats.skipped} already there, "
+        f"{stats.errors} errors) in {stats.seconds:.1f} s{rate} with {workers} worker(s)",
+        err=True,
+    )

@@ -1,0 +1,76 @@
+"""What a batch job works on: cloud files named by paths, folders or globs, and manifests of pairs.
+
+Pure Python (no Ray): the batch command expands its inputs here, in the driver, before any worker
+starts, so a typo fails at once and the job's size is known for the progress bar.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import json
+from pathlib import Path
+
+from itnet.cloud_io import SUFFIXES
+
+
+class InputError(ValueError):
+    """An input path, glob or manifest that names nothing usable."""
+
+
+def expand_inputs(inputs: list[str]) -> list[str]:
+    """Files as given, folders -> their cloud files (recursive, sorted), globs -> their matches.
+
+    A file is kept whatever its suffix (a bad one becomes an error row, not a silent skip); in a
+    folder or a glob only files with a cloud suffix (``itnet.cloud_io.SUFFIXES``) count. The
+    order is kept and duplicates are dropped. Raises InputError for an input matching nothing."""
+    found: list[str] = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            matches = [str(p) for p in sorted(path.rglob("*")) if _is_cloud(p)]
+        elif path.exists():
+            matches = [item]
+        elif glob.has_magic(item):
+            matches = [p for p in sorted(glob.glob(item, recursive=True)) if _is_cloud(Path(p))]
+        else:
+            raise InputError(f"{item}: no such file or folder")
+        if not matches:
+            raise InputError(f"{item}: no cloud files ({' '.join(SUFFIXES)})")
+        found.extend(matches)
+    return list(dict.fromkeys(found))
+
+
+def _is_cloud(path: Path) -> bool:
+    return path.is_file() and path.suffix.lower() in SUFFIXES
+
+
+def read_manifest(path: Path) -> list[tuple[str, str]]:
+    """A manifest of pairs -> [(a, b), ...]: CSV with a header naming columns ``a`` and ``b``,
+    or JSON Lines (``.jsonl``) of objects with keys ``a`` and ``b``. Relative paths are taken
+    relative to the manifest's folder. Raises InputError saying what is wrong."""
+    if not path.is_file():
+        raise InputError(f"{path}: no such manifest")
+    rows: list[dict[str, str]]
+    try:
+        if path.suffix.lower() in (".jsonl", ".ndjson"):
+            lines = path.read_text().splitlines()
+            rows = [json.loads(line) for line in lines if line.strip()]
+        else:
+            with path.open(newline="") as f:
+                rows = list(csv.DictReader(f))
+    except (json.JSONDecodeError, csv.Error, UnicodeDecodeError) as err:
+        raise InputError(f"{path}: not a CSV or JSON Lines manifest ({err})") from None
+    pairs = []
+    for number, row in enumerate(rows, start=1):
+        if not isinstance(row, dict) or not row.get("a") or not row.get("b"):
+            raise InputError(f"{path}: row {number} has no 'a' and 'b' (got {row!r:.80})")
+        pairs.append((_beside(path, str(row["a"])), _beside(path, str(row["b"]))))
+    if not pairs:
+        raise InputError(f"{path}: no pairs")
+    return list(dict.fromkeys(pairs))
+
+
+def _beside(manifest: Path, name: str) -> str:
+    path = Path(name)
+    return name if path.is_absolute() else str(manifest.parent / path)

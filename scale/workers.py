@@ -1,0 +1,106 @@
+"""The Ray Data workers of ``itnet batch``: actors that load the model once each, then turn
+batches of cloud files (or pairs) into rows, a bad file becoming a row with an ``error``.
+
+A batch goes in as a column of paths and comes out as a column of JSON rows (``row``): the rows
+are exactly what ``itnet pose --json`` / ``itnet align --json`` print, whatever their shape, and
+the driver writes them as they are. A ``worker`` column (the actor's process id) lets the driver
+tell when every worker is up; it is not written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from itnet.scale.inputs import InputError
+
+
+def _load(model: str, model_dir: str | None, threads: int):  # type: ignore[no-untyped-def]
+    """The named model with ``threads`` onnxruntime threads (one step at a time)."""
+    from itnet.service.runtime import default_model_dir, load_models
+
+    models = load_models(Path(model_dir) if model_dir else default_model_dir(), threads, True, 1)
+    if model not in models:
+        raise InputError(f"unknown model {model!r} (available: {', '.join(sorted(models))})")
+    return models[model]
+
+
+def _error_row(fields: dict[str, Any], model: str, err: Exception) -> dict[str, Any]:
+    return {**fields, "model": model, "error": str(err)}
+
+
+def _batch(rows: list[str]) -> dict[str, np.ndarray]:
+    return {"row": np.array(rows, dtype=object), "worker": np.full(len(rows), os.getpid())}
+
+
+class PoseWorker:
+    """``{"file": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet pose --json`` row a file."""
+
+    def __init__(
+        self, model: str, model_dir: str | None, threads: int, budget_ms: float,
+        max_iterations: int | None,
+    ) -> None:  # fmt: skip
+        self.model = _load(model, model_dir, threads)
+        self.budget_ms, self.max_iterations = budget_ms, max_iterations
+
+    def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        from itnet.cloud_io import CloudReadError
+        from itnet.commands.pose import pose_row
+        from itnet.service.engine import AnytimeRun, BadCloudError
+
+        def start(cloud: np.ndarray) -> AnytimeRun:
+            return AnytimeRun(self.model, cloud, self.budget_ms, self.max_iterations)
+
+        rows = []
+        for file in batch["file"]:
+            try:
+                row = pose_row(Path(str(file)), start)
+            except (CloudReadError, BadCloudError) as err:
+                row = _error_row({"file": str(file)}, self.model.card.name, err)
+            rows.append(json.dumps(row))
+        return _batch(rows)
+
+
+class AlignWorker:
+    """``{"cloud_a": [...], "cloud_b": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet align --json`` row
+    a pair (without ``output``: the batch writes no moved clouds)."""
+
+    def __init__(
+        self, model: str, model_dir: str | None, threads: int, budget_ms: float,
+        options: dict[str, Any],
+    ) -> None:  # fmt: skip
+        from itnet.align import category_symmetry
+        from itnet.alignment import AlignOptions
+        from itnet.estimators import in_process_estimator
+
+        loaded = _load(model, model_dir, threads)
+        self.name = loaded.card.name
+        self.estimate = in_process_estimator(loaded, budget_ms)
+        symmetry = options.pop("symmetry", "auto")
+        if symmetry == "auto":
+            symmetry = category_symmetry(loaded.card.category, loaded.card.symmetry)
+        self.options = AlignOptions(symmetry=symmetry, **options)
+
+    def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        from itnet.alignment import CloudEstimateError, align_clouds
+        from itnet.cloud_io import CloudReadError, read_cloud
+
+        rows = []
+        for a, b in zip(batch["cloud_a"], batch["cloud_b"]):
+            fields = {"cloud_a": str(a), "cloud_b": str(b)}
+            try:
+                points_a, points_b = read_cloud(str(a)), read_cloud(str(b))
+                result = align_clouds(points_a, points_b, self.estimate, self.options)
+                row = {**fields, "model": self.name, "symmetry": self.options.symmetry,
+                       **result.to_dict()}  # fmt: skip
+            except CloudReadError as err:
+                row = _error_row(fields, self.name, err)
+            except CloudEstimateError as err:
+                cloud = fields["cloud_a"] if err.cloud == "A" else fields["cloud_b"]
+                row = _error_row(fields, self.name, ValueError(f"{cloud}: {err.__cause__}"))
+            rows.append(json.dumps(row))
+        return _batch(rows)
