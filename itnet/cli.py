@@ -5,7 +5,18 @@ from __future__ import annotations
 import typer
 
 from itnet import __version__
-from itnet.commands import align, batch, bench, classify, evaluate, export, pose, serve, train
+from itnet.commands import (
+    align,
+    batch,
+    bench,
+    classify,
+    evaluate,
+    export,
+    models,
+    pose,
+    serve,
+    train,
+)
 
 app = typer.Typer(
     help="Anytime pose estimation and alignment of partial point clouds (IT-Net).",
@@ -40,6 +51,8 @@ app.add_typer(batch.app, name="batch")
 app.command("classify")(classify.classify)
 app.command("classify-experiment")(classify.classify_experiment)
 app.command("classify-export")(classify.classify_export)
+app.command("classify-train")(classify.classify_train)
+app.command("models")(models.models)
 
 align_app = typer.Typer(add_completion=False)
 align_app.command()(align.align)

@@ -1,0 +1,70 @@
+"""``itnet models``: the installed models and what their cards say (the CLI twin of
+``GET /v1/models``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+
+def models(
+    model_dir: Path | None = typer.Option(
+        None, help="Folder of .onnx models (default: the ones shipped in the package)."
+    ),
+    as_json: bool = typer.Option(
+        False, "--json", help="Print GET /v1/models's JSON (step_ms measured here)."
+    ),
+) -> None:
+    """List the models with category, symmetry, precision, points and measured accuracy."""
+    from itnet.service.metrics import Metrics
+    from itnet.service.runtime import ModelLoadError, default_model_dir, load_models
+    from itnet.service.schemas import ModelInfo, ModelsResponse
+    from itnet.service.settings import Settings
+    from itnet.service.state import ServiceState
+
+    folder = model_dir or default_model_dir()
+    try:
+        # The service's own loader: the same cards, warmed up so step_ms is this machine's.
+        loaded = load_models(folder, threads=2, warm_up=True)
+    except ModelLoadError as err:
+        typer.echo(f"error: {err}", err=True)
+        raise typer.Exit(2) from None
+    state = ServiceState(Settings(model_dir=folder), Metrics(), models=loaded)
+    state.load()
+    default = state.default_model_name()
+    infos = [
+        ModelInfo.model_validate(
+            {**m.card.model_dump(), "step_ms": round(m.step_ms, 3), "default": name == default}
+        )
+        for name, m in sorted(loaded.items())
+    ]
+    if as_json:
+        reply = ModelsResponse(models=infos, default_model=default if state.ready else None)
+        typer.echo(json.dumps(reply.model_dump()))
+        return
+    rows = [("name", "category", "symmetry", "precision", "points", "accuracy", "step", "")]
+    for info in infos:
+        rows.append(
+            (
+                info.name,
+                info.category,
+                info.symmetry,
+                info.precision,
+                str(info.points),
+                _accuracy(info.accuracy, info.recommended_iterations),
+                f"{info.step_ms:.2f} ms",
+                "default" if info.default else "",
+            )
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for row in rows:
+        typer.echo("  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip())
+    typer.echo(f"({len(infos)} model(s) in {folder}; accuracy: (10 deg, 0.1 radius), see --json)")
+
+
+def _accuracy(accuracy: dict[str, float], iterations: int) -> str:
+    """'49.7% at 10 it.' (the card's figure at the recommended count), or '-' when unmeasured."""
+    value = accuracy.get(str(iterations))
+    return "-" if value is None else f"{100 * value:.1f}% at {iterations} it."

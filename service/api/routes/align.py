@@ -1,0 +1,138 @@
+"""``POST /v1/align``: T_b_from_a (moves cloud A onto cloud B) with the service's loaded model.
+
+The same alignment as ``itnet-align`` (``itnet.alignment.align_clouds``: IT-Net from several
+starts per cloud, hypotheses times the category's symmetries, optional ICP), run in-process on
+the model this server already holds. A server route rather than two streams composed in the
+browser: the hypotheses and ICP are what make alignment work on views that barely overlap, and
+they need both clouds in one place (and numpy, scipy, open3d), not just two poses.
+
+Bounded like an estimate: the body by ``max_body_bytes``, each cloud by ``min_points`` and
+``max_points``, ``budget_ms`` (per IT-Net run) by ``max_budget_ms``, ``max_iterations`` by its
+limit, and the request holds one of the ``max_concurrent_requests`` slots.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import anyio
+from fastapi import APIRouter
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from itnet.service.api.deps import BodyDep, StateDep
+from itnet.service.engine import BadCloudError, validate_cloud
+from itnet.service.errors import ServiceError, describe_errors, malformed_json
+from itnet.service.schemas import ErrorResponse, Point
+from itnet.service.state import ServiceState
+
+router = APIRouter(prefix="/v1", tags=["align"])
+ERRORS: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorResponse, "description": "malformed JSON"},
+    408: {"model": ErrorResponse, "description": "the body did not arrive in time"},
+    404: {"model": ErrorResponse, "description": "unknown model"},
+    413: {"model": ErrorResponse, "description": "body over the size limit"},
+    422: {"model": ErrorResponse, "description": "bad cloud or parameters"},
+    503: {"model": ErrorResponse, "description": "not ready, or busy (see Retry-After)"},
+}
+
+
+class AlignRequest(BaseModel):
+    """Two clouds of one object (or two objects of one category), in the same unit."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+
+    points_a: list[Point] = Field(fail_fast=True, description="cloud A (moved), N x 3")
+    points_b: list[Point] = Field(fail_fast=True, description="cloud B (reference), M x 3")
+    model: str | None = Field(default=None, description="model name (default: the server's)")
+    budget_ms: float = Field(default=1000.0, gt=0, description="IT-Net budget per run, ms")
+    max_iterations: int | None = Field(
+        default=None, ge=1, description="IT-Net iterations per run (default: 6 with starts > 1)"
+    )
+    starts: int = Field(default=4, ge=1, le=16, description="IT-Net runs per cloud")
+    refine: bool | None = Field(
+        default=None, description="ICP after IT-Net (default: when open3d is installed)"
+    )
+
+
+@router.post(
+    "/align",
+    responses=ERRORS,
+    summary="Align cloud A onto cloud B (T_b_from_a)",
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {
+                "application/json": {
+                    "schema": AlignRequest.model_json_schema(
+                        ref_template="#/components/schemas/{model}"
+                    )
+                }
+            },
+        }
+    },
+)
+async def align(body: BodyDep, state: StateDep) -> dict[str, Any]:
+    """The reply is ``itnet-align --json``'s object: ``T_b_from_a`` (4x4, row-major, B's units),
+    ``confidence``, ``refined``, the hypotheses and both canonical poses, plus ``model`` and
+    ``symmetry``."""
+    with state.gate.slot():
+        return await anyio.to_thread.run_sync(_align, state, body)
+
+
+def _parse(body: bytes) -> AlignRequest:
+    if not body.strip():
+        raise malformed_json("the body is empty (expected points_a and points_b)")
+    try:
+        return AlignRequest.model_validate_json(body)
+    except ValidationError as err:
+        errors = err.errors(include_input=False, include_url=False)
+        if errors and errors[0]["type"] == "json_invalid":
+            raise malformed_json(str(errors[0]["msg"]).removeprefix("Invalid JSON: ")) from None
+        raise ServiceError(422, "invalid_request", describe_errors(errors)) from None
+
+
+def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
+    """Decode, check against the limits, align (CPU: runs in a worker thread)."""
+    from itnet.align import category_symmetry
+    from itnet.alignment import AlignOptions, CloudEstimateError, align_clouds
+    from itnet.estimators import in_process_estimator
+    from itnet.refine import RefineUnavailable, require_open3d
+
+    request = _parse(body)
+    model = state.model(request.model)
+    limits = state.settings.limits
+    if request.budget_ms > limits.max_budget_ms:
+        raise ServiceError(422, "invalid_request",
+                           f"budget_ms {request.budget_ms:g} is over the limit of "
+                           f"{limits.max_budget_ms:g} ms")  # fmt: skip
+    if request.max_iterations is not None and request.max_iterations > limits.max_iterations:
+        raise ServiceError(422, "invalid_request",
+                           f"max_iterations {request.max_iterations} is over the limit of "
+                           f"{limits.max_iterations}")  # fmt: skip
+    clouds = []
+    for label, points in (("A", request.points_a), ("B", request.points_b)):
+        try:
+            clouds.append(validate_cloud(points, limits.engine_limits()))
+        except BadCloudError as err:
+            raise ServiceError(422, "bad_cloud", f"cloud {label}: {err}") from None
+    refine = request.refine
+    try:
+        if refine is not False:
+            require_open3d()
+            refine = True
+    except RefineUnavailable as err:
+        if refine:
+            raise ServiceError(422, "refine_unavailable", str(err)) from None
+        refine = False
+    options = AlignOptions(
+        starts=request.starts,
+        iterations=request.max_iterations,
+        symmetry=category_symmetry(model.card.category, model.card.symmetry),
+        refine=refine,
+    )
+    estimate = in_process_estimator(model, request.budget_ms)
+    try:
+        result = align_clouds(clouds[0], clouds[1], estimate, options)
+    except CloudEstimateError as err:
+        raise ServiceError(422, "bad_cloud", f"cloud {err.cloud}: {err.__cause__}") from None
+    return {"model": model.card.name, "symmetry": options.symmetry, **result.to_dict()}

@@ -1,0 +1,255 @@
+// The page: controls, URL state, and the live anytime run over WS /v1/estimate/stream.
+//
+// The URL holds the state, so a link reproduces a run:
+//   /?example=chair_a&model=chair&budget_ms=50&run=1          (opens the example and runs it)
+//   /?tab=align&a=chair_a&b=chair_b&refine=1&run=1            (aligns an example pair)
+// Other keys: max_iterations, play_ms (0: show iterations as they arrive). When a run ends, its
+// final JSON is written into #result.
+
+import { getJSON, readCloudFile, streamEstimate } from './api.js';
+import { runAlign, showPair } from './align.js';
+import { drawPlot } from './plot.js';
+import { showPose } from './pose.js';
+import { View, centring, normalization } from './view.js';
+
+const $ = (id) => document.getElementById(id);
+const params = new URLSearchParams(location.search);
+const view = new View($('view3d'), $('notice'));
+const state = { models: [], pairs: [], clouds: {}, estimates: [], queue: [], timer: null, stream: null };
+
+function setStatus(text, error = false) {
+  $('status').textContent = text;
+  $('status').classList.toggle('error', error);
+}
+
+/** Write the controls' state into the URL (no reload), so the address can be shared. */
+function saveUrl(extra = {}) {
+  const tab = document.body.dataset.tab;
+  const keep = {
+    tab: tab === 'pose' ? null : tab,
+    model: $('model').value,
+    budget_ms: $('budget').value,
+    max_iterations: $('max-iterations').value || null,
+    ...(tab === 'pose'
+      ? { example: state.clouds.main?.example ?? null, play_ms: $('play').value === '250' ? null : $('play').value }
+      : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
+    ...extra,
+  };
+  const query = new URLSearchParams(Object.entries(keep).filter(([, v]) => v !== null && v !== ''));
+  history.replaceState(null, '', `${location.pathname}?${query}`);
+}
+
+function setTab(tab) {
+  document.body.dataset.tab = tab;
+  document.querySelectorAll('.tab').forEach((b) => b.classList.toggle('active', b.dataset.tab === tab));
+  $('pose-title').textContent = tab === 'pose' ? 'Pose: T_canonical_from_input' : 'Alignment: T_b_from_a';
+  $('legend').textContent = tab === 'pose'
+    ? 'orange: the cloud, by the pose so far (iteration 0: centred)'
+    : 'blue: B (reference) · orange: A, moved onto B';
+  showClouds();
+}
+
+/** What the tab shows before a run: the cloud centred, or the pair as sent. */
+function showClouds() {
+  const { main, a, b } = state.clouds;
+  if (document.body.dataset.tab === 'align') {
+    if (a && b) showPair(view, a.points, b.points);
+    return;
+  }
+  view.removeCloud('reference');
+  if (main) showCloud(main.points);
+}
+
+/** The model's entry of GET /v1/models (undefined for 'auto'). */
+const modelInfo = (name) => state.models.find((m) => m.name === name);
+
+function showModel() {
+  const info = modelInfo($('model').value);
+  view.setSymmetry(info ? info.symmetry : 'none');
+  if (!info) {
+    $('model-info').textContent = 'auto: the server classifies the cloud, then runs that category\'s model.';
+    return;
+  }
+  const accuracy = info.accuracy[String(info.recommended_iterations)];
+  $('model-info').textContent = `${info.name}: category ${info.category}, symmetry ${info.symmetry}, `
+    + `${info.precision}, ${info.points} points, trained with ${info.trained_iterations} iterations; `
+    + (accuracy === undefined ? '' : `${(100 * accuracy).toFixed(1)}% correct at ${info.recommended_iterations} iterations; `)
+    + `one step ${info.step_ms.toFixed(2)} ms here.`;
+}
+
+function showCloud(points) {
+  view.setCloud('main', points, normalization(points).scale);
+  view.setPose('main', centring(points));
+}
+
+/** Load cloud `slot` ('main', 'a' or 'b') from an example name or a File. */
+async function loadCloud(slot, source) {
+  const isFile = typeof source !== 'string';
+  setStatus(`loading ${isFile ? source.name : source}…`);
+  const points = isFile ? await readCloudFile(source) : (await getJSON(`/v1/examples/${encodeURIComponent(source)}`)).points;
+  state.clouds[slot] = { points, example: isFile ? null : source, name: isFile ? source.name : source };
+  if ((slot === 'main') === (document.body.dataset.tab === 'pose')) showClouds();
+  setStatus(`${state.clouds[slot].name}: ${points.length} points`);
+  saveUrl();
+}
+
+function request() {
+  const body = { budget_ms: Number($('budget').value) };
+  if ($('model').value) body.model = $('model').value;
+  if ($('max-iterations').value) body.max_iterations = Number($('max-iterations').value);
+  return body;
+}
+
+function runPose() {
+  const cloud = state.clouds.main;
+  if (!cloud) return setStatus('pick an example or drop a file first', true);
+  Object.assign(state, { estimates: [], queue: [], result: null });
+  clearTimeout(state.timer);
+  state.timer = null;
+  $('result').textContent = '';
+  $('iteration').textContent = '0';
+  $('iterations').textContent = $('max-iterations').value || '…';
+  $('stopped-by').textContent = '…';
+  document.body.dataset.run = 'running';
+  showCloud(cloud.points);
+  drawPlot($('plot'), [], 1, 0);
+  setButtons(true);
+  setStatus(`running ${cloud.name}…`);
+  saveUrl({ run: '1' });
+  state.stream = streamEstimate({ points: cloud.points, ...request() }, { onMessage, onClose });
+}
+
+function onMessage(message) {
+  if (message.type === 'estimate') {
+    state.queue.push(message);
+    pump();
+  } else if (message.type === 'result') {
+    const { type, ...result } = message;
+    state.result = result;
+    $('result').textContent = JSON.stringify(result, null, 2);
+    $('iterations').textContent = String(result.iterations);
+    $('stopped-by').textContent = result.stopped_by;
+    $('timing').textContent = `(${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, model ${result.model})`;
+    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, stopped by ${result.stopped_by}`);
+    pump();
+  } else if (message.type === 'error') {
+    setStatus(`refused: ${message.detail}`, true);
+  } else if (message.category) {  // model 'auto': the classifier's answer comes first
+    setStatus(`classified as ${message.category}`);
+    const chosen = modelInfo(message.model ?? message.category);
+    if (chosen) view.setSymmetry(chosen.symmetry);
+  }
+}
+
+function onClose(code) {
+  setButtons(false);
+  if (!state.result && code !== 1000) setStatus(`${$('status').textContent} (connection closed, code ${code})`, true);
+  if (!state.result) document.body.dataset.run = 'failed';
+}
+
+/** Show queued iterations one by one: every play_ms (slowed so a person can follow), or at once. */
+function pump() {
+  if (state.timer) return;
+  const playMs = Number($('play').value);
+  const next = state.queue.shift();
+  if (!next) {
+    if (state.result) finish();
+    return;
+  }
+  showIteration(next, playMs);
+  if (playMs > 0) {
+    state.timer = setTimeout(() => { state.timer = null; pump(); }, playMs);
+  } else {
+    pump();
+  }
+}
+
+function showIteration(estimate, playMs) {
+  state.estimates.push(estimate);
+  $('iteration').textContent = String(estimate.iteration);
+  view.setPose('main', estimate.T_canonical_from_input, playMs * 0.8);
+  const { scale } = normalization(state.clouds.main.points);
+  drawPlot($('plot'), state.estimates, scale, state.result?.iterations ?? Number($('max-iterations').value || 0));
+  showPose($('pose'), 'T_canonical_from_input', estimate.T_canonical_from_input, estimate.quat_wxyz, estimate.quat_xyzw);
+}
+
+function finish() {
+  const r = state.result;
+  showPose($('pose'), 'T_canonical_from_input', r.T_canonical_from_input, r.quat_wxyz, r.quat_xyzw);
+  if (!state.estimates.length) view.setPose('main', r.T_canonical_from_input);
+  document.body.dataset.run = 'done';
+}
+
+async function runAlignTab() {
+  const [a, b] = [state.clouds.a, state.clouds.b];
+  if (!a || !b) return setStatus('pick clouds A and B first', true);
+  $('result').textContent = '';
+  document.body.dataset.run = 'running';
+  setButtons(true);
+  setStatus(`aligning ${a.name} onto ${b.name}…`);
+  saveUrl({ run: '1' });
+  const pair = state.pairs.find((p) => p.a === a.example && p.b === b.example);
+  const body = { ...request(), refine: $('refine').checked ? null : false };
+  try {
+    const reply = await runAlign({ view, a: a.points, b: b.points, request: body, truth: pair?.T_b_from_a,
+      elements: { pose: $('pose'), summary: $('align-summary') } });
+    $('result').textContent = JSON.stringify(reply, null, 2);
+    setStatus(`aligned in ${reply.elapsed_ms.toFixed(1)} ms`);
+    document.body.dataset.run = 'done';
+  } catch (err) {
+    setStatus(`refused: ${err.message}`, true);
+    document.body.dataset.run = 'failed';
+  }
+  setButtons(false);
+}
+
+function setButtons(running) {
+  $('run').disabled = running;
+  $('cancel').disabled = !running || document.body.dataset.tab !== 'pose';
+}
+
+function options(select, names, chosen) {
+  select.replaceChildren(...names.map((name) => new Option(name, name, false, name === chosen)));
+}
+
+function wireDrop(zone, input, slot) {
+  const load = (file) => file && loadCloud(slot, file).catch((err) => setStatus(err.message, true));
+  input.addEventListener('change', () => load(input.files[0]));
+  zone.addEventListener('dragover', (e) => { e.preventDefault(); zone.classList.add('over'); });
+  zone.addEventListener('dragleave', () => zone.classList.remove('over'));
+  zone.addEventListener('drop', (e) => { e.preventDefault(); zone.classList.remove('over'); load(e.dataTransfer.files[0]); });
+}
+
+async function main() {
+  const [models, examples] = await Promise.all([getJSON('/v1/models'), getJSON('/v1/examples')]);
+  state.models = models.models;
+  state.pairs = examples.pairs;
+  const names = state.models.map((m) => m.name);
+  if (models.auto) names.push('auto');  // the classifier, when the server has one
+  options($('model'), names, params.get('model') ?? models.default_model);
+  const clouds = examples.examples.map((e) => e.name);
+  options($('example'), clouds, params.get('example') ?? clouds[0]);
+  options($('example-a'), clouds, params.get('a') ?? examples.pairs[0]?.a ?? clouds[0]);
+  options($('example-b'), clouds, params.get('b') ?? examples.pairs[0]?.b ?? clouds[1]);
+  if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
+  if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
+  if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
+  if (params.get('refine') === '0') $('refine').checked = false;
+  setTab(params.get('tab') === 'align' ? 'align' : 'pose');
+  showModel();
+
+  document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
+  $('model').addEventListener('change', () => { showModel(); saveUrl(); });
+  for (const id of ['budget', 'max-iterations', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
+  const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
+  pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
+  wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');
+  $('run').addEventListener('click', () => (document.body.dataset.tab === 'pose' ? runPose() : runAlignTab()));
+  $('cancel').addEventListener('click', () => state.stream?.cancel());
+
+  await Promise.all([loadCloud('main', $('example').value), loadCloud('a', $('example-a').value), loadCloud('b', $('example-b').value)]);
+  document.body.dataset.ready = 'true';
+  if (params.get('run') === '1') $('run').click();
+}
+
+main().catch((err) => setStatus(`could not start: ${err.message}`, true));
