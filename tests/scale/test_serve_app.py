@@ -181,3 +181,27 @@ def test_a_killed_replica_loses_no_request(url: str, points: list) -> None:
     assert after - before, "no new replica answered after the kill"
     assert victim not in {p for t, p in pids if t > killed_at + 5}
     assert statuses.count(200) > 20
+
+
+def test_the_config_file_builds_the_application() -> None:
+    """deploy/ray/serve.yaml passes Serve's own schema, and its args build the app with an
+    autoscaling range for the Estimator replicas."""
+    import yaml
+    from ray.serve.schema import ServeDeploySchema
+
+    from itnet.scale.serve_app import ServeArgs, build_app
+
+    config = yaml.safe_load(
+        (Path(__file__).resolve().parents[2] / "deploy/ray/serve.yaml").read_text()
+    )
+    ServeDeploySchema.model_validate(config) if hasattr(
+        ServeDeploySchema, "model_validate"
+    ) else ServeDeploySchema.parse_obj(config)
+    (app,) = config["applications"]
+    assert app["import_path"] == "itnet.scale.serve_app:build_app"
+    args = ServeArgs.model_validate(app["args"])
+    scaling = args.scaling()["autoscaling_config"]
+    assert (scaling["min_replicas"], scaling["max_replicas"]) == (2, 8)
+    assert build_app(app["args"]) is not None
+    with pytest.raises(ValueError):
+        ServeArgs.model_validate({"min_replicas": 3})  # a range needs both ends
