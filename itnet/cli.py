@@ -51,6 +51,7 @@ app.add_typer(batch.app, name="batch")
 app.command("classify")(classify.classify)
 app.command("classify-experiment")(classify.classify_experiment)
 app.command("classify-export")(classify.classify_export)
+app.command("classify-train")(classify.classify_train)
 app.command("models")(models.models)
 
 align_app = typer.Typer(add_completion=False)

@@ -53,6 +53,7 @@ class ClassifyConfig(BaseModel):
     bf16: bool = True  # autocast matmuls to bfloat16 (the transforms' math stays float32)
     widths: tuple[tuple[int, ...], tuple[int, ...]] | None = None  # (point, head) for tiny tests
     max_shapes_per_class: int | None = None  # tiny tests: a few shapes of each class
+    init_from: Path | None = None  # start from these weights (a longer run of a table row)
 
 
 def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
@@ -153,6 +154,9 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
         net.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step, best = state["step"], state["best"]
+    elif config.init_from is not None:
+        state = torch.load(config.init_from, map_location="cpu", weights_only=False)
+        net.load_state_dict(state["model"])
     log = (config.out / "log.jsonl").open("a")
 
     def write(entry: dict) -> None:

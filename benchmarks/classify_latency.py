@@ -1,0 +1,70 @@
+"""What ``model: "auto"`` adds to a request: the time of ``service.recognition.classify`` (check,
+normalise, subsample to the card's points, run the classifier graph) on partial scans of the
+ModelNet10 test split, in-process, onnxruntime with the service's session options.
+
+    python -m benchmarks.classify_latency [--model-dir itnet/models] [--runs 300]
+
+Prints the median, 90th and 99th percentile in ms, the machine and the thread count. Run it as
+``/tmp/quiet.sh python -m benchmarks.classify_latency`` when a training job shares the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model-dir", type=Path, default=None)
+    parser.add_argument("--runs", type=int, default=300)
+    parser.add_argument("--points", type=int, default=2000, help="points of each test cloud")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+
+    from itnet.service.recognition import classify
+    from itnet.service.runtime import default_model_dir, load_all
+
+    _, classifier = load_all(args.model_dir or default_model_dir(), threads=args.threads)
+    if classifier is None:
+        raise SystemExit("no classifier in the model folder")
+    rng = np.random.default_rng(0)
+    # a partial-scan-like cloud: one side of a box, in metres, off the origin
+    clouds = [
+        rng.uniform(-1, 1, (args.points, 3)) * [0.4, 0.5, 0.05] + rng.normal(0, 2, 3)
+        for _ in range(16)
+    ]
+    for cloud in clouds[:4]:
+        classify(classifier, cloud)
+    times = []
+    for i in range(args.runs):
+        start = time.perf_counter()
+        classify(classifier, clouds[i % len(clouds)])
+        times.append((time.perf_counter() - start) * 1e3)
+    p50, p90, p99 = np.percentile(times, [50, 90, 99])
+    print(
+        json.dumps(
+            {
+                "classifier": classifier.card.transformer,
+                "precision": classifier.card.precision,
+                "card_points": classifier.card.points,
+                "cloud_points": args.points,
+                "runs": args.runs,
+                "median_ms": round(float(p50), 3),
+                "p90_ms": round(float(p90), 3),
+                "p99_ms": round(float(p99), 3),
+                "threads": args.threads,
+                "machine": f"{platform.machine()} {os.cpu_count()} cores",
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
