@@ -1,0 +1,104 @@
+"""The page in a real browser (headless Chromium) against a live ``itnet serve``: what a person
+sees. The page and the API must agree, so every run stops by ``max_iterations`` under a
+generous budget: both answers come from the same iterations on the same cloud."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from itnet.cloud_io import read_cloud
+from itnet.geometry import rotation_error_deg
+
+pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
+DONE = "['done', 'failed'].includes(document.body.dataset.run)"
+
+
+def result(page: Any) -> dict:
+    page.wait_for_function(DONE, timeout=30_000)
+    assert page.evaluate("document.body.dataset.run") == "done", page.text_content("#status")
+    return json.loads(page.text_content("#result"))
+
+
+def estimate(server: Any, points: np.ndarray, **params: Any) -> dict:
+    body = {"points": points.tolist(), **params}
+    reply = httpx.post(f"{server.url}/v1/estimate", json=body, timeout=30)
+    assert reply.status_code == 200, reply.text
+    return reply.json()
+
+
+def test_a_link_runs_an_example_live_and_ends_with_the_apis_pose(live_server, browser_page):
+    page, errors = browser_page, []
+    page.on("pageerror", lambda err: errors.append(str(err)))
+    page.goto(f"{live_server.url}/?example=chair_a&model=chair&budget_ms=5000"
+              "&max_iterations=8&play_ms=120&run=1")  # fmt: skip
+    # The iteration counter, read as a person would: it climbs over time, one step at a time.
+    seen, start = [], time.monotonic()
+    while page.evaluate("document.body.dataset.run") != "done" and time.monotonic() - start < 20:
+        seen.append(int(page.text_content("#iteration")))
+        page.wait_for_timeout(40)
+    shown = result(page)
+    page.wait_for_function("document.getElementById('iteration').textContent === '8'")
+    assert seen == sorted(seen) and len(set(seen)) >= 4, seen  # rising, seen at several values
+    assert seen[0] <= 2
+
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="chair",
+                   budget_ms=5000, max_iterations=8)  # fmt: skip
+    assert shown["stopped_by"] == api["stopped_by"] == "max_iterations"
+    assert shown["iterations"] == api["iterations"] == 8
+    for key in ("T_canonical_from_input", "quat_wxyz", "quat_xyzw", "translation"):
+        assert np.allclose(shown[key], api[key], atol=1e-6), key
+    assert page.text_content("#stopped-by") == "max_iterations"
+    # The pose panel shows the same matrix, and the URL still holds the run.
+    first_row = page.text_content("#pose pre").split("\n")[0].split()
+    assert np.allclose([float(v) for v in first_row], api["T_canonical_from_input"][0], atol=1e-6)
+    assert "example=chair_a" in page.url and "run=1" in page.url
+    assert page.evaluate("document.getElementById('notice').hidden")  # WebGL drew the view
+    assert not errors
+
+
+def test_a_dropped_file_is_read_by_the_server_and_a_bad_one_is_refused(
+    live_server, browser_page, tmp_path
+):
+    points = read_cloud(EXAMPLES / "chair_b.ply")
+    xyz = tmp_path / "scan.xyz"
+    np.savetxt(xyz, points)
+    page = browser_page
+    page.goto(f"{live_server.url}/?max_iterations=5&budget_ms=5000&play_ms=0")
+    page.wait_for_function("document.body.dataset.ready === 'true'")
+    page.set_input_files("#file", str(xyz))
+    page.wait_for_function("document.getElementById('status').textContent.startsWith('scan.xyz')")
+    assert f"{len(points)} points" in page.text_content("#status")
+    page.click("#run")
+    shown = result(page)
+    api = estimate(live_server, points, budget_ms=5000, max_iterations=5)
+    assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-5)
+
+    bad = tmp_path / "broken.ply"
+    bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\n")  # no end_header
+    page.set_input_files("#file", str(bad))
+    page.wait_for_function("document.getElementById('status').classList.contains('error')")
+    assert "broken.ply" in page.text_content("#status")
+
+
+def test_the_alignment_tab_moves_a_onto_b(live_server, browser_page):
+    pytest.importorskip("open3d")
+    page = browser_page
+    page.goto(f"{live_server.url}/?tab=align&a=chair_a&b=chair_b&model=chair&run=1")
+    shown = result(page)
+    truth = json.loads((EXAMPLES / "chair_truth.json").read_text())["T_b_from_a"]
+    t = np.array(shown["T_b_from_a"])
+    assert shown["refined"] is True
+    assert rotation_error_deg(t[:3, :3], np.array(truth)[:3, :3]) < 5.0
+    assert "error against the example's truth" in page.text_content("#align-summary")
+    body = {"points_a": read_cloud(EXAMPLES / "chair_a.ply").tolist(),
+            "points_b": read_cloud(EXAMPLES / "chair_b.ply").tolist(), "model": "chair"}  # fmt: skip
+    api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
+    assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
