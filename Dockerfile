@@ -16,6 +16,8 @@ COPY model ./model
 COPY export ./export
 COPY service ./service
 COPY clients ./clients
+# itnet.scale (Ray Serve, batch) is part of the package; ray itself is not installed here.
+COPY scale ./scale
 # `.` without extras: the serving dependencies only (see [project] dependencies).
 RUN pip install --no-cache-dir . \
     && python -c "import itnet.service.app" \
