@@ -77,6 +77,9 @@ def split_files(
     return {"train": train, "val": val, "test": test}
 
 
+ORIENTATION_RULE = 2  # shapes.check_yaw's rule; part of the cache key of checked shapes
+
+
 def load_shapes(
     files: list[Path],
     frame: str,
@@ -87,9 +90,8 @@ def load_shapes(
 ) -> tuple[list[Shape], dict]:
     """Canonical shapes for files (cached), turned by the category's ``quarter_turns`` and
     orientation-checked under its ``symmetry``. Returns (shapes, orientation-check counts)."""
-    key = _cache_key([str(f) for f in files], frame, check_orientation)
-    if quarter_turns % 4 or symmetry != "none":  # keeps the chair's existing cache keys
-        key = _cache_key(key, quarter_turns % 4, symmetry)
+    key = _cache_key([str(f) for f in files], frame, check_orientation, quarter_turns % 4, symmetry)
+    key = _cache_key(key, ORIENTATION_RULE)
     path = cache / f"shapes-{key}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)

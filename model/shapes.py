@@ -115,10 +115,11 @@ def check_yaw(
     For each shape, the quarter-turns that the category's ``symmetry`` tells apart (four for
     ``none``; 0 and 90 degrees for ``yaw180``, where 180 is the same pose; none for ``yaw90`` and
     ``yaw``, which return the shapes as they are) are scored by the median Chamfer distance to a random
-    set of reference shapes of the class (most of which are right). A shape whose best turn is not
-    0 is turned back; a shape whose best turn is not clearly better than the other ones
-    (relative ``margin``) cannot be told apart and is dropped (it is near-symmetric, and its label
-    would contradict itself). Returns (kept shapes, counts).
+    set of reference shapes of the class (most of which are right). A shape the references
+    clearly prefer turned (its best turn is not 0 and beats no turn by the relative ``margin``) is
+    turned back; a shape whose best turn is not 0 but not clearly (the references are split) is
+    dropped, its label in doubt; every other shape is kept as the dataset has it (a shape whose
+    turns all score alike gives no evidence against its label). Returns (kept shapes, counts).
     """
     candidates = {"none": 4, "yaw180": 2}.get(symmetry, 1)
     if candidates == 1:
@@ -136,12 +137,10 @@ def check_yaw(
         for r in turns:
             moved = subsample[i] @ r.T
             scores.append(np.median([chamfer(moved, subsample[j]) for j in refs if j != i]))
-        order = np.argsort(scores)
-        best, second = scores[order[0]], scores[order[1]]
-        if second - best < margin * best:
+        k = int(np.argmin(scores))
+        if k != 0 and scores[0] - scores[k] < margin * scores[k]:
             counts["dropped"] += 1
             continue
-        k = int(order[0])
         if k != 0:
             shape = Shape(
                 shape.name,
