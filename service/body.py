@@ -60,7 +60,7 @@ async def limited_body(
                     if size > limit:
                         raise too_large(size, limit, what="request body (at least)")
                     if size > held:  # no Content-Length (or a lying one): take as it comes
-                        if not budget.take(size - held):
+                        if not budget.take(size - held, whole=size):
                             raise budget.full(size - held, limits.retry_after_s)
                         held = size
                     chunks.append(chunk)

@@ -5,6 +5,10 @@ buffered: all at once from a declared ``Content-Length``, or chunk by chunk as a
 one arrives. A request that does not fit is refused at once (503 ``overloaded`` with
 ``Retry-After``) instead of being buffered, so the memory that uploads can pin is bounded by the
 budget, whatever their number or speed. Bytes go back when the request is done with them.
+
+Large requests (``large`` bytes or more) may fill only ``1 - small_share`` of the budget: the
+rest stays for ordinary requests, so uploads that announce the body limit and stall cannot
+refuse everyone else.
 Thread-safe (a worker thread may hand bytes back).
 """
 
@@ -20,10 +24,11 @@ from itnet.service.errors import ServiceError
 class ByteBudget:
     """``total`` bytes; ``take(n)`` -> whether they were granted; ``give(n)`` returns them."""
 
-    def __init__(self, total: int) -> None:
+    def __init__(self, total: int, large: int = 2**20, small_share: float = 0.25) -> None:
         if total < 1:
             raise ValueError(f"a byte budget needs at least one byte, got {total}")
-        self.total = total
+        self.total, self.large = total, large
+        self.small_reserve = int(total * small_share)
         self._held = 0
         self._lock = threading.Lock()
         self.refused = 0
@@ -32,9 +37,13 @@ class ByteBudget:
     def held(self) -> int:
         return self._held
 
-    def take(self, n: int) -> bool:
+    def take(self, n: int, whole: int | None = None) -> bool:
+        """Take ``n`` more bytes for a request that holds ``whole`` bytes with them (default
+        ``n``; it decides whether the request is large)."""
         with self._lock:
-            if n > self.total - self._held:
+            free = self.total - self._held
+            large = (n if whole is None else whole) >= self.large
+            if n > free or (large and n > free - self.small_reserve):
                 self.refused += 1
                 return False
             self._held += n
