@@ -1,0 +1,68 @@
+"""``itnet models`` (the CLI twin of GET /v1/models) and ``itnet export``'s model name."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from itnet.cli import app
+from itnet.service.app import create_app
+from itnet.service.runtime import load_model
+from itnet.service.settings import Settings
+
+runner = CliRunner()
+SHIPPED = Path(__file__).resolve().parents[2] / "itnet" / "models"
+
+
+def test_models_lists_what_the_service_lists(tiny_model_dir):
+    listed = runner.invoke(app, ["models", "--model-dir", str(tiny_model_dir), "--json"])
+    assert listed.exit_code == 0, listed.output
+    with TestClient(create_app(Settings(model_dir=tiny_model_dir))) as client:
+        served = client.get("/v1/models").json()
+    cli = json.loads(listed.stdout)
+    assert cli["default_model"] == served["default_model"] == "tiny"
+
+    def without_timing(entries: list[dict]) -> list[dict]:
+        return [{k: v for k, v in e.items() if k != "step_ms"} for e in entries]
+
+    assert without_timing(cli["models"]) == without_timing(served["models"])
+    assert cli["models"][0]["step_ms"] > 0
+
+
+def test_models_table_shows_the_shipped_cards():
+    table = runner.invoke(app, ["models"])
+    assert table.exit_code == 0, table.output
+    header, *rows = table.stdout.splitlines()
+    assert header.split() == ["name", "category", "symmetry", "precision", "points", "accuracy",
+                              "step"]  # fmt: skip
+    chair = next(r for r in rows if r.startswith("chair "))
+    card = load_model(SHIPPED / "chair.onnx", warm_up=False).card
+    accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
+    assert chair.split()[:5] == ["chair", card.category, card.symmetry, card.precision,
+                                 str(card.points)]  # fmt: skip
+    assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in chair and "default" in chair
+
+
+def test_models_in_a_folder_without_models_is_an_error(tmp_path):
+    result = runner.invoke(app, ["models", "--model-dir", str(tmp_path)])
+    assert result.exit_code == 2 and "no .onnx models" in result.stderr
+
+
+@pytest.mark.slow
+def test_export_names_the_model_after_its_category(tmp_path):
+    """A model trained with --category mug is served as 'mug' (it used to be 'chair')."""
+    torch = pytest.importorskip("torch")
+    state = torch.load(SHIPPED / "chair.pt", map_location="cpu", weights_only=False)
+    state["config"] = {**state["config"], "category": "mug"}
+    checkpoint = tmp_path / "mug.pt"
+    torch.save(state, checkpoint)
+    out = tmp_path / "models" / "mug.onnx"
+    out.parent.mkdir()
+    result = runner.invoke(app, ["export", str(checkpoint), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    card = load_model(out, warm_up=False).card
+    assert (card.name, card.category) == ("mug", "mug")
