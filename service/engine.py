@@ -24,7 +24,8 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import matrix_to_quat_wxyz, quat_wxyz_to_xyzw
+from itnet.fusion import fuse_poses
+from itnet.geometry import invert_rigid, matrix_to_quat_wxyz, quat_wxyz_to_xyzw, rotation_angle_deg
 from itnet.preprocess import (
     DegenerateCloudError,
     Normalization,
@@ -38,6 +39,8 @@ STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
 # Larger coordinates overflow the normalisation's squares (1e200 ** 2 is inf in float64) and
 # would be called degenerate; 1e12 leaves float64 room for any physical unit.
 MAX_COORDINATE = 1e12
+MAX_ENSEMBLE = 16  # runs one request may fuse (each costs a share of the step)
+ENSEMBLE_SUBSET = 0.8  # an ensemble run's share of a cloud no larger than the model's point count
 
 
 class BadCloudError(ValueError):
@@ -149,6 +152,7 @@ class AnytimeRun(Iterator[Estimate]):
         reserve_ms: float = 0.0,
         starts: ArrayLike | None = None,
         points_per_step: int | None = None,
+        ensemble: int = 1,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -167,6 +171,15 @@ class AnytimeRun(Iterator[Estimate]):
         cloud = validate_cloud(points, limits)
         if points_per_step is not None and points_per_step < limits.min_points:
             raise BadCloudError(f"points_per_step must be at least {limits.min_points}")
+        if not (1 <= ensemble <= MAX_ENSEMBLE):
+            raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {ensemble}")
+        if ensemble > 1 and (starts is not None or points_per_step is not None):
+            raise BadCloudError("ensemble cannot be combined with starts or points_per_step")
+        # Ensemble mode: K runs from the identity, each on its own random subset of the cloud
+        # (normalised as a whole), fused robustly after every step (itnet.fusion).
+        self.ensemble = ensemble
+        if ensemble > 1:
+            starts = np.tile(np.eye(3), (ensemble, 1, 1))
         # Where the iterations begin: the identity, or ``starts`` (3x3 or Bx3x3), rotations of
         # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment).
         # The B runs go through each step as one batch; the estimates and the convergence test
@@ -175,7 +188,13 @@ class AnytimeRun(Iterator[Estimate]):
         self.pose_normalized = np.tile(np.eye(4, dtype=np.float32), (len(turns), 1, 1))
         self.pose_normalized[:, :3, :3] = turns
         rng = np.random.default_rng(seed)
-        if points_per_step is None:
+        if points_per_step is None and ensemble > 1:
+            norm = _normalization(cloud)
+            size = min(model.card.points, max(limits.min_points, int(ENSEMBLE_SUBSET * len(cloud))))
+            normalized = norm.apply(cloud)
+            inputs = [cap_points(normalized, size, rng) for _ in turns]
+            self.normalizations = [norm] * len(turns)
+        elif points_per_step is None:
             # The whole cloud sets the centre and scale; then at most the card's point count.
             norm = _normalization(cloud)
             x = cap_points(norm.apply(cloud), model.card.points, rng)
@@ -227,6 +246,15 @@ class AnytimeRun(Iterator[Estimate]):
             self._last_step_ms = (time.perf_counter() - start) * 1e3
         self.model.record_step_ms(self._last_step_ms / self._load)
         self.iteration += 1
+        if self.ensemble > 1:
+            current = fuse_poses(self.pose_normalized, self.model.card.symmetry)
+            d = current @ invert_rigid(self.last.pose_normalized.astype(np.float64))
+            self.last = self._estimate(
+                current.astype(np.float32),
+                float(rotation_angle_deg(d[:3, :3])),
+                math.hypot(float(d[0, 3]), float(d[1, 3]), float(d[2, 3])),
+            )
+            return self._converged_or(self.last)
         d = delta[0]  # the update's angle, in scalar math (numpy's per-call cost is the loop's)
         cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
         update_rotation = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
@@ -234,13 +262,17 @@ class AnytimeRun(Iterator[Estimate]):
             float(d[0, 3]), float(d[1, 3]), float(d[2, 3])
         )  # normalised
         self.last = self._estimate(self.pose_normalized[0], update_rotation, update_translation)
+        return self._converged_or(self.last)
+
+    def _converged_or(self, estimate: Estimate) -> Estimate:
+        """``estimate``, after marking the run converged if its update was below the tolerance."""
         if (
-            update_rotation < self.converge[0]
-            and update_translation < self.converge[1]
+            estimate.update_rotation_deg < self.converge[0]
+            and estimate.update_translation < self.converge[1] * self.normalization.scale
             and self.iteration < self.max_iterations
         ):
             self.stopped_by = "converged"
-        return self.last
+        return estimate
 
     def _stop_reason_before_step(self) -> str | None:
         if self._cancel.is_set():
@@ -288,4 +320,5 @@ class AnytimeRun(Iterator[Estimate]):
             "stopped_by": self.stopped_by,
             "elapsed_ms": round(self.elapsed_ms(), 3),
             "model": self.model.card.name,
+            **({"ensemble": self.ensemble} if self.ensemble > 1 else {}),
         }

@@ -43,6 +43,14 @@ class EstimateParams(BaseModel):
         description="model name, see GET /v1/models (default: 'chair' or the only model); "
         "'auto': classify the cloud, then run its category's model",
     )
+    ensemble: int = Field(
+        default=1,
+        ge=1,
+        le=16,
+        description="accuracy mode: K runs on different random subsets of the cloud, fused "
+        "robustly after every iteration (each estimate is the fused pose); a step costs about K "
+        "times as much, and the run still stops within budget_ms",
+    )
 
 
 class EstimateRequest(EstimateParams):
@@ -97,6 +105,7 @@ class EstimateResponse(Pose):
         None, description='"auto": the probability is below the classifier\'s threshold'
     )
     classify_ms: float | None = Field(None, description='"auto": time the classification took')
+    ensemble: int | None = Field(None, description="runs fused per estimate, when more than 1")
 
 
 class ModelInfo(BaseModel):

@@ -176,6 +176,7 @@ class ServiceState:
                 limits=limits.engine_limits(),
                 started=arrived,
                 reserve_ms=reserve_ms,
+                ensemble=params.ensemble,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

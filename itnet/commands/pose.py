@@ -26,6 +26,13 @@ def pose(
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="Time budget per file, in milliseconds."),
     max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
+    ensemble: int = typer.Option(
+        1,
+        min=1,
+        max=16,
+        help="Accuracy mode: K runs on different random subsets of the cloud, fused robustly "
+        "after every iteration; a step costs about K times as much (still within --budget-ms).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Estimate T_canonical_from_input for each file. Bad files are reported and skipped (exit 2)."""
@@ -44,8 +51,13 @@ def pose(
 
     def start(cloud: NDArray[np.float64]) -> AnytimeRun:
         if loaded is None:  # the classification counts against the budget
-            return auto_run(classifier, all_models(model_dir), cloud, budget_ms, max_iterations)
-        return AnytimeRun(loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations)
+            return auto_run(
+                classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
+                ensemble=ensemble,
+            )  # fmt: skip
+        return AnytimeRun(
+            loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble
+        )
 
     failed = False
     for path in files:

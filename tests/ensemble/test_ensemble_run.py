@@ -1,0 +1,89 @@
+"""The ensemble mode of the anytime engine, the CLI and the HTTP API."""
+
+import json
+
+import numpy as np
+import pytest
+
+from itnet.fusion import fuse_poses
+from itnet.service.engine import AnytimeRun, BadCloudError
+from itnet.service.runtime import load_model
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model_dir):
+    return load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
+
+
+@pytest.fixture
+def cloud(rng):
+    return rng.normal(size=(700, 3)) * [1.0, 0.5, 0.3] + [2.0, -1.0, 4.0]
+
+
+def test_every_estimate_is_the_fused_pose_of_the_runs(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4)
+    estimates = list(run)
+    assert [e.iteration for e in estimates] == [1, 2, 3] and run.stopped_by == "max_iterations"
+    assert run.points.shape[0] == 4  # four runs, each on its own subset
+    assert not np.allclose(run.points[0], run.points[1])
+    fused = fuse_poses(run.poses(), model.card.symmetry)  # input units
+    assert np.allclose(estimates[-1].pose, fused, atol=1e-4)
+    assert run.result()["ensemble"] == 4
+
+
+def test_ensemble_of_one_is_the_plain_run(model, cloud):
+    plain = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3).run_to_end()
+    one = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=1).run_to_end()
+    assert np.array_equal(plain.pose, one.pose)
+
+
+def test_small_clouds_still_get_different_subsets(model, rng):
+    small = rng.normal(size=(100, 3))
+    run = AnytimeRun(model, small, budget_ms=5000, max_iterations=1, ensemble=3)
+    assert run.points.shape == (3, 80, 3)
+    assert not np.allclose(run.points[0], run.points[2])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"ensemble": 0}, "ensemble must be in"),
+        ({"ensemble": 17}, "ensemble must be in"),
+        ({"ensemble": 2, "starts": np.eye(3)}, "cannot be combined"),
+    ],
+)
+def test_bad_ensemble_requests_are_refused(model, cloud, kwargs, message):
+    with pytest.raises(BadCloudError, match=message):
+        AnytimeRun(model, cloud, **kwargs)
+
+
+def test_ensemble_stops_within_its_budget(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=30, max_iterations=200, ensemble=8)
+    run.run_to_end()
+    assert run.stopped_by in ("budget", "converged") and run.elapsed_ms() < 30 + 10
+
+
+def test_http_and_cli_accept_ensemble(tiny_model_dir, tmp_path, cloud):
+    from fastapi.testclient import TestClient
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    settings = Settings(model_dir=tiny_model_dir)
+    with TestClient(create_app(settings)) as client:
+        body = {"points": cloud.tolist(), "model": "tiny", "max_iterations": 2, "budget_ms": 5000}
+        reply = client.post("/v1/estimate", json={**body, "ensemble": 4})
+        assert reply.status_code == 200, reply.text
+        assert reply.json()["ensemble"] == 4 and reply.json()["iterations"] == 2
+        for bad in (0, 17, "many"):
+            refused = client.post("/v1/estimate", json={**body, "ensemble": bad})
+            assert refused.status_code == 422 and "ensemble" in refused.text
+        assert client.post("/v1/estimate", json=body).json().get("ensemble") is None
+    path = tmp_path / "cloud.npy"
+    np.save(path, cloud.astype(np.float32))
+    args = ["pose", str(path), "--model", "tiny", "--model-dir", str(tiny_model_dir), "--json"]
+    out = CliRunner().invoke(app, [*args, "--ensemble", "3", "--max-iterations", "2"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["ensemble"] == 3
