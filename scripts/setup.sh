@@ -3,6 +3,9 @@
 # environment in .venv with the package and the extras given (default: refine).
 #   scripts/setup.sh            # serving + CLI + ICP refinement
 #   scripts/setup.sh dev        # everything: training, export, tests, lint
+# Quiet: apt and pip print errors only (pip's -qq hides its warnings, e.g. about index
+# locations of this machine's pip configuration that do not exist); a failure still stops the
+# script with pip's own message.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 extras="${1:-refine}"
@@ -16,7 +19,8 @@ elif ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then
   echo "note: open3d needs libusb-1.0 (e.g. sudo apt-get install libusb-1.0-0 libgomp1)" >&2
 fi
 python3 -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip
+export PIP_DISABLE_PIP_VERSION_CHECK=1
+.venv/bin/python -m pip install -qq --upgrade pip
 # torch is pinned (==2.13.0) in the extras that need it: a CPU build, no CUDA download here.
-.venv/bin/python -m pip install -q -e ".[${extras}]"
+.venv/bin/python -m pip install -qq -e ".[${extras}]"
 echo "itnet installed in .venv with extras [${extras}]: $(.venv/bin/itnet --version)"
