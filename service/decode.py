@@ -14,9 +14,10 @@ which every other request of the process waits).
 
 from __future__ import annotations
 
+import ctypes
 import threading
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 import numpy as np
 from numpy.typing import NDArray
@@ -165,6 +166,14 @@ class Decoder:
             yield
         finally:
             self._lanes.release()
+            _return_freed_memory()
+
+
+def _return_freed_memory() -> None:
+    """After a large parse, hand the freed heap back to the OS (glibc keeps it otherwise: the
+    process stayed ~90 MiB larger after 250,000-point JSON bodies)."""
+    with suppress(OSError, AttributeError):  # not glibc: nothing to do
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def _non_empty(points: NDArray) -> NDArray:
