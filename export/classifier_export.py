@@ -141,3 +141,32 @@ def card_from_run(run: Path, points: int | None = None, target: float = 0.95) ->
             "validation": round(result["val"]["accuracy"], 4),
         },
     )
+
+
+def unsure_split(run: Path, threshold: float) -> dict[str, float]:
+    """The threshold on the run's test views (evaluated once more, best.pt): the share reported
+    unsure, and the top-1 accuracy of the sure and the unsure views."""
+    from itnet.model.classify_data import class_names, fixed_views, load_splits
+    from itnet.model.classify_train import ClassifyConfig, load_classifier, predict
+
+    config = ClassifyConfig.model_validate_json((run / "config.json").read_text())
+    net, _ = load_classifier(run / "best.pt")
+    classes = class_names(config.data)
+    splits = load_splits(
+        config.data, classes, config.validation_fraction, config.seed, config.cache
+    )
+    x, y = fixed_views(
+        splits["test"], config.test_views, config.points, config.seed + 13, config.cache
+    )
+    probs = predict(net, x)
+    sure, correct = probs.max(1) >= threshold, probs.argmax(1) == y
+    return {
+        "threshold": threshold,
+        "test_views": len(y),
+        "unsure_share": round(float(1 - sure.mean()), 4),
+        "sure_accuracy": round(float(correct[sure].mean()), 4) if sure.any() else float("nan"),
+        "unsure_accuracy": round(float(correct[~sure].mean()), 4)
+        if (~sure).any()
+        else float("nan"),
+        "accuracy": round(float(correct.mean()), 4),
+    }

@@ -97,13 +97,16 @@ def classify_export(
     target: float = typer.Option(
         0.95, help="Unsure threshold: the lowest at which this share of validation views is right."
     ),
+    report: Path | None = typer.Option(
+        None, help="Also write the card and the threshold's effect on the test views (JSON)."
+    ),
 ) -> None:
     """Export a run's best classifier (canonicaliser included) to one ONNX graph with its card,
     then check it against torch on random clouds."""
     import numpy as np
     import torch
 
-    from itnet.export.classifier_export import card_from_run, export_classifier
+    from itnet.export.classifier_export import card_from_run, export_classifier, unsure_split
     from itnet.model.classify_train import load_classifier
     from itnet.service.runtime import load_any
 
@@ -119,6 +122,10 @@ def classify_export(
         f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB): {card.transformer}, test accuracy "
         f"{100 * card.accuracy:.1f}%, threshold {card.threshold}; max |onnx - torch| {diff:.2e}"
     )
+    if report is not None:
+        split = unsure_split(run, card.threshold)
+        report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))
+        typer.echo(f"test views at the threshold: {json.dumps(split)}; wrote {report}")
 
 
 def classify_train(
