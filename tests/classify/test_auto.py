@@ -138,3 +138,16 @@ def test_cli_pose_classify_and_align_auto(chair_dir: Path, table_dir: Path, tmp_
     assert out.exit_code == 0, out.output
     assert json.loads(out.stdout.splitlines()[-1])["model"] == "chair"
     assert "auto: chair" in out.output
+
+
+def test_cli_classify_without_a_classifier_or_with_a_bad_file(
+    pose_dir: Path, chair_dir: Path, tmp_path: Path, box_cloud
+) -> None:
+    runner = CliRunner()
+    a = _write_cloud(tmp_path / "a.npy", box_cloud)
+    out = runner.invoke(cli, ["classify", str(a), "--model-dir", str(pose_dir)])
+    assert out.exit_code == 2 and "no category classifier" in out.output
+    flat = _write_cloud(tmp_path / "flat.npy", np.zeros((100, 3), np.float32))
+    out = runner.invoke(cli, ["classify", str(flat), str(a), "--model-dir", str(chair_dir)])
+    assert out.exit_code == 2 and "degenerate" in out.output
+    assert f"{a}: chair" in out.output  # the good file is still classified
