@@ -62,6 +62,7 @@ def create_app(
             yield
         finally:
             pauses.remove()
+            state.decoder.close()  # the large-JSON parser's worker process, if started
 
     app = FastAPI(title="itnet", version=__version__, description=DESCRIPTION, lifespan=lifespan)
     app.state.service = state

@@ -7,23 +7,23 @@
 Both raise :class:`ServiceError` (400/415/422) saying what is wrong. CPU-bound for large bodies:
 call from a worker thread. :class:`Decoder` adds what a server needs on top: a JSON body that
 holds more point arrays than ``max_points`` is refused from a count of its brackets (one pass of
-``bytes.count``, about 6 ms for 16 MB) before it is parsed, and large JSON bodies are parsed one
-at a time (pydantic holds the GIL for the whole parse: about 0.3 s for 250,000 points, during
-which every other request of the process waits).
+``bytes.count``, about 6 ms for 16 MB) before it is parsed, and large JSON bodies are parsed in
+a worker process, one at a time (in-process, pydantic holds the GIL for the whole parse: about
+0.3 s for 250,000 points, during which every other request of the process would wait).
 """
 
 from __future__ import annotations
 
-import ctypes
 import threading
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
+from itnet.service.parse_pool import ParsePool
 from itnet.service.schemas import EstimateParams, EstimateRequest
 
 JSON_TYPES = ("application/json",)
@@ -83,14 +83,7 @@ def decode_http(
     """Dispatch on the Content-Type; anything but JSON or octet-stream is a 415."""
     kind = media_type(content_type)
     if is_json(content_type):
-        if query:
-            names = ", ".join(shorten(name, 32) for name in list(query)[:3])
-            raise ServiceError(
-                422,
-                "invalid_request",
-                f"query parameters ({names}) are read only with a binary body: put them in the "
-                "JSON body",
-            )
+        no_query_beside_json(query)
         return decode_json(body)
     if kind in BINARY_TYPES:
         return decode_binary(body, query)
@@ -103,6 +96,18 @@ def decode_http(
     )
 
 
+def no_query_beside_json(query: Mapping[str, str]) -> None:
+    """Parameters in the query string of a JSON request are a mistake, not something to ignore."""
+    if query:
+        names = ", ".join(shorten(name, 32) for name in list(query)[:3])
+        raise ServiceError(
+            422,
+            "invalid_request",
+            f"query parameters ({names}) are read only with a binary body: put them in the "
+            "JSON body",
+        )
+
+
 def is_json(content_type: str | None) -> bool:
     kind = media_type(content_type)
     return kind in JSON_TYPES or kind.endswith("+json")
@@ -113,47 +118,65 @@ def shorten(text: str, limit: int = 64) -> str:
     return repr(text) if len(text) <= limit else f"{text[:limit]!r}... ({len(text)} characters)"
 
 
-class Decoder:
-    """Decoding under a server's limits: the point count bounded before parsing, large JSON
-    bodies parsed ``lanes`` at a time (a request that finds them taken gets a 503 at once)."""
+def count_points(body: bytes | str, max_points: int) -> None:
+    """Refuse a body with more point arrays than ``max_points`` before parsing it: every point
+    is one ``[``, plus the list's own. Counting is ~50x cheaper than parsing."""
+    arrays = (body.count(b"[") if isinstance(body, bytes) else body.count("[")) - 1
+    if arrays > max_points:
+        raise ServiceError(
+            422,
+            "bad_cloud",
+            f"too many points: the body holds {arrays} arrays, the maximum is "
+            f"{max_points} points (refused before parsing)",
+        )
 
-    def __init__(self, max_points: int, heavy_bytes: int, lanes: int, retry_after_s: int) -> None:
+
+class Decoder:
+    """Decoding under a server's limits: the point count bounded before parsing; JSON bodies of
+    ``heavy_bytes`` or more parsed in a worker process (``service/parse_pool.py``), ``lanes`` at
+    a time (a request that finds them taken gets a 503 at once)."""
+
+    def __init__(
+        self,
+        max_points: int,
+        heavy_bytes: int,
+        lanes: int,
+        retry_after_s: int,
+        pool: ParsePool | None = None,
+    ) -> None:
         self.max_points, self.heavy_bytes, self.retry_after_s = (
             max_points,
             heavy_bytes,
             retry_after_s,
         )
         self._lanes = threading.BoundedSemaphore(lanes)
+        self.pool = pool or ParsePool(workers=lanes)
 
     def http(
         self, body: bytes, content_type: str | None, query: Mapping[str, str]
     ) -> tuple[NDArray[np.floating], EstimateParams]:
-        if not is_json(content_type):
+        if not is_json(content_type) or len(body) < self.heavy_bytes:
+            if is_json(content_type):
+                count_points(body, self.max_points)
             return decode_http(body, content_type, query)
-        with self._bounded(body):
-            return decode_http(body, content_type, query)
+        no_query_beside_json(query)
+        return self.json(body)
 
     def json(
         self, body: bytes | str, schema: type[EstimateRequest] = EstimateRequest
     ) -> tuple[NDArray[np.float64], EstimateRequest]:
-        with self._bounded(body):
+        if len(body) < self.heavy_bytes:
+            count_points(body, self.max_points)
             return decode_json(body, schema)
+        with self.lane():
+            return self.pool.parse(body, schema, self.max_points)
+
+    def close(self) -> None:
+        self.pool.close()
 
     @contextmanager
-    def _bounded(self, body: bytes | str) -> Iterator[None]:
-        # Every point is one "[": more than max_points + 1 of them (the list's own) and the
-        # cloud is too large, whatever else the body says. Counting is ~50x cheaper than parsing.
-        arrays = body.count(b"[" if isinstance(body, bytes) else "[") - 1
-        if arrays > self.max_points:
-            raise ServiceError(
-                422,
-                "bad_cloud",
-                f"too many points: the body holds {arrays} arrays, the maximum is "
-                f"{self.max_points} points (refused before parsing)",
-            )
-        if len(body) < self.heavy_bytes:
-            yield
-            return
+    def lane(self) -> Iterator[None]:
+        """One of the ``lanes`` large parses, or the 503 that says they are all taken."""
         if not self._lanes.acquire(blocking=False):
             raise ServiceError(
                 503,
@@ -166,14 +189,6 @@ class Decoder:
             yield
         finally:
             self._lanes.release()
-            _return_freed_memory()
-
-
-def _return_freed_memory() -> None:
-    """After a large parse, hand the freed heap back to the OS (glibc keeps it otherwise: the
-    process stayed ~90 MiB larger after 250,000-point JSON bodies)."""
-    with suppress(OSError, AttributeError):  # not glibc: nothing to do
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def _non_empty(points: NDArray) -> NDArray:

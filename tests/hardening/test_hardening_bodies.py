@@ -102,7 +102,7 @@ def test_large_json_bodies_are_parsed_one_at_a_time(points: list) -> None:
     body = json.dumps({"points": points}).encode()
     decoder = Decoder(max_points=LIMITS.max_points, heavy_bytes=len(body), lanes=1,
                       retry_after_s=1)  # fmt: skip
-    with decoder._bounded(body), pytest.raises(ServiceError) as err:  # one is being parsed
+    with decoder.lane(), pytest.raises(ServiceError) as err:  # one is being parsed
         decoder.json(body)
     assert err.value.status == 503 and err.value.headers["Retry-After"] == "1"
     cloud, _ = decoder.json(body)  # the lane is free again
