@@ -251,3 +251,20 @@ def load_all(
         names = ", ".join(c.path.name for c in classifiers)
         raise ModelLoadError(f"{directory}: more than one classifier ({names})")
     return models, (classifiers[0] if classifiers else None)
+
+
+def load_classifier(
+    directory: Path, threads: int = 2, warm_up: bool = True, skip: frozenset[Path] = frozenset()
+) -> LoadedClassifier | None:
+    """The category classifier of a directory, or None. Files in ``skip`` (pose models already
+    loaded) are not opened again; other pose steps are opened, read and dropped."""
+    paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
+    for path in paths:
+        if path.resolve() in skip:
+            continue
+        loaded = load_any(path, threads, warm_up=False)
+        if isinstance(loaded, LoadedClassifier):
+            if warm_up:
+                loaded.warm_up()
+            return loaded
+    return None

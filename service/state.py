@@ -22,7 +22,13 @@ from itnet.service.errors import ServiceError
 from itnet.service.handback import HandbackTimer
 from itnet.service.metrics import Metrics
 from itnet.service.recognition import AUTO, RecognisedRun, recognise
-from itnet.service.runtime import LoadedClassifier, LoadedModel, ModelLoadError, load_all
+from itnet.service.runtime import (
+    LoadedClassifier,
+    LoadedModel,
+    ModelLoadError,
+    load_all,
+    load_classifier,
+)
 from itnet.service.schemas import EstimateParams
 from itnet.service.settings import Settings
 
@@ -94,6 +100,14 @@ class ServiceState:
                 self.load_error = str(err)
                 log.error("no model loaded: %s", err)
                 return
+        elif self.classifier is None:  # pose models handed in (itnet serve): the classifier too
+            try:
+                loaded = frozenset(m.path.resolve() for m in self.models.values())
+                self.classifier = load_classifier(
+                    self.settings.model_dir, self.settings.threads, self.settings.warm_up, loaded
+                )
+            except ModelLoadError as err:
+                log.error("no classifier loaded (model 'auto' is off): %s", err)
         wanted = self.settings.default_model
         if wanted is not None and wanted not in self.models:
             self.load_error = (

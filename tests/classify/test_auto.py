@@ -151,3 +151,14 @@ def test_cli_classify_without_a_classifier_or_with_a_bad_file(
     out = runner.invoke(cli, ["classify", str(flat), str(a), "--model-dir", str(chair_dir)])
     assert out.exit_code == 2 and "degenerate" in out.output
     assert f"{a}: chair" in out.output  # the good file is still classified
+
+
+def test_handed_in_pose_models_still_get_the_classifier(chair_dir: Path, box_cloud) -> None:
+    """``itnet serve`` loads the pose models before binding and hands them to the app."""
+    from itnet.service.runtime import load_models
+
+    models = load_models(chair_dir, warm_up=False)
+    settings = Settings(model_dir=chair_dir, warm_up=False)
+    with TestClient(create_app(settings, models=models)) as client:
+        assert client.get("/v1/models").json()["auto"]["classes"] == ["chair", "table", "sofa"]
+        assert _post(client, box_cloud, model="auto", max_iterations=1)["category"] == "chair"
