@@ -101,8 +101,25 @@ def decide_symmetry(ratios: dict[str, float], threshold: float = SYMMETRY_RATIO)
     return "none"
 
 
+def frame_statistics(shapes: list[Shape]) -> dict[str, float]:
+    """Shares of canonical shapes (M, 3) whose longest horizontal extent is along x, and whose
+    upper part (top 40% of the height) sits toward +z of the lower part (40% from the bottom)."""
+    along_x, leans = [], []
+    for shape in shapes:
+        p = shape.points
+        extent = p.max(0) - p.min(0)
+        along_x.append(extent[0] > extent[2])
+        upper, lower = p[:, 1] > np.quantile(p[:, 1], 0.6), p[:, 1] < np.quantile(p[:, 1], 0.4)
+        leans.append(p[upper, 2].mean() > p[lower, 2].mean())
+    return {
+        "long_axis_x": round(float(np.mean(along_x)), 2),
+        "leans_+z": round(float(np.mean(leans)), 2),
+    }
+
+
 def main() -> None:
-    """Print each ModelNet10 class's measured self-match ratios, decided and declared symmetry."""
+    """Print each ModelNet10 class's measured self-match ratios, decided and declared symmetry,
+    and how its shapes sit in the canonical frame after the class's turn."""
     from pathlib import Path
 
     from itnet.model.data import split_files
@@ -110,15 +127,17 @@ def main() -> None:
 
     data = Path("../shared/data/modelnet10")
     rng = np.random.default_rng(0)
-    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared |")
-    print("|---|---|---|---|---|---|")
+    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | turn | long axis "
+          "along x | upper part toward +z |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
     for name, cat in MODELNET10.items():
         files = split_files(data, name, 0.1, 0)["train"]
         picked = [files[i] for i in rng.choice(len(files), min(80, len(files)), replace=False)]
-        shapes = [load_shape(f, "modelnet") for f in picked]
-        ratios = self_match_ratios(shapes, rng)
+        shapes = [load_shape(f, "modelnet", cat.quarter_turns) for f in picked]
+        ratios, frame = self_match_ratios(shapes, rng), frame_statistics(shapes)
         print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
-              f"{decide_symmetry(ratios)} | {cat.symmetry} |")  # fmt: skip
+              f"{decide_symmetry(ratios)} | {cat.symmetry} | {90 * cat.quarter_turns}° | "
+              f"{frame['long_axis_x']:.0%} | {frame['leans_+z']:.0%} |")  # fmt: skip
 
 
 if __name__ == "__main__":

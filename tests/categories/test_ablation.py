@@ -19,7 +19,7 @@ def test_ablation_rows_train_measure_and_write_the_table(tmp_path):
     results = main(
         ["--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--cache",
          str(tmp_path / "cache"), "--steps", "2", "--batch", "4", "--views", "1",
-         "--rows", "K=1", "no stop (K=5)"]
+         "--threads", "1", "--rows", "K=1", "no stop (K=5)"]
     )  # fmt: skip
     assert [r["row"] for r in results] == ["K=1", "no stop (K=5)"]
     assert all(0 <= r["at_10"] <= 100 and r["scans"] == 3 for r in results)
