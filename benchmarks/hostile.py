@@ -80,14 +80,19 @@ async def _ws(port: int, stop: float, frame: bytes | None) -> None:
         return
     reader, writer = pair
     try:
-        writer.write(WS_HEAD + (frame or b""))
+        writer.write(WS_HEAD)
         await writer.drain()
+        if not (await reader.readuntil(b"\r\n\r\n")).startswith(b"HTTP/1.1 101"):
+            return  # refused: nothing to hold
+        if frame is not None:  # after the 101, as RFC 6455 requires (before it: closed 1002)
+            writer.write(frame)
+            await writer.drain()
         while time.time() < stop and not reader.at_eof():
             try:
                 await asyncio.wait_for(reader.read(65536), timeout=stop - time.time())
             except TimeoutError:
                 break
-    except OSError:
+    except (OSError, asyncio.IncompleteReadError):
         pass
     finally:
         writer.close()

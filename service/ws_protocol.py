@@ -103,6 +103,18 @@ class GuardedWebSocketProtocol(WebSocketsSansIOProtocol):
             self.read_paused = True
             self.transport.pause_reading()
 
+    def handle_parser_exception(self) -> None:
+        """uvicorn's asserts that a close frame was queued; a protocol error before the handshake
+        is answered (frames sent before the 101, which RFC 6455 forbids) has none, and logged an
+        AssertionError traceback per connection: closed here with one log line."""
+        if self.conn.close_sent is not None:
+            super().handle_parser_exception()
+            return
+        self.logger.info("WebSocket protocol error (%s): connection closed", self.conn.parser_exc)
+        self.queue.put_nowait({"type": "websocket.disconnect", "code": 1002, "reason": "protocol"})
+        self._hold(0)
+        self.transport.close()
+
     def _hold(self, held: int) -> bool:
         """Hold ``held`` bytes for this connection (0: hand them all back); False if the budget
         cannot give more."""

@@ -9,6 +9,7 @@ import logging
 import time
 import tracemalloc
 from collections.abc import Iterator
+from contextlib import suppress
 
 import httpx
 import pytest
@@ -121,5 +122,30 @@ def test_invalid_utf8_on_the_websocket_closes_1007_without_a_traceback(
         frame = sock.recv(64)
         sock.close()
         assert frame[:1] == b"\x88" and frame[2:4] == (1007).to_bytes(2, "big"), frame
+    assert not [r for r in caplog.records if r.exc_info], "a traceback was logged"
+    assert httpx.get(f"{slow_server.url}/healthz").status_code == 200
+
+
+def test_frames_sent_before_the_handshake_reply_close_without_a_traceback(
+    slow_server: LiveServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A client that sends a frame with its upgrade request, before the 101 (RFC 6455 forbids
+    it): the connection is closed with one log line (before: uvicorn's AssertionError and a
+    'Fatal error on transport' traceback per connection)."""
+    import socket
+
+    caplog.set_level(logging.INFO)
+    head = (b"GET /v1/estimate/stream HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+            b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+            b"Sec-WebSocket-Version: 13\r\n\r\n")  # fmt: skip
+    for _ in range(3):
+        sock = socket.create_connection(slow_server.host_port, timeout=5)
+        # more than one read of the server's: uvicorn's upgrade then sees the frame mid-payload
+        size = 1024 * 1024
+        with suppress(ConnectionError):  # closed (perhaps reset) by the server, not timed out
+            sock.sendall(head + b"\x81\xff" + size.to_bytes(8, "big") + b"\0" * 4 + b" " * size)
+            while sock.recv(65536):
+                pass
+        sock.close()
     assert not [r for r in caplog.records if r.exc_info], "a traceback was logged"
     assert httpx.get(f"{slow_server.url}/healthz").status_code == 200
