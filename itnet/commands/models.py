@@ -18,9 +18,11 @@ def models(
     ),
 ) -> None:
     """List the models with category, symmetry, precision, points and measured accuracy."""
+    import asyncio
+
+    from itnet.service.api.routes.system import models as models_route
     from itnet.service.metrics import Metrics
     from itnet.service.runtime import ModelLoadError, default_model_dir, load_models
-    from itnet.service.schemas import ModelInfo, ModelsResponse
     from itnet.service.settings import Settings
     from itnet.service.state import ServiceState
 
@@ -32,20 +34,13 @@ def models(
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     state = ServiceState(Settings(model_dir=folder), Metrics(), models=loaded)
-    state.load()
-    default = state.default_model_name()
-    infos = [
-        ModelInfo.model_validate(
-            {**m.card.model_dump(), "step_ms": round(m.step_ms, 3), "default": name == default}
-        )
-        for name, m in sorted(loaded.items())
-    ]
+    state.load()  # as at the service's start-up: the default model, the classifier if any
+    reply = asyncio.run(models_route(state))  # the reply of GET /v1/models itself
     if as_json:
-        reply = ModelsResponse(models=infos, default_model=default if state.ready else None)
         typer.echo(json.dumps(reply.model_dump()))
         return
     rows = [("name", "category", "symmetry", "precision", "points", "accuracy", "step", "")]
-    for info in infos:
+    for info in reply.models:
         rows.append(
             (
                 info.name,
@@ -61,7 +56,14 @@ def models(
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for row in rows:
         typer.echo("  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip())
-    typer.echo(f"({len(infos)} model(s) in {folder}; accuracy: (10 deg, 0.1 radius), see --json)")
+    if reply.auto is not None:
+        typer.echo(
+            f"auto: a classifier of {len(reply.auto.classes)} categories "
+            f"({', '.join(reply.auto.classes)}) picks the pose model (--model auto)"
+        )
+    typer.echo(
+        f"({len(reply.models)} model(s) in {folder}; accuracy: (10 deg, 0.1 radius), see --json)"
+    )
 
 
 def _accuracy(accuracy: dict[str, float], iterations: int) -> str:

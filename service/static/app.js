@@ -135,7 +135,8 @@ function onMessage(message) {
   } else if (message.type === 'error') {
     setStatus(`refused: ${message.detail}`, true);
   } else if (message.category) {  // model 'auto': the classifier's answer comes first
-    setStatus(`classified as ${message.category}`);
+    const p = message.category_probability;
+    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}, model ${message.model ?? '?'}`);
     const chosen = modelInfo(message.model ?? message.category);
     if (chosen) view.setSymmetry(chosen.symmetry);
   }

@@ -102,3 +102,19 @@ def test_the_alignment_tab_moves_a_onto_b(live_server, browser_page):
             "points_b": read_cloud(EXAMPLES / "chair_b.ply").tolist(), "model": "chair"}  # fmt: skip
     api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
     assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
+
+
+def test_auto_is_offered_when_the_server_has_a_classifier(live_server, browser_page):
+    auto = httpx.get(f"{live_server.url}/v1/models").json().get("auto")
+    if auto is None:
+        pytest.skip("no classifier shipped: the page offers no 'auto'")
+    page = browser_page
+    page.goto(f"{live_server.url}/?example=chair_a&model=auto&budget_ms=5000&max_iterations=5"
+              "&play_ms=0&run=1")  # fmt: skip
+    shown = result(page)
+    assert "auto" in page.eval_on_selector_all("#model option", "os => os.map(o => o.value)")
+    assert page.text_content("#status").startswith("done")
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="auto",
+                   budget_ms=5000, max_iterations=5)  # fmt: skip
+    assert shown["model"] == api["model"]
+    assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
