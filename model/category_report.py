@@ -1,0 +1,101 @@
+"""Every category's evaluation in one table and one plot.
+
+Reads the ``report.json`` files that ``itnet eval`` wrote for each category and scanner
+(``EVALS/<category>/{occluded,paper}/report.json``) and writes ``OUT/eval_categories.md`` (the
+README's table), ``OUT/eval_categories.json`` and ``OUT/anytime_categories.png`` (every
+category's anytime curve, occluded and paper views)::
+
+    python -m itnet.model.category_report runs/eval_categories docs
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+SCANNERS = ("occluded", "paper")
+SHOWN_ITERATION = 10
+
+
+def load_reports(evals: Path) -> dict[str, dict[str, dict]]:
+    """{category: {scanner: report}} for every category folder holding both scanners' reports."""
+    out: dict[str, dict[str, dict]] = {}
+    for folder in sorted(p for p in evals.iterdir() if p.is_dir()):
+        reports = {s: folder / s / "report.json" for s in SCANNERS}
+        if all(p.exists() for p in reports.values()):
+            out[folder.name] = {s: json.loads(p.read_text()) for s, p in reports.items()}
+    return out
+
+
+def _stderr_points(accuracy: float, scans: int) -> float:
+    return 100 * math.sqrt(max(accuracy * (1 - accuracy), 1e-12) / scans)
+
+
+def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
+    """Markdown: per category, accuracy at ``k`` iterations on both scanners (± one standard
+    error), rotation/translation shares and median errors on occluded views, objects kept."""
+    lines = [
+        f"| category | symmetry | test objects (kept / turned / dropped) | scans | occluded views: "
+        f"accuracy % at {k} | rot < 10° % | trans < 0.1 % | median rot ° | median trans (r) "
+        f"| paper views: accuracy % at {k} | median rot ° |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, by in reports.items():
+        occ, pap = by["occluded"], by["paper"]
+        i = occ["iterations"].index(k)
+        o = occ.get("orientation", {})
+        kept = f"{o.get('kept', '?')} / {o.get('turned', '?')} / {o.get('dropped', '?')}"
+        lines.append(
+            f"| {name} | {occ.get('symmetry', 'none')} | {kept} | {occ['scans']} | "
+            f"**{100 * occ['accuracy'][i]:.1f}** ± {_stderr_points(occ['accuracy'][i], occ['scans']):.1f} | "
+            f"{100 * occ['rotation_accuracy'][i]:.1f} | {100 * occ['translation_accuracy'][i]:.1f} | "
+            f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | "
+            f"**{100 * pap['accuracy'][i]:.1f}** ± {_stderr_points(pap['accuracy'][i], pap['scans']):.1f} | "
+            f"{pap['median_rotation_deg'][i]:.1f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot(reports: dict[str, dict[str, dict]], path: Path) -> Path:
+    """Two panels (occluded, paper views): accuracy by iteration, one line per category."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6), sharey=True)
+    colours = plt.get_cmap("tab10")
+    for ax, scanner in zip(axes, SCANNERS):
+        for c, (name, by) in enumerate(reports.items()):
+            rep = by[scanner]
+            ax.plot(rep["iterations"], [100 * a for a in rep["accuracy"]], "o-", ms=2.5,
+                    color=colours(c % 10), label=f"{name} ({rep.get('symmetry', 'none')})")  # fmt: skip
+        ax.axvline(5, color="grey", lw=0.8)
+        ax.text(5.2, 2, "trained iterations", color="grey", fontsize=8)
+        ax.set(xlabel="iterations", title=f"{scanner} views", ylim=(0, 100))
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("accuracy at (10°, 0.1 r), %")
+    axes[1].legend(fontsize=8, loc="lower right")
+    fig.suptitle("Anytime accuracy of every category (held-out ModelNet10 test objects)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def main(argv: list[str] | None = None) -> None:
+    evals, out = (Path(a) for a in (argv or sys.argv[1:]))
+    reports = load_reports(evals)
+    if not reports:
+        raise SystemExit(f"{evals}: no <category>/{{occluded,paper}}/report.json found")
+    (out / "eval_categories.md").write_text(table(reports))
+    (out / "eval_categories.json").write_text(json.dumps(reports, indent=1))
+    plot(reports, out / "anytime_categories.png")
+    print(table(reports))
+
+
+if __name__ == "__main__":
+    main()

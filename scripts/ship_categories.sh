@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Evaluate a network trained on several categories and ship one model per category.
+#   bash scripts/ship_categories.sh RUN [CATEGORY...]    (default: every ModelNet10 class)
+#   KEEP="chair" bash scripts/ship_categories.sh RUN ... # also re-measure shipped models kept as they are
+# For each category: test-split curves of the torch checkpoint (occluded and paper views), an int8
+# ONNX model with the measured accuracy in its card (itnet/models/<category>.onnx), the same curves
+# through onnxruntime (what the service runs); then the table and plot of every category in docs/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export MALLOC_MMAP_THRESHOLD_=33554432  # steadier, faster torch on CPU
+itnet=.venv/bin/itnet
+run=${1:?usage: ship_categories.sh RUN [CATEGORY...]}
+shift
+categories=${*:-bathtub bed chair desk dresser monitor night_stand sofa table toilet}
+evals=${EVALS:-runs/eval_categories}
+for cat in $categories; do
+  if [[ " ${KEEP:-} " == *" $cat "* ]]; then continue; fi
+  $itnet eval --checkpoint "$run/best.pt" --category "$cat" --scanner occluded \
+    --iterations 20 --out "runs/eval_torch/$cat/occluded" >/dev/null
+  $itnet export "$run/best.pt" --category "$cat" --int8 \
+    --report "runs/eval_torch/$cat/occluded/report.json" --out "itnet/models/$cat.onnx"
+done
+for cat in $(printf "%s\n" $categories ${KEEP:-} | sort -u); do
+  for scanner in occluded paper; do
+    $itnet eval --onnx "itnet/models/$cat.onnx" --scanner "$scanner" --iterations 20 \
+      --out "$evals/$cat/$scanner" | tail -n 1
+  done
+done
+.venv/bin/python -m itnet.model.category_report "$evals" docs
