@@ -1,0 +1,90 @@
+"""The ensemble accuracy mode against a single run, within one time budget, as the service runs it.
+
+For every held-out test scan of a category (the same seeded views as ``itnet eval``), one
+``AnytimeRun`` per setting (K = 1, 4, 8 fused runs) under the same ``budget_ms``; prints and
+writes accuracy at (10°, 0.1 r) with its standard error, the median iterations and elapsed time::
+
+    python -m benchmarks.bench_ensemble --model itnet/models/chair.onnx --budget-ms 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+from pathlib import Path
+
+import numpy as np
+
+
+def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
+            views: int, cache: Path, data: Path) -> dict:  # fmt: skip
+    from itnet.metrics import is_correct, pose_errors
+    from itnet.model.categories import category
+    from itnet.model.data import cached_scan_set, load_shapes, split_files
+    from itnet.model.scanner import PAPER_VIEWS, scan_config
+    from itnet.service.engine import AnytimeRun
+    from itnet.service.runtime import load_model
+    from itnet.symmetry import symmetric_rotation_error_deg
+
+    model = load_model(model_path)
+    cat = category(model.card.category, model.card.symmetry)
+    files = split_files(data, cat.name, 0.1, 0)["test"]
+    shapes, _ = load_shapes(files, "modelnet", cache, True, cat.quarter_turns, cat.symmetry)
+    config = scan_config(PAPER_VIEWS if scanner == "paper" else {})
+    scans = cached_scan_set(shapes, views, 2024, config, cache)
+    out = {}
+    for k in ensembles:
+        poses, iterations, elapsed = [], [], []
+        for cloud in scans.clouds:
+            run = AnytimeRun(model, cloud, budget_ms=budget_ms, ensemble=k)
+            last = run.run_to_end()
+            poses.append(last.pose)
+            iterations.append(run.iteration)
+            elapsed.append(run.elapsed_ms())
+        poses_a = np.stack(poses)
+        rot, trans = pose_errors(poses_a, scans.poses, scans.radii)
+        rot = symmetric_rotation_error_deg(poses_a[:, :3, :3], scans.poses[:, :3, :3], cat.symmetry)
+        ok = is_correct(rot, trans)
+        acc = float(ok.mean())
+        out[str(k)] = {
+            "accuracy": round(100 * acc, 1),
+            "stderr": round(100 * math.sqrt(acc * (1 - acc) / len(ok)), 1),
+            "median_iterations": float(np.median(iterations)),
+            "median_elapsed_ms": round(float(np.median(elapsed)), 2),
+            "p99_elapsed_ms": round(float(np.percentile(elapsed, 99)), 2),
+            "scans": len(ok),
+        }
+        print(scanner, f"K={k}", out[str(k)], flush=True)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", type=Path, default=Path("itnet/models/chair.onnx"))
+    parser.add_argument("--budget-ms", type=float, default=20.0)
+    parser.add_argument("--ensembles", type=int, nargs="+", default=[1, 4, 8])
+    parser.add_argument("--views", type=int, default=5)
+    parser.add_argument("--scanners", nargs="+", default=["occluded", "paper"])
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache"))
+    parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
+    args = parser.parse_args()
+    results = {
+        "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
+        "model": str(args.model),
+        "budget_ms": args.budget_ms,
+        **{
+            s: measure(
+                args.model, s, args.ensembles, args.budget_ms, args.views, args.cache, args.data
+            )
+            for s in args.scanners
+        },
+    }
+    args.out.write_text(json.dumps(results, indent=1))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
