@@ -15,10 +15,10 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import httpx
 import numpy as np
@@ -73,6 +73,42 @@ def rss_mb(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
     raise RuntimeError(f"no VmRSS for process {pid}")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class CpuMeter:
+    """The machine's busy share (all cores, from /proc/stat) and the CPU seconds of ``pids``
+    (with their child processes) between ``start()`` and ``stop()``."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+
+    @staticmethod
+    def _machine() -> tuple[int, int]:
+        ticks = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+        return sum(ticks), ticks[3] + ticks[4]  # total, idle + iowait
+
+    def _tree(self) -> float:
+        total = cpu_seconds(self.pid)
+        for task in Path(f"/proc/{self.pid}/task").iterdir():
+            for child in (task / "children").read_text().split():
+                with suppress(OSError, ValueError):
+                    total += cpu_seconds(int(child))
+        return total
+
+    def start(self) -> None:
+        self._t0, self._m0, self._s0 = time.perf_counter(), self._machine(), self._tree()
+
+    def stop(self) -> dict[str, float]:
+        (total, idle), seconds = self._machine(), time.perf_counter() - self._t0
+        busy = 1 - (idle - self._m0[1]) / max(1, total - self._m0[0])
+        return {"machine_busy_share": round(busy, 3),
+                "server_cores": round((self._tree() - self._s0) / seconds, 2)}  # fmt: skip
 
 
 @dataclass
@@ -149,3 +185,101 @@ def sample_cloud(points: int, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     box = rng.uniform(-1, 1, size=(points, 3)) * [0.25, 0.45, 0.25]
     return (box + np.array([0.1, -0.2, 2.0])).astype(np.float32)
+
+
+# Closed-loop clients in separate processes (``run_clients``): one asyncio loop serving 64
+# clients on the server's two cores measured its own queueing as the server's (issue 14).
+# A row per reply: (status, client wall ms, server elapsed_ms or nan, iterations, last step ms).
+Row = tuple[int, float, float, int, float]
+
+
+@dataclass(frozen=True)
+class ClientPlan:
+    url: str
+    body: bytes
+    content_type: str = "application/json"
+    params: Mapping[str, str] | None = None  # query string (binary bodies)
+    fresh: bool = False  # a new TCP connection per request
+    retry_s: float | None = None  # after a 503: None honours Retry-After, else this long
+    cap: int = 10**9  # requests per process (at most)
+
+
+async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float,
+                       probe: bool) -> dict:  # fmt: skip
+    import asyncio
+    import math
+
+    rows: list[Row] = []
+    health: list[int] = []
+    limits = httpx.Limits(max_keepalive_connections=0 if plan.fresh else clients)
+    await asyncio.sleep(max(0.0, start - time.time()))
+
+    async def client(http: httpx.AsyncClient) -> None:
+        while time.time() < stop and len(rows) < plan.cap:
+            begin = time.perf_counter()
+            try:
+                reply = await http.post("/v1/estimate", content=plan.body, params=plan.params,
+                                        headers={"content-type": plan.content_type})  # fmt: skip
+            except httpx.HTTPError:
+                rows.append((0, (time.perf_counter() - begin) * 1e3, math.nan, 0, 0.0))
+                await asyncio.sleep(0.05)
+                continue
+            ms = (time.perf_counter() - begin) * 1e3
+            if reply.status_code == 200:
+                data = reply.json()
+                last = data["estimates"][-1]["elapsed_ms"] if data["estimates"] else 0.0
+                rows.append((200, ms, data["elapsed_ms"], data["iterations"], last))
+                continue
+            rows.append((reply.status_code, ms, math.nan, 0, 0.0))
+            if reply.status_code == 503:
+                wait = plan.retry_s
+                await asyncio.sleep(float(reply.headers.get("retry-after", 1)) if wait is None
+                                    else wait)  # fmt: skip
+
+    async def prober(http: httpx.AsyncClient) -> None:
+        while time.time() < stop:
+            try:
+                health.append((await http.get("/healthz", timeout=5)).status_code)
+            except httpx.HTTPError:
+                health.append(0)
+            await asyncio.sleep(0.1)
+
+    async with httpx.AsyncClient(base_url=plan.url, timeout=60, limits=limits) as http:
+        await asyncio.gather(*(client(http) for _ in range(clients)),
+                             *([prober(http)] if probe else []))  # fmt: skip
+    return {"rows": rows, "health": health}
+
+
+def _client_process(plan: ClientPlan, clients: int, start: float, stop: float, probe: bool,
+                    out: Any) -> None:  # fmt: skip
+    import asyncio
+    import resource
+
+    result = asyncio.run(_client_loop(plan, clients, start, stop, probe))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    out.put({**result, "cpu_s": usage.ru_utime + usage.ru_stime})
+
+
+def run_clients(plan: ClientPlan, clients: int, seconds: float, per_process: int = 4,
+                probe: bool = False) -> dict:  # fmt: skip
+    """``clients`` closed loops for ``seconds``, ``per_process`` to a process (the first one
+    also asks /healthz every 0.1 s when ``probe``) -> rows, /healthz statuses, seconds."""
+    import multiprocessing
+
+    spawn = multiprocessing.get_context("spawn")
+    out = spawn.Queue()
+    counts = [min(per_process, clients - i) for i in range(0, clients, per_process)]
+    start = time.time() + 1.5 + 0.1 * len(counts)  # every process imported and waiting
+    stop = start + seconds
+    processes = [spawn.Process(target=_client_process, args=(plan, n, start, stop,
+                                                             probe and i == 0, out))
+                 for i, n in enumerate(counts)]  # fmt: skip
+    for process in processes:
+        process.start()
+    results = [out.get(timeout=seconds + 120) for _ in processes]
+    for process in processes:
+        process.join(timeout=10)
+    return {"rows": [r for res in results for r in res["rows"]],
+            "health": [h for res in results for h in res["health"]],
+            "seconds": seconds, "processes": len(processes),
+            "client_cores": round(sum(res["cpu_s"] for res in results) / seconds, 2)}  # fmt: skip

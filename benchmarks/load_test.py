@@ -6,7 +6,12 @@
 Starts a real ``itnet serve`` (uvicorn, the CLI's settings) on a free loopback port, then for
 each client count runs that many closed-loop clients (each sends its next request as soon as its
 last reply is in) for ``--duration-s`` seconds or ``--max-requests`` requests, whichever comes
-first. Every request is a JSON cloud of ``--points`` points with ``budget_ms``.
+first. Every request is a JSON cloud of ``--points`` points with ``budget_ms``. The clients run
+in processes of their own, ``--per-process`` to a process (one process's event loop driving 64
+clients on the server's cores counted its own queueing as the server's), keep their
+connections (``--fresh``: a new one per request) and honour ``Retry-After`` after a 503
+(``--retry-s 0.01``: retry after 10 ms, as before). The machine's busy share and the CPU cores
+the server and the clients used are printed with each row.
 
 Per row: replies by status (200, 503 = refused by the concurrency gate), throughput, client
 round trip p50/p99, the engine's ``elapsed_ms`` (which starts when the request reaches the app)
@@ -16,57 +21,30 @@ p99 overrun is within ``--margin-ms``. Prints a markdown table; ``--json-out`` s
 
 from __future__ import annotations
 
-import asyncio
 import json
-import time
 from pathlib import Path
 
 import httpx
 import numpy as np
 import typer
 
-from benchmarks.harness import model_dir, percentile, sample_cloud, serve
+from benchmarks.harness import (
+    ClientPlan,
+    CpuMeter,
+    model_dir,
+    percentile,
+    run_clients,
+    sample_cloud,
+    serve,
+)
 from itnet.service.settings import Settings
 
 JSON = {"content-type": "application/json"}
 
 
-async def closed_loop(url: str, body: bytes, clients: int, duration_s: float, cap: int) -> dict:
-    """``clients`` closed loops posting ``body``; every reply's status, latency and engine data."""
-    # status, client ms, engine ms, iterations, engine ms when the last step ended (0: none)
-    rows: list[tuple[int, float, float, int, float]] = []
-    errors: dict[str, int] = {}
-    stop, sent = time.perf_counter() + duration_s, 0
-    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
-
-    async def client(http: httpx.AsyncClient) -> None:
-        nonlocal sent
-        while time.perf_counter() < stop and sent < cap:
-            sent += 1
-            begin = time.perf_counter()
-            try:
-                reply = await http.post("/v1/estimate", content=body, headers=JSON)
-            except httpx.HTTPError as err:
-                errors[type(err).__name__] = errors.get(type(err).__name__, 0) + 1
-                continue
-            client_ms = (time.perf_counter() - begin) * 1e3
-            if reply.status_code == 200:
-                data = reply.json()
-                last = data["estimates"][-1]["elapsed_ms"] if data["estimates"] else 0.0
-                rows.append((200, client_ms, data["elapsed_ms"], data["iterations"], last))
-            else:
-                rows.append((reply.status_code, client_ms, float("nan"), 0, 0.0))
-                if reply.status_code == 503:
-                    await asyncio.sleep(0.01)  # a real client would honour Retry-After
-
-    begin = time.perf_counter()
-    async with httpx.AsyncClient(base_url=url, timeout=60, limits=limits) as http:
-        await asyncio.gather(*(client(http) for _ in range(clients)))
-    return {"rows": rows, "errors": errors, "seconds": time.perf_counter() - begin}
-
-
 def summarise(result: dict, clients: int, budget_ms: float) -> dict:
-    rows = result["rows"]
+    rows = [r for r in result["rows"] if r[0] != 0]
+    errors = len(result["rows"]) - len(rows)  # transport errors
     ok = [r for r in rows if r[0] == 200]
     client_ms = [r[1] for r in ok]
     engine_ms = np.array([r[2] for r in ok])
@@ -84,40 +62,46 @@ def summarise(result: dict, clients: int, budget_ms: float) -> dict:
     }
     return {
         "clients": clients,
-        "requests": len(rows) + sum(result["errors"].values()),
+        "requests": len(result["rows"]),
         "statuses": statuses,
-        "transport_errors": result["errors"],
+        "transport_errors": errors,
+        "client_processes": result["processes"],
         "ok_per_s": len(ok) / result["seconds"],
         "client_p50_ms": percentile(client_ms, 50),
         "client_p99_ms": percentile(client_ms, 99),
         "engine_p50_ms": percentile(engine_ms, 50),
         "engine_p99_ms": percentile(engine_ms, 99),
         "engine_max_ms": float(engine_ms.max()) if len(ok) else float("nan"),
+        "wall_minus_budget_p99_ms": percentile(np.array(client_ms) - budget_ms, 99),
         "overrun_p99_ms": percentile(overrun, 99),
         "overrun_max_ms": float(overrun.max()) if len(ok) else float("nan"),
         "iterations_mean": float(np.mean([r[3] for r in ok])) if ok else float("nan"),
         "zero_iteration_share": float(np.mean([r[3] == 0 for r in ok])) if ok else float("nan"),
         "overruns_over_1ms": causes,
+        **result["cpu"],
+        "client_cores": result["client_cores"],
     }
 
 
 def table(rows: list[dict], margin_ms: float) -> str:
     lines = [
         "| clients | requests | 200 / 503 / other | ok/s | round trip p50 / p99 ms "
-        "| engine p50 / p99 / max ms | overrun p99 / max ms | iterations (mean) | budget held |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| engine p50 / p99 / max ms | overrun p99 / max ms | wall - budget p99 ms "
+        "| iterations (mean) | budget held | CPU busy (machine) / server / clients |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         s = r["statuses"]
         other = sum(v for k, v in s.items() if k not in ("200", "503"))
-        other += sum(r["transport_errors"].values())
+        other += r["transport_errors"]
         held = "yes" if r["overrun_p99_ms"] <= margin_ms else "NO"
         lines.append(
             f"| {r['clients']} | {r['requests']} | {s.get('200', 0)} / {s.get('503', 0)} / {other}"
             f" | {r['ok_per_s']:.1f} | {r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
             f"{r['engine_p50_ms']:.1f} / {r['engine_p99_ms']:.1f} / {r['engine_max_ms']:.1f} | "
             f"{r['overrun_p99_ms']:+.1f} / {r['overrun_max_ms']:+.1f} | "
-            f"{r['iterations_mean']:.2f} | {held} |"
+            f"{r['wall_minus_budget_p99_ms']:+.1f} | {r['iterations_mean']:.2f} | {held} | "
+            f"{r['machine_busy_share']:.0%} / {r['server_cores']:.2f} / {r['client_cores']:.2f} |"
         )
     return "\n".join(lines)
 
@@ -137,6 +121,11 @@ def main(
     log: Path = typer.Option(Path("/tmp/itnet-load-server.log"), help="Server log file."),
     json_out: Path | None = typer.Option(None, help="Write the rows as JSON here."),
     gc_freeze: bool = typer.Option(True, help="ITNET_GC_FREEZE of the server."),
+    per_process: int = typer.Option(4, help="Clients per client process."),
+    retry_s: float = typer.Option(
+        -1.0, help="After a 503, wait this long (negative: honour Retry-After)."
+    ),
+    fresh: bool = typer.Option(False, help="A new connection per request (else keep-alive)."),
 ) -> None:
     """Run the load test and print its table."""
     folder = model_dir(models)
@@ -148,11 +137,18 @@ def main(
     body = json.dumps({"points": cloud.tolist(), "budget_ms": budget_ms}).encode()
     rows = []
     with serve(folder, log, env) as server:
-        warm = asyncio.run(closed_loop(server.url, body, 1, 2.0, 20))
-        assert warm["rows"] and warm["rows"][0][0] == 200, warm
+        for _ in range(20):  # warm up
+            assert httpx.post(f"{server.url}/v1/estimate", content=body, headers=JSON,
+                              timeout=30).status_code == 200  # fmt: skip
         rss_before = server.rss_mb()
         for clients in (int(c) for c in concurrency.split(",")):
-            result = asyncio.run(closed_loop(server.url, body, clients, duration_s, max_requests))
+            procs = -(-clients // per_process)
+            plan = ClientPlan(server.url, body, fresh=fresh, retry_s=None if retry_s < 0 else retry_s,
+                              cap=max(1, max_requests // procs))  # fmt: skip
+            meter = CpuMeter(server.process.pid)
+            meter.start()
+            result = run_clients(plan, clients, duration_s, per_process)
+            result["cpu"] = meter.stop()
             rows.append(summarise(result, clients, budget_ms))
             typer.echo(f"{clients} clients: {json.dumps(rows[-1])}", err=True)
         health = httpx.get(f"{server.url}/healthz", timeout=5).status_code

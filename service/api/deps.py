@@ -22,6 +22,13 @@ def get_state(connection: HTTPConnection) -> ServiceState:
 StateDep = Annotated[ServiceState, Depends(get_state)]
 
 
+async def estimate_slot(state: StateDep) -> AsyncIterator[None]:
+    """One of the gate's estimate slots for the request, or its 503 at once: declared before
+    ``BodyDep``, so a refused request's body is never read (nor taken from the byte budget)."""
+    with state.gate.slot():
+        yield
+
+
 async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
     """The request body under the server's limits (``service/body.py``: size, encoding, the
     byte budget, a deadline from the first byte), held in the budget until the request ends."""
@@ -36,5 +43,6 @@ def arrival(connection: HTTPConnection) -> float:
     return float(arrived) if arrived is not None else time.perf_counter()
 
 
+SlotDep = Annotated[None, Depends(estimate_slot)]
 BodyDep = Annotated[bytes, Depends(read_body)]
 ArrivedDep = Annotated[float, Depends(arrival)]
