@@ -235,3 +235,26 @@ def test_large_requests_leave_a_quarter_of_the_budget_to_small_ones() -> None:
         stalled += 1
     assert stalled == 3 and not budget.take(2**19, whole=2 * 2**20)  # grown large by chunks
     assert budget.take(2**19) and budget.take(2**19)  # ordinary requests still get in
+
+
+def test_a_request_refused_by_the_gate_is_answered_before_its_body(
+    slow_server: LiveServer,
+) -> None:
+    """Every estimate slot taken: a POST that has sent only its head gets the 503 at once,
+    without the server waiting for (or buffering) its body. Before: the body was read first,
+    so the client got a 408 after the body timeout, or the 503 only once it had sent it all."""
+    from contextlib import ExitStack
+
+    gate = slow_server.state.gate
+    with ExitStack() as slots:
+        for _ in range(LIMITS.max_concurrent_requests):
+            slots.enter_context(gate.slot())
+        sock = socket.create_connection(slow_server.host_port, timeout=5)
+        sock.sendall(b"POST /v1/estimate HTTP/1.1\r\nHost: x\r\nContent-Type: application/json"
+                     b"\r\nContent-Length: 60000\r\n\r\n")  # fmt: skip
+        start = time.perf_counter()
+        reply = sock.recv(4096)
+        seconds = time.perf_counter() - start
+        sock.close()
+    assert reply.startswith(b"HTTP/1.1 503"), reply[:200]
+    assert b"retry-after" in reply.lower() and seconds < LIMITS.body_timeout_s / 2, seconds
