@@ -9,6 +9,8 @@ budget, whatever their number or speed. Bytes go back when the request is done w
 Large requests (``large`` bytes or more) may fill only ``1 - small_share`` of the budget: the
 rest stays for ordinary requests, so uploads that announce the body limit and stall cannot
 refuse everyone else.
+Once every byte is back after at least ``trim_bytes`` were taken, the freed heap is handed back
+to the OS (``service/heap.py``): glibc would otherwise keep what stalled uploads or frames held.
 Thread-safe (a worker thread may hand bytes back).
 """
 
@@ -19,17 +21,21 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from itnet.service.errors import ServiceError
+from itnet.service.heap import return_freed_memory_soon
 
 
 class ByteBudget:
     """``total`` bytes; ``take(n)`` -> whether they were granted; ``give(n)`` returns them."""
 
-    def __init__(self, total: int, large: int = 2**20, small_share: float = 0.25) -> None:
+    def __init__(
+        self, total: int, large: int = 2**20, small_share: float = 0.25, trim_bytes: int = 8 * 2**20
+    ) -> None:
         if total < 1:
             raise ValueError(f"a byte budget needs at least one byte, got {total}")
         self.total, self.large = total, large
         self.small_reserve = int(total * small_share)
         self._held = 0
+        self.trim_bytes, self._taken_since_trim, self.trims = trim_bytes, 0, 0
         self._lock = threading.Lock()
         self.refused = 0
 
@@ -47,11 +53,17 @@ class ByteBudget:
                 self.refused += 1
                 return False
             self._held += n
+            self._taken_since_trim += n
             return True
 
     def give(self, n: int) -> None:
         with self._lock:
             self._held = max(0, self._held - n)
+            trim = self._held == 0 and self._taken_since_trim >= self.trim_bytes
+            if trim:
+                self._taken_since_trim, self.trims = 0, self.trims + 1
+        if trim:
+            return_freed_memory_soon()
 
     @contextmanager
     def hold(self, n: int, retry_after_s: int) -> Iterator[None]:

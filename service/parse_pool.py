@@ -21,7 +21,6 @@ parsed lists.
 
 from __future__ import annotations
 
-import ctypes
 import json
 import subprocess
 import sys
@@ -34,12 +33,6 @@ from numpy.typing import NDArray
 
 from itnet.service.errors import ServiceError
 from itnet.service.schemas import EstimateRequest
-
-
-def return_freed_memory() -> None:
-    """Hand the freed heap back to the OS (glibc keeps it otherwise)."""
-    with suppress(OSError, AttributeError):  # not glibc: nothing to do
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def worker_died() -> ServiceError:

@@ -24,7 +24,7 @@ import numpy as np
 from itnet.service import schemas
 from itnet.service.decode import count_points, decode_json
 from itnet.service.errors import ServiceError
-from itnet.service.parse_pool import return_freed_memory
+from itnet.service.heap import return_freed_memory
 
 SCHEMAS = {"EstimateRequest": schemas.EstimateRequest, "StreamRequest": schemas.StreamRequest}
 

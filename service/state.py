@@ -46,8 +46,8 @@ class ConcurrencyGate:
         self.limit, self.retry_after_s, self.metrics = limit, retry_after_s, metrics
         self.active = 0
 
-    @contextmanager
-    def slot(self) -> Iterator[None]:
+    def check(self) -> None:
+        """The 503 now if every slot is taken (a slot is taken with ``slot``)."""
         if self.active >= self.limit:
             raise ServiceError(
                 503,
@@ -56,6 +56,10 @@ class ConcurrencyGate:
                 f"{self.limit}); retry in {self.retry_after_s} s",
                 headers={"Retry-After": str(self.retry_after_s)},
             )
+
+    @contextmanager
+    def slot(self) -> Iterator[None]:
+        self.check()
         self.active += 1
         self.metrics.in_flight.inc()
         try:

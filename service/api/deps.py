@@ -22,11 +22,11 @@ def get_state(connection: HTTPConnection) -> ServiceState:
 StateDep = Annotated[ServiceState, Depends(get_state)]
 
 
-async def estimate_slot(state: StateDep) -> AsyncIterator[None]:
-    """One of the gate's estimate slots for the request, or its 503 at once: declared before
-    ``BodyDep``, so a refused request's body is never read (nor taken from the byte budget)."""
-    with state.gate.slot():
-        yield
+async def gate_open(state: StateDep) -> None:
+    """The gate's 503 at once, before the body is read, when every estimate slot is taken (a
+    refused request's body is neither read nor taken from the byte budget). The slot itself is
+    taken once the body is in, so a slow uploader cannot hold one."""
+    state.gate.check()
 
 
 async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
@@ -43,6 +43,6 @@ def arrival(connection: HTTPConnection) -> float:
     return float(arrived) if arrived is not None else time.perf_counter()
 
 
-SlotDep = Annotated[None, Depends(estimate_slot)]
+GateOpenDep = Annotated[None, Depends(gate_open)]
 BodyDep = Annotated[bytes, Depends(read_body)]
 ArrivedDep = Annotated[float, Depends(arrival)]

@@ -258,3 +258,22 @@ def test_a_request_refused_by_the_gate_is_answered_before_its_body(
         sock.close()
     assert reply.startswith(b"HTTP/1.1 503"), reply[:200]
     assert b"retry-after" in reply.lower() and seconds < LIMITS.body_timeout_s / 2, seconds
+
+
+def test_slow_uploads_hold_no_estimate_slot(slow_server: LiveServer, points: list) -> None:
+    """More uploads than estimate slots, each stalled halfway through its body: a complete
+    request is still answered 200 (the slot is taken once the body is in)."""
+    socks = []
+    try:
+        for _ in range(LIMITS.max_concurrent_requests + 2):
+            sock = socket.create_connection(slow_server.host_port, timeout=5)
+            sock.sendall(b"POST /v1/estimate HTTP/1.1\r\nHost: x\r\nContent-Type: "
+                         b"application/json\r\nContent-Length: 2000\r\n\r\n" + b" " * 1000)  # fmt: skip
+            socks.append(sock)
+        time.sleep(0.1)
+        reply = httpx.post(f"{slow_server.url}/v1/estimate", timeout=5,
+                           json={"points": points, "budget_ms": 60, "max_iterations": 1})  # fmt: skip
+        assert reply.status_code == 200, reply.text[:200]
+    finally:
+        for sock in socks:
+            sock.close()

@@ -11,7 +11,7 @@ from typing import Any
 import anyio
 from fastapi import APIRouter, Request, Response
 
-from itnet.service.api.deps import ArrivedDep, BodyDep, SlotDep, StateDep
+from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
 from itnet.service.engine import AnytimeRun
 from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
 from itnet.service.state import ServiceState
@@ -72,7 +72,7 @@ OPENAPI_EXTRA = {
     summary="Estimate T_canonical_from_input of one cloud within a time budget",
 )
 async def estimate(
-    request: Request, arrived: ArrivedDep, slot: SlotDep, body: BodyDep, state: StateDep
+    request: Request, arrived: ArrivedDep, gate: GateOpenDep, body: BodyDep, state: StateDep
 ) -> Response:
     """Send the cloud as JSON, or as raw float32 (``Content-Type: application/octet-stream``)
     with the parameters in the query string. The reply is the final pose in the input's units,
@@ -80,15 +80,16 @@ async def estimate(
     ``max_iterations``, ``converged``). ``elapsed_ms`` counts from the request's arrival and
     stays within ``budget_ms`` up to scheduling noise. A client that disconnects stops the run."""
     content_type, query = request.headers.get("content-type"), dict(request.query_params)
-    handle = _RunHandle()  # the gate's slot is held by ``slot`` (taken before the body is read)
-    async with anyio.create_task_group() as tasks:
-        tasks.start_soon(_watch_disconnect, request, handle)
-        # Decoding, validation, every step and the reply's serialisation are CPU work: one
-        # worker-thread hop (each hop waits for the GIL, which is costly under load).
-        outcome = await anyio.to_thread.run_sync(
-            _decode_and_run, state, body, content_type, query, arrived, handle
-        )
-        tasks.cancel_scope.cancel()
+    handle = _RunHandle()
+    with state.gate.slot():  # (``gate`` refused the request before its body if none was free)
+        async with anyio.create_task_group() as tasks:
+            tasks.start_soon(_watch_disconnect, request, handle)
+            # Decoding, validation, every step and the reply's serialisation are CPU work: one
+            # worker-thread hop (each hop waits for the GIL, which is costly under load).
+            outcome = await anyio.to_thread.run_sync(
+                _decode_and_run, state, body, content_type, query, arrived, handle
+            )
+            tasks.cancel_scope.cancel()
     if isinstance(outcome, Exception):
         raise outcome
     reply, loop_end, name, iterations, stopped_by = outcome
