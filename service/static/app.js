@@ -42,10 +42,11 @@ function saveUrl(extra = {}) {
 function setTab(tab) {
   document.body.dataset.tab = tab;
   document.querySelectorAll('.tab').forEach((b) => b.classList.toggle('active', b.dataset.tab === tab));
+  view.showCanonical(tab === 'pose');  // the alignment is shown in B's frame, not canonical
   $('pose-title').textContent = tab === 'pose' ? 'Pose: T_canonical_from_input' : 'Alignment: T_b_from_a';
   $('legend').textContent = tab === 'pose'
     ? 'orange: the cloud, by the pose so far (iteration 0: centred)'
-    : 'blue: B (reference) · orange: A, moved onto B';
+    : 'blue: B (reference) · orange: A, moved onto B · in B\'s frame, centred on B';
   showClouds();
 }
 

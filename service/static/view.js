@@ -86,6 +86,13 @@ export class View {
     this.frame.add(grid);
   }
 
+  /** Show or hide the canonical axes and the symmetry (hidden where the view is not canonical). */
+  showCanonical(visible) {
+    if (!this.scene) return;
+    this.frame.visible = visible;
+    this.symmetry.visible = visible;
+  }
+
   /** The category's symmetry: front arrows (toward -z) for every equivalent turn about +y. */
   setSymmetry(name) {
     if (!this.scene) return;
