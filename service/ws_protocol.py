@@ -50,6 +50,11 @@ class GuardedWebSocketProtocol(WebSocketsSansIOProtocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.table.close(self.transport)
+        # Free the unfinished message now: the protocol object may live on in a reference
+        # cycle until a full garbage collection (rare, with the start-up objects frozen), and
+        # with it up to ws_max_size of buffer (the stalled-frame attack left 62 MiB behind).
+        self.conn.reader.buffer.clear()
+        self.frames, self._fragment_bytes = [], 0
         self._hold(0)
         super().connection_lost(exc)
 
