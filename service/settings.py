@@ -61,7 +61,8 @@ class LimitSettings(BaseModel):
     heavy_json_bytes: int = Field(
         default=2**20,
         ge=1,
-        description="JSON bodies at least this large are parsed one at a time (json_parse_lanes)",
+        description="JSON bodies at least this large are parsed in a worker process, "
+        "json_parse_lanes at a time",
     )
     json_parse_lanes: int = Field(
         default=1, ge=1, description="large JSON bodies parsed at once; the others wait or get 503"
