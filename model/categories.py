@@ -117,23 +117,32 @@ def frame_statistics(shapes: list[Shape]) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    """Print each ModelNet10 class's measured self-match ratios, decided and declared symmetry,
-    and how its shapes sit in the canonical frame after the class's turn."""
+def main(argv: list[str] | None = None) -> None:
+    """Print each category's measured self-match ratios, decided and declared symmetry, and how
+    its shapes sit in the canonical frame after the category's turn. Default: ModelNet10's
+    classes; ``--data DIR --category NAME --frame F``: a user's category."""
+    import argparse
     from pathlib import Path
 
     from itnet.model.data import split_files
     from itnet.model.shapes import load_shape
 
-    data = Path("../shared/data/modelnet10")
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--category", nargs="*", default=list(MODELNET10))
+    parser.add_argument("--frame", default="modelnet")
+    parser.add_argument("--shapes", type=int, default=80, help="training shapes per category")
+    args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
     print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | turn | long axis "
           "along x | upper part toward +z |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|")
-    for name, cat in MODELNET10.items():
-        files = split_files(data, name, 0.1, 0)["train"]
-        picked = [files[i] for i in rng.choice(len(files), min(80, len(files)), replace=False)]
-        shapes = [load_shape(f, "modelnet", cat.quarter_turns) for f in picked]
+    for name in args.category:
+        cat = category(name)
+        files = split_files(args.data, name, 0.1, 0)["train"]
+        count = min(args.shapes, len(files))
+        picked = [files[i] for i in rng.choice(len(files), count, replace=False)]
+        shapes = [load_shape(f, args.frame, cat.quarter_turns) for f in picked]
         ratios, frame = self_match_ratios(shapes, rng), frame_statistics(shapes)
         print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
               f"{decide_symmetry(ratios)} | {cat.symmetry} | {90 * cat.quarter_turns}° | "

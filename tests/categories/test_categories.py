@@ -78,3 +78,20 @@ def test_orientation_check_leaves_yaw90_shapes_alone():
     shapes = _shapes(lambda r: _box(r, [0.6, 0.3, 0.6]), rng, 6)
     kept, counts = check_yaw(shapes, symmetry="yaw90")
     assert counts == {"kept": 6, "turned": 0, "dropped": 0} and kept == shapes
+
+
+def test_the_measurement_command_decides_a_users_category(tmp_path, capsys):
+    from itnet.model.categories import main
+
+    rng = np.random.default_rng(5)
+    for split, count in (("train", 6), ("test", 2)):
+        folder = tmp_path / "mug" / split
+        folder.mkdir(parents=True)
+        for i in range(count):
+            angle, height = rng.uniform(0, 2 * np.pi, 1000), rng.uniform(-0.5, 0.5, 1000)
+            can = np.stack([0.6 * np.cos(angle), height, 0.6 * np.sin(angle)], 1)
+            np.save(folder / f"mug_{i}.npy", can)
+    main(["--data", str(tmp_path), "--category", "mug", "--frame", "canonical"])
+    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| mug")][0]
+    assert row.split("|")[5].strip() == "yaw"  # measured
+    assert row.split("|")[6].strip() == "none"  # declared: unknown until given with --symmetry
