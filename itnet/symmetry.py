@@ -29,7 +29,7 @@ def symmetry_turns_deg(symmetry: str, yaw_samples: int = YAW_SAMPLES) -> NDArray
     if symmetry not in SYMMETRY_NAMES:
         raise ValueError(f"unknown symmetry {symmetry!r} (known: {', '.join(SYMMETRY_NAMES)})")
     count = {"none": 1, "yaw180": 2, "yaw90": 4, "yaw": yaw_samples}[symmetry]
-    return np.arange(count) * (360.0 / count)
+    return np.arange(count, dtype=np.float64) * (360.0 / count)
 
 
 def symmetry_group(symmetry: str, yaw_samples: int = YAW_SAMPLES) -> FloatArray:

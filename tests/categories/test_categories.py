@@ -92,6 +92,6 @@ def test_the_measurement_command_decides_a_users_category(tmp_path, capsys):
             can = np.stack([0.6 * np.cos(angle), height, 0.6 * np.sin(angle)], 1)
             np.save(folder / f"mug_{i}.npy", can)
     main(["--data", str(tmp_path), "--category", "mug", "--frame", "canonical"])
-    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| mug")][0]
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| mug"))
     assert row.split("|")[5].strip() == "yaw"  # measured
     assert row.split("|")[6].strip() == "none"  # declared: unknown until given with --symmetry
