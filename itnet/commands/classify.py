@@ -64,7 +64,7 @@ def classify_experiment(
     ),
     report_only: bool = typer.Option(False, help="Only rewrite the report from finished rows."),
     shipped: Path | None = typer.Option(
-        Path("runs/cls-ship/itnet-2"),
+        Path("runs/cls-ship2/itnet-2"),
         help="Run of the shipped classifier: its confusion matrix is plotted (if it exists).",
     ),
 ) -> None:
