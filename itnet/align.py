@@ -27,19 +27,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import (
-    axis_angle_to_matrix,
-    invert_rigid,
-    rotation_error_deg,
-)
+from itnet.geometry import invert_rigid, rotation_error_deg
+from itnet.symmetry import symmetry_group
 
-# Rotations about the canonical origin under which a category often looks alike (+y is up).
-SYMMETRIES: dict[str, tuple[float, ...]] = {
-    "none": (),
-    "yaw180": (180.0,),
-    "yaw90": (90.0, 180.0, 270.0),
-    "yaw": tuple(float(a) for a in range(30, 360, 30)),  # round objects: every 30 degrees
-}
+# Hypothesis sets are the symmetry groups of itnet.symmetry ('none', 'yaw180', 'yaw90', 'yaw');
+# the continuous 'yaw' is tried every 30 degrees.
+HYPOTHESIS_YAW_SAMPLES = 12
 CATEGORY_SYMMETRY = {"chair": "yaw90", "sofa": "yaw180", "bed": "yaw180", "toilet": "yaw180",
                      "monitor": "yaw180", "bathtub": "yaw180", "table": "yaw90",
                      "desk": "yaw180", "night_stand": "yaw90", "dresser": "yaw90"}  # fmt: skip
@@ -52,11 +45,9 @@ def relative_pose(canonical_from_a: ArrayLike, canonical_from_b: ArrayLike) -> N
 
 def symmetry_rotations(name: str) -> NDArray[np.float64]:
     """Named symmetry set -> its rotations (Sx4x4, canonical frame), without the identity."""
-    if name not in SYMMETRIES:
-        raise ValueError(f"unknown symmetry {name!r} (known: {', '.join(SYMMETRIES)})")
-    out = np.tile(np.eye(4), (len(SYMMETRIES[name]), 1, 1))
-    for i, angle in enumerate(SYMMETRIES[name]):
-        out[i, :3, :3] = axis_angle_to_matrix([0.0, 1.0, 0.0], np.radians(angle))
+    group = symmetry_group(name, HYPOTHESIS_YAW_SAMPLES)[1:]  # raises for an unknown name
+    out = np.tile(np.eye(4), (len(group), 1, 1))
+    out[:, :3, :3] = group
     return out
 
 

@@ -89,7 +89,7 @@ class AlignOptions:
     starts: int = 4  # IT-Net runs per cloud, from turns of 360/starts degrees about z
     points: int = 192  # points IT-Net sees per run: a random subset each
     iterations: int | None = None  # per run; None: 6 with several starts, the model's with one
-    symmetry: str = "yaw90"  # a name in itnet.align.SYMMETRIES
+    symmetry: str = "yaw90"  # a name in itnet.symmetry.SYMMETRY_NAMES
     refine: bool = False
     candidates: int = 12  # distinct hypotheses kept (and refined, with refine) after ranking
     finalists: int = 4  # with refine: candidates that get ICP's fine stage, the best after its
