@@ -20,20 +20,17 @@ import numpy as np
 
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path) -> dict:  # fmt: skip
-    from itnet.metrics import is_correct, pose_errors
     from itnet.model.categories import category
-    from itnet.model.data import cached_scan_set, load_shapes, split_files
+    from itnet.model.category_set import test_scans
+    from itnet.model.evaluate import report
     from itnet.model.scanner import PAPER_VIEWS, scan_config
     from itnet.service.engine import AnytimeRun
     from itnet.service.runtime import load_model
-    from itnet.symmetry import symmetric_rotation_error_deg
 
     model = load_model(model_path)
     cat = category(model.card.category, model.card.symmetry)
-    files = split_files(data, cat.name, 0.1, 0)["test"]
-    shapes, _ = load_shapes(files, "modelnet", cache, True, cat.quarter_turns, cat.symmetry)
     config = scan_config(PAPER_VIEWS if scanner == "paper" else {})
-    scans = cached_scan_set(shapes, views, 2024, config, cache)
+    scans, _ = test_scans(data, cat, views, 2024, config, cache)
     out = {}
     for k in ensembles:
         poses, iterations, elapsed = [], [], []
@@ -43,18 +40,15 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
-        poses_a = np.stack(poses)
-        rot, trans = pose_errors(poses_a, scans.poses, scans.radii)
-        rot = symmetric_rotation_error_deg(poses_a[:, :3, :3], scans.poses[:, :3, :3], cat.symmetry)
-        ok = is_correct(rot, trans)
-        acc = float(ok.mean())
+        rep = report(np.stack(poses)[:, None], scans, cat.symmetry)[0]  # symmetry-aware
+        acc = rep.accuracy[-1]
         out[str(k)] = {
             "accuracy": round(100 * acc, 1),
-            "stderr": round(100 * math.sqrt(acc * (1 - acc) / len(ok)), 1),
+            "stderr": round(100 * math.sqrt(acc * (1 - acc) / rep.scans), 1),
             "median_iterations": float(np.median(iterations)),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
             "p99_elapsed_ms": round(float(np.percentile(elapsed, 99)), 2),
-            "scans": len(ok),
+            "scans": rep.scans,
         }
         print(scanner, f"K={k}", out[str(k)], flush=True)
     return out

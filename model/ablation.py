@@ -35,7 +35,8 @@ def run_row(name: str, overrides: dict, args: argparse.Namespace) -> dict:
     """Train one row (resumable: its own run folder) and measure it on the test split."""
     import numpy as np
 
-    from itnet.model.data import cached_scan_set, load_shapes, split_files
+    from itnet.model.categories import category
+    from itnet.model.category_set import test_scans
     from itnet.model.evaluate import anytime_poses, report, torch_step
     from itnet.model.scanner import scan_config
     from itnet.model.train import TrainConfig, load_checkpoint, train
@@ -55,9 +56,7 @@ def run_row(name: str, overrides: dict, args: argparse.Namespace) -> dict:
     )
     train(config, resume=True, progress=False)
     net, _ = load_checkpoint(config.out / "last.pt")
-    files = split_files(args.data, "chair", 0.1, 0)["test"]
-    shapes, _ = load_shapes(files, "modelnet", args.cache, True)
-    scans = cached_scan_set(shapes, args.views, 2024, scan_config(), args.cache)
+    scans, _ = test_scans(args.data, category("chair"), args.views, 2024, scan_config(), args.cache)
     poses = anytime_poses(torch_step(net), scans, 10, config.points)
     rep = report(poses, scans)[0]
     k = overrides["iterations"]

@@ -73,6 +73,14 @@ def category(name: str, symmetry: str | None = None) -> Category:
     return Category(name, known.quarter_turns, symmetry)
 
 
+def model_category(requested: str | None, trained_on: str, symmetry: str | None) -> Category:
+    """The category a model answers for: ``requested``, else the one it was trained on; a
+    network trained on several ('a,b' or 'modelnet10') must be told which (ValueError)."""
+    if requested is None and ("," in trained_on or trained_on == "modelnet10"):
+        raise ValueError(f"the model knows several categories ({trained_on}): --category")
+    return category(requested or trained_on, symmetry)
+
+
 def self_match_ratios(
     shapes: list[Shape], rng: np.random.Generator, sample: int = 400
 ) -> dict[str, float]:

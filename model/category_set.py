@@ -51,6 +51,25 @@ class CategorySet:
         return rng.choice(len(self.shapes), size=batch, p=self.probabilities)
 
 
+def test_scans(
+    data: Path,
+    cat: Category,
+    views: int,
+    seed: int,
+    scan: ScanConfig,
+    cache: Path,
+    frame: str = "modelnet",
+    check_orientation: bool = True,
+) -> tuple[ScanSet, dict]:
+    """A category's fixed, seeded test scans (cached), its shapes in the category's frame and
+    orientation-checked as training does. Returns (scans, orientation-check counts)."""
+    files = split_files(data, cat.name, 0.1, 0)["test"]
+    shapes, orientation = load_shapes(
+        files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry
+    )
+    return cached_scan_set(shapes, views, seed, scan, cache), orientation
+
+
 def _turns(symmetry: str, size: int) -> NDArray[np.float32]:
     """A symmetry's turns as (size, 4, 4) homogeneous rotations, cycled to fill ``size``."""
     rotations = symmetry_group(symmetry, LOSS_YAW_SAMPLES)

@@ -44,8 +44,8 @@ def evaluate(
 
     import numpy as np
 
-    from itnet.model.categories import category as category_of
-    from itnet.model.data import cached_scan_set, load_shapes, split_files
+    from itnet.model.categories import model_category
+    from itnet.model.category_set import test_scans
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
     from itnet.model.scanner import PAPER_VIEWS, scan_config
@@ -74,14 +74,11 @@ def evaluate(
         batch = 1 if model.card.precision == "int8" else batch
         points = model.card.points if points is None else points
         trained_on, symmetry = model.card.category, model.card.symmetry
-    if category is None and ("," in trained_on or trained_on == "modelnet10"):
-        raise typer.BadParameter(f"the model knows several categories ({trained_on}): --category")
-    cat = category_of(category or trained_on, symmetry)
-    files = split_files(data, cat.name, 0.1, 0)["test"]
-    shapes, orientation = load_shapes(
-        files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry
-    )
-    scans = cached_scan_set(shapes, views, seed, config, cache)
+    try:
+        cat = model_category(category, trained_on, symmetry)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from None
+    scans, orientation = test_scans(data, cat, views, seed, config, cache, frame, check_orientation)
     poses = anytime_poses(step, scans, iterations, points, batch=batch)
     rep, rot, trans = report(poses, scans, cat.symmetry)
     out.mkdir(parents=True, exist_ok=True)
@@ -126,6 +123,6 @@ def evaluate(
             f"{rep.median_translation[k]:12.4f}"
         )
     typer.echo(
-        f"{rep.scans} scans of {len(shapes)} test objects ({orientation}); "
+        f"{rep.scans} scans of {len(set(scans.names))} test objects ({orientation}); "
         f"wrote {out / 'report.json'} and {out / 'anytime.png'}"
     )

@@ -41,7 +41,7 @@ def export(
 
     from itnet.export.onnx_export import export_step
     from itnet.export.quantize import quantize_step
-    from itnet.model.categories import category as category_of
+    from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
     from itnet.model_card import ModelCard
     from itnet.service.runtime import load_model
@@ -49,9 +49,10 @@ def export(
     net, state = load_checkpoint(checkpoint)
     config = state["config"]
     trained_on = str(config["category"])
-    if category is None and ("," in trained_on or trained_on == "modelnet10"):
-        raise typer.BadParameter(f"the model knows several categories ({trained_on}): --category")
-    cat = category_of(category or trained_on, config.get("symmetry"))
+    try:
+        cat = model_category(category, trained_on, config.get("symmetry"))
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from None
     points = int(config["points"]) if points is None else points
     accuracy, evaluation = {}, ""
     if report is not None:
