@@ -3,7 +3,7 @@ T_b_from_a (4x4). Every size is a fraction of B's RMS radius about its centroid 
 could measure; never the ground truth), so the methods see the same information as itnet-align.
 
 Global methods (FPFH + RANSAC, FGR, KISS-Matcher) are followed by the same point-to-plane ICP as
-``itnet-align --refine`` (``itnet.refine.IcpRefiner``), so the comparison is about the global step.
+``itnet-align --refine`` (``itnet.alignment.refine.IcpRefiner``), so the comparison is about the global step.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.alignment.refine import IcpRefiner
 from itnet.preprocess import estimate_normalization
-from itnet.refine import IcpRefiner
 
 Method = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 VOXEL = 0.1  # downsampling for features, as a fraction of B's RMS radius

@@ -26,9 +26,9 @@ from numpy.typing import NDArray
 
 from benchmarks import baselines
 from benchmarks.report import write_report
-from itnet.align import category_symmetry, relative_pose
-from itnet.alignment import AlignOptions, PoseEstimator, align_clouds
-from itnet.estimators import in_process_estimator
+from itnet.alignment.estimators import in_process_estimator
+from itnet.alignment.hypotheses import category_symmetry, relative_pose
+from itnet.alignment.pipeline import AlignOptions, PoseEstimator, align_clouds
 from itnet.metrics import alignment_errors, is_correct
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import list_shape_files, load_shape

@@ -73,9 +73,9 @@ class AlignWorker:
         self, model: str, model_dir: str | None, threads: int, budget_ms: float,
         options: dict[str, Any],
     ) -> None:  # fmt: skip
-        from itnet.align import category_symmetry
-        from itnet.alignment import AlignOptions
-        from itnet.estimators import in_process_estimator
+        from itnet.alignment.estimators import in_process_estimator
+        from itnet.alignment.hypotheses import category_symmetry
+        from itnet.alignment.pipeline import AlignOptions
 
         loaded = _load(model, model_dir, threads)
         self.name = loaded.card.name
@@ -86,7 +86,7 @@ class AlignWorker:
         self.options = AlignOptions(symmetry=symmetry, **options)
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        from itnet.alignment import CloudEstimateError, align_clouds
+        from itnet.alignment.pipeline import CloudEstimateError, align_clouds
         from itnet.cloud_io import CloudReadError, read_cloud
 
         rows = []

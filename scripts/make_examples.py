@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.align import relative_pose
+from itnet.alignment.hypotheses import relative_pose
 from itnet.cloud_io import write_ply
 from itnet.geometry import rotation_error_deg
 from itnet.model.scanner import ScanConfig, scan_shape

@@ -181,7 +181,7 @@ class AnytimeRun(Iterator[Estimate]):
         if ensemble > 1:
             starts = np.tile(np.eye(3), (ensemble, 1, 1))
         # Where the iterations begin: the identity, or ``starts`` (3x3 or Bx3x3), rotations of
-        # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment).
+        # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment.pipeline).
         # The B runs go through each step as one batch; the estimates and the convergence test
         # follow the first, ``poses()`` gives them all.
         turns = np.eye(3, dtype=np.float32)[None] if starts is None else _rotations(starts)
@@ -201,7 +201,7 @@ class AnytimeRun(Iterator[Estimate]):
             self.normalizations, inputs = [norm] * len(turns), [x] * len(turns)
         else:
             # Each run its own seeded subset, normalised on its own: exactly what a request with
-            # that subset would do (itnet.estimators.client_estimator sends those requests).
+            # that subset would do (itnet.alignment.estimators.client_estimator sends those requests).
             subsets = [cap_points(cloud, points_per_step, rng) for _ in turns]
             self.normalizations = [_normalization(sub) for sub in subsets]
             inputs = [n.apply(sub) for n, sub in zip(self.normalizations, subsets)]

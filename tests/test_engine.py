@@ -163,7 +163,7 @@ def test_tiny_model_is_not_the_identity(model, cloud, rng):
 
 
 def test_starts_run_as_one_batch_with_the_answers_of_separate_runs(model, cloud):
-    from itnet.alignment import starting_turns
+    from itnet.alignment.pipeline import starting_turns
 
     turns = starting_turns(3)
     batch = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4, starts=turns)

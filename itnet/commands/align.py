@@ -3,7 +3,7 @@
 Both canonical poses come from IT-Net (in-process, or a running service with ``--server``);
 ``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a``. Hypotheses (several IT-Net
 starts per cloud, crossed, times the category's symmetries), optional ICP and the choice
-between them are in ``itnet.alignment`` and ``itnet.align``.
+between them are in ``itnet.alignment.pipeline`` and ``itnet.alignment.hypotheses``.
 """
 
 from __future__ import annotations
@@ -61,11 +61,11 @@ def align(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Estimate T_b_from_a (moves A onto B) from the two clouds' canonical poses and print it."""
-    from itnet.align import category_symmetry
-    from itnet.alignment import AlignOptions, CloudEstimateError, align_clouds
+    from itnet.alignment.hypotheses import category_symmetry
+    from itnet.alignment.pipeline import AlignOptions, CloudEstimateError, align_clouds
+    from itnet.alignment.refine import RefineUnavailable, require_open3d
     from itnet.cloud_io import CloudReadError, read_cloud, write_ply
     from itnet.geometry import apply_rigid
-    from itnet.refine import RefineUnavailable, require_open3d
 
     if symmetry not in SYMMETRY_CHOICES:
         _fail(f"--symmetry must be one of {', '.join(SYMMETRY_CHOICES)}, got {symmetry!r}")
@@ -177,7 +177,7 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # typ
 def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]
     """(pose estimator, (the model's category, its declared symmetry), a close function) for
     in-process or --server."""
-    from itnet.estimators import client_estimator, in_process_estimator
+    from itnet.alignment.estimators import client_estimator, in_process_estimator
 
     if server is None:
         from itnet.service.models_in_process import get_model
@@ -219,7 +219,7 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
     """The matrix, then one line: rotation, translation, iterations, time, hypothesis, fit."""
     import numpy as np
 
-    from itnet.align import same_alignment
+    from itnet.alignment.hypotheses import same_alignment
     from itnet.geometry import rotation_angle_deg
 
     t = result.T_b_from_a

@@ -94,8 +94,8 @@ def align(
 ) -> None:
     """T_b_from_a of every pair of a manifest, as `itnet align --json` gives it, in one table."""
     _require_ray()
+    from itnet.alignment.refine import RefineUnavailable, require_open3d
     from itnet.commands.align import SYMMETRY_CHOICES
-    from itnet.refine import RefineUnavailable, require_open3d
     from itnet.scale.inputs import InputError, read_manifest
     from itnet.scale.workers import AlignWorker
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from itnet.align import relative_pose
+from itnet.alignment.hypotheses import relative_pose
+from itnet.alignment.overlap import overlap_score
 from itnet.cli import align_app, app
 from itnet.cloud_io import read_cloud, write_ply
 from itnet.geometry import apply_rigid
-from itnet.overlap import overlap_score
 from itnet.preprocess import estimate_normalization
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
@@ -134,8 +134,8 @@ def test_shipped_examples_are_small_scans_of_one_chair():
 
 
 def test_summary_notes_a_switch_only_when_the_answer_differs(capsys):
-    from itnet.align import Hypothesis
-    from itnet.alignment import Alignment, PoseEstimate
+    from itnet.alignment.hypotheses import Hypothesis
+    from itnet.alignment.pipeline import Alignment, PoseEstimate
     from itnet.commands.align import _print_summary
     from itnet.geometry import axis_angle_to_matrix, rigid_from_rotation_translation
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from itnet.align import (
+from itnet.alignment.hypotheses import (
     Hypothesis,
     build_hypotheses,
     choose,
@@ -13,7 +13,8 @@ from itnet.align import (
     same_alignment,
     symmetry_rotations,
 )
-from itnet.alignment import (
+from itnet.alignment.overlap import Cloud, overlap, overlap_score
+from itnet.alignment.pipeline import (
     AlignOptions,
     CloudEstimateError,
     PoseEstimate,
@@ -28,7 +29,6 @@ from itnet.geometry import (
     rigid_from_rotation_translation,
     rotation_error_deg,
 )
-from itnet.overlap import Cloud, overlap, overlap_score
 
 
 def random_pose(rng, size=None, scale=2.0):

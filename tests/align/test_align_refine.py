@@ -14,9 +14,9 @@ from itnet.geometry import (
 
 o3d = pytest.importorskip("open3d")
 
-from itnet.align import symmetry_rotations  # noqa: E402
-from itnet.alignment import AlignOptions, PoseEstimate, align_clouds  # noqa: E402
-from itnet.refine import IcpRefiner, icp_point_to_plane  # noqa: E402
+from itnet.alignment.hypotheses import symmetry_rotations  # noqa: E402
+from itnet.alignment.pipeline import AlignOptions, PoseEstimate, align_clouds  # noqa: E402
+from itnet.alignment.refine import IcpRefiner, icp_point_to_plane  # noqa: E402
 
 
 def sampled(mesh, count: int, seed: int) -> np.ndarray:

@@ -67,7 +67,7 @@ def test_symmetric_point_loss_takes_the_best_equivalent_target(rng):
 
 
 def test_alignment_hypotheses_cover_the_declared_symmetry():
-    from itnet.align import category_symmetry, symmetry_rotations
+    from itnet.alignment.hypotheses import category_symmetry, symmetry_rotations
 
     assert category_symmetry("chair") == "yaw90"  # the chair's usual confusions
     assert category_symmetry("mug") == "yaw180"  # unknown category, no declared symmetry

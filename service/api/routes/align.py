@@ -1,6 +1,6 @@
 """``POST /v1/align``: T_b_from_a (moves cloud A onto cloud B) with the service's loaded model.
 
-The same alignment as ``itnet-align`` (``itnet.alignment.align_clouds``: IT-Net from several
+The same alignment as ``itnet-align`` (``itnet.alignment.pipeline.align_clouds``: IT-Net from several
 starts per cloud, hypotheses times the category's symmetries, optional ICP), run in-process on
 the model this server already holds. A server route rather than two streams composed in the
 browser: the hypotheses and ICP are what make alignment work on views that barely overlap, and
@@ -93,10 +93,10 @@ def _parse(body: bytes) -> AlignRequest:
 
 def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
     """Decode, check against the limits, align (CPU: runs in a worker thread)."""
-    from itnet.align import category_symmetry
-    from itnet.alignment import AlignOptions, CloudEstimateError, align_clouds
-    from itnet.estimators import in_process_estimator
-    from itnet.refine import RefineUnavailable, require_open3d
+    from itnet.alignment.estimators import in_process_estimator
+    from itnet.alignment.hypotheses import category_symmetry
+    from itnet.alignment.pipeline import AlignOptions, CloudEstimateError, align_clouds
+    from itnet.alignment.refine import RefineUnavailable, require_open3d
 
     request = _parse(body)
     model = state.model(request.model)

@@ -1,11 +1,11 @@
 """Align cloud A onto cloud B: IT-Net from several starts, hypotheses, ICP, the chosen one.
 
-The steps (the policy is explained in ``itnet.align``)::
+The steps (the policy is explained in ``itnet.alignment.hypotheses``)::
 
     poses_a = estimate(A, starts=turns, subset=points)   # IT-Net, in-process or a service
     poses_b = estimate(B, starts=turns, subset=points)
     hypotheses = inv(poses_b[j]) · S · poses_a[i]  for every i, j and symmetry S of the category
-    candidates = the best few distinct ones by a loose fit         # ``itnet.align.distinct``
+    candidates = the best few distinct ones by a loose fit         # ``itnet.alignment.hypotheses.distinct``
     each       = ICP(candidate)                                    # only with refine=True
     chosen     = the best by a tight fit; confidence from its fit and its margin over rivals
 
@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.align import (
+from itnet.alignment.hypotheses import (
     Hypothesis,
     build_hypotheses,
     choose,
@@ -39,8 +39,8 @@ from itnet.align import (
     distinct,
     symmetry_rotations,
 )
+from itnet.alignment.overlap import Cloud, overlap, sample
 from itnet.geometry import axis_angle_to_matrix, rotation_angle_deg
-from itnet.overlap import Cloud, overlap, sample
 from itnet.preprocess import estimate_normalization
 
 
@@ -197,7 +197,7 @@ def align_clouds(
 
     ``estimate`` maps a cloud (K, 3) and starting rotations to one IT-Net PoseEstimate per
     start (``PoseEstimator``); what it raises comes back as CloudEstimateError (``__cause__``:
-    the original). Raises ``itnet.refine.RefineUnavailable``
+    the original). Raises ``itnet.alignment.refine.RefineUnavailable``
     when refinement needs open3d and it is absent.
     """
     if options.starts < 1 or options.candidates < 1 or options.points < 3:
@@ -229,7 +229,7 @@ def align_clouds(
     t_rank = time.perf_counter()
 
     if options.refine:
-        from itnet.refine import IcpRefiner
+        from itnet.alignment.refine import IcpRefiner
 
         voxel = options.voxel
         if voxel is None:

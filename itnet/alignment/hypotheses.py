@@ -9,14 +9,14 @@ Pure numpy: no files, no network, no model. Frames (SPEC.md):
 Why hypotheses. A category-level pose can be wrong in structured ways: a chair seen from its
 side looks much the same turned 90 or 180 degrees about its up axis (+y), and a sparse view can
 send IT-Net to a different answer from a different start. So the alignment considers, for IT-Net
-runs ``i`` on A and ``j`` on B (each from its own starting rotation, ``itnet.alignment``) and
+runs ``i`` on A and ``j`` on B (each from its own starting rotation, ``itnet.alignment.pipeline``) and
 each likely symmetry ``S`` of the category (the identity first),
 
     inv(T_cb[j]) · S · T_ca[i]          (what T_b_from_a is if A's pose i is off by S)
 
 ranks them by how well the moved A lies on B at a loose distance, keeps the best few that are
-distinct (``distinct``), refines those with ICP when asked (``itnet.refine``), scores them at a
-tight distance (``itnet.overlap``) and reports the best. ``confidence`` says how much the answer
+distinct (``distinct``), refines those with ICP when asked (``itnet.alignment.refine``), scores them at a
+tight distance (``itnet.alignment.overlap``) and reports the best. ``confidence`` says how much the answer
 can be trusted (see its docstring).
 """
 

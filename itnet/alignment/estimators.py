@@ -1,4 +1,4 @@
-"""Pose estimators for ``itnet.alignment``: IT-Net in-process, or through a running service.
+"""Pose estimators for ``itnet.alignment.pipeline``: IT-Net in-process, or through a running service.
 
 Both are callables ``(cloud (N, 3), starts, iterations, subset) -> [PoseEstimate]`` (one
 T_canonical_from_input, 4x4 in the cloud's units, per start), so the alignment code does not
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.alignment import PoseEstimate, PoseEstimator
+from itnet.alignment.pipeline import PoseEstimate, PoseEstimator
 from itnet.geometry import rigid_from_rotation_translation
 from itnet.preprocess import cap_points
 
