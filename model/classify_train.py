@@ -18,6 +18,7 @@ import torch
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
+from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.classifier import VARIANTS, Classifier, ClassifierConfig
 from itnet.model.classify_data import (
     SCAN_MIX,
@@ -50,7 +51,8 @@ class ClassifyConfig(BaseModel):
     log_every: int = 25
     seed: int = 0
     threads: int = 1
-    bf16: bool = True  # autocast matmuls to bfloat16 (the transforms' math stays float32)
+    # autocast matmuls to bfloat16, the transforms' math in fp32; None: where it pays (fast_bf16)
+    bf16: bool | None = None
     widths: tuple[tuple[int, ...], tuple[int, ...]] | None = None  # (point, head) for tiny tests
     max_shapes_per_class: int | None = None  # tiny tests: a few shapes of each class
     init_from: Path | None = None  # start from these weights (a longer run of a table row)
@@ -124,6 +126,9 @@ def load_classifier(path: Path) -> tuple[Classifier, dict]:
 def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     """Train (or resume) one variant; returns ``result.json``'s content (val + test of best.pt)."""
     torch.set_num_threads(config.threads)
+    keep_large_allocations()
+    if config.bf16 is None:
+        config = config.model_copy(update={"bf16": fast_bf16()})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     classes = class_names(config.data)

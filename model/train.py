@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel
 
+from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.category_set import CategorySet, category_names, load_category_set
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
@@ -57,7 +58,8 @@ class TrainConfig(BaseModel):
     log_every: int = 25
     seed: int = 0
     device: str = "cpu"
-    bf16: bool = True  # autocast matmuls to bfloat16 (AVX-512 BF16 or AMX on CPU), keep the pose math in fp32
+    # autocast matmuls to bfloat16, the pose math in fp32; None: where it pays (itnet.cpu.fast_bf16)
+    bf16: bool | None = None
     sensor_noise: bool = True  # depth noise, jitter and outliers in the training scans
     scan_mix: list[dict[str, Any]] = [{}, PAPER_VIEWS]  # each training scan: one of these
     # ScanConfig overrides, drawn uniformly ({}: occluded views; PAPER_VIEWS: the paper's rule)
@@ -100,6 +102,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
 
     if config.threads:
         torch.set_num_threads(config.threads)
+    keep_large_allocations()
+    if config.bf16 is None:
+        config = config.model_copy(update={"bf16": fast_bf16(config.device)})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     data = load_category_set(

@@ -2,28 +2,10 @@
 
 from __future__ import annotations
 
-import os
-import platform
 import statistics
 from pathlib import Path
 
 import typer
-
-
-def cpu_description() -> str:
-    """CPU model, core count and the matrix instruction sets that decide the step time."""
-    name, flags = platform.processor() or platform.machine(), set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                name = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-    except OSError:
-        pass
-    isa = [f for f in ("avx2", "avx512f", "avx512_vnni", "avx512_bf16", "amx_int8") if f in flags]
-    return f"{name}, {os.cpu_count()} CPUs" + (f" ({', '.join(isa)})" if isa else "")
 
 
 def bench(
@@ -34,6 +16,7 @@ def bench(
     repeats: int = typer.Option(200, help="Timed runs per configuration."),
 ) -> None:
     """Print a markdown table of median step times (onnxruntime) and the loop overhead."""
+    from itnet.cpu import cpu_description
     from itnet.service.benchmark import loop_overhead, time_step_ms
     from itnet.service.models_in_process import all_models, get_model
 

@@ -35,7 +35,11 @@ def train(
     eval_every: int = typer.Option(500, help="Validate and checkpoint every N steps."),
     seed: int = typer.Option(0),
     device: str = typer.Option("cpu", help="cpu | cuda"),
-    bf16: bool = typer.Option(True, help="bfloat16 matmuls (AVX-512 BF16 or AMX); pose math fp32."),
+    bf16: bool | None = typer.Option(
+        None,
+        "--bf16/--no-bf16",
+        help="bfloat16 matmuls, pose math fp32 (default: on a CPU with AMX or AVX-512 BF16 only).",
+    ),
     stop_gradient: bool = typer.Option(
         True, help="Paper: stop the gradient through the moved input."
     ),
@@ -59,7 +63,7 @@ def train(
     """Train with fresh random partial scans every step; keeps the best validation checkpoint.
 
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
-    --device cuda --batch 100 --steps 20000 --decay-every 2000 --no-bf16.
+    --device cuda --batch 100 --steps 20000 --decay-every 2000.
     """
     from itnet.model.scanner import PAPER_VIEWS
     from itnet.model.train import TrainConfig
