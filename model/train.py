@@ -10,8 +10,10 @@ from __future__ import annotations
 import json
 import math
 import time
+import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -66,11 +68,21 @@ class TrainConfig(BaseModel):
     init_from: Path | None = None  # start from these weights (fine-tuning) instead of scratch
     val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
     threads: int = 0  # 0: torch's default
+    compile: bool = False  # torch.compile the unrolled network for the training steps
 
 
 def _bn_momentum(config: TrainConfig, step: int) -> float:
+    """Halves every ``bn_decay_every`` steps, in stairs (PointNet's ``staircase=True``): a
+    compiled network is specialised on the momentum, so it changes only a few times a run."""
     start, end = config.bn_momentum
-    return max(end, start * 0.5 ** (step / config.bn_decay_every))
+    return max(end, start * 0.5 ** (step // config.bn_decay_every))
+
+
+def _compiled(net: ITNet) -> Callable[..., list[torch.Tensor]]:
+    """``net`` through torch.compile (inductor; on 2 CPU cores a training step of the paper's
+    network takes 0.45-0.55 s against 0.8 s eager, after ~25 s of compilation). The parameters
+    and buffers stay ``net``'s: checkpoints and validation use ``net`` itself."""
+    return cast(Callable[..., list[torch.Tensor]], torch.compile(net, dynamic=False))
 
 
 def _save(
@@ -149,6 +161,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         )
         + "\n"
     )
+    forward = _compiled(net) if config.compile else net
     bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
     losses: list[float] = []
     started = time.time()
@@ -169,7 +182,14 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
                 module.momentum = _bn_momentum(config, step)
         net.train()
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
-            poses = net(x_t, config.iterations, stop_gradient=config.stop_gradient)
+            try:
+                poses = forward(x_t, config.iterations, stop_gradient=config.stop_gradient)
+            except Exception as error:  # no C++ compiler, an unsupported platform: stay eager
+                if forward is net:
+                    raise
+                warnings.warn(f"torch.compile failed, training eagerly: {error}", stacklevel=1)
+                forward = net
+                poses = net(x_t, config.iterations, stop_gradient=config.stop_gradient)
         loss = point_loss(poses[-1].float(), target_t, x_t, turns)
         opt.zero_grad(set_to_none=True)
         loss.backward()

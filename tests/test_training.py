@@ -74,6 +74,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
         "2",
         "--eval-every",
         "10",
+        "--no-compile",  # compiled training: test_compiled_training_matches_eager
     ]
     assert runner.invoke(app, [*train, "--steps", "10"]).exit_code == 0
     result = runner.invoke(app, [*train, "--steps", "20"])  # resumes at step 10
@@ -161,3 +162,24 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     for i, line in enumerate(posed.stdout.splitlines()):
         pose = np.array(json.loads(line)["T_canonical_from_input"])
         assert np.allclose(pose, eval_poses[i, 3], atol=1e-4 * max(1.0, np.abs(pose).max()))
+
+
+def test_compiled_training_matches_eager(shape_folder, tmp_path):
+    """torch.compile changes the speed of a training step, not its numbers."""
+    from itnet.model.train import TrainConfig, _bn_momentum, train
+
+    losses = {}
+    for compiled in (False, True):
+        config = TrainConfig(
+            data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache",
+            out=tmp_path / f"run-{compiled}", steps=3, batch=8, points=64, iterations=2,
+            eval_every=3, log_every=1, threads=1, bf16=False, compile=compiled,
+        )  # fmt: skip
+        train(config, resume=False, progress=False)
+        log = (config.out / "log.jsonl").read_text().splitlines()
+        losses[compiled] = [json.loads(line)["loss"] for line in log if '"loss"' in line]
+    assert len(losses[True]) == 3
+    assert np.allclose(losses[True], losses[False], rtol=1e-3), losses
+    # BatchNorm momentum in stairs: a compiled network is specialised on it.
+    stairs = {_bn_momentum(config, step) for step in range(0, 5 * config.bn_decay_every, 7)}
+    assert sorted(stairs, reverse=True) == [0.5, 0.25, 0.125, 0.0625, 0.03125]

@@ -40,6 +40,9 @@ def train(
         "--bf16/--no-bf16",
         help="bfloat16 matmuls, pose math fp32 (default: on a CPU with AMX or AVX-512 BF16 only).",
     ),
+    compile: bool = typer.Option(
+        True, help="torch.compile the training step (~1.7x on a CPU; eager if it cannot compile)."
+    ),
     stop_gradient: bool = typer.Option(
         True, help="Paper: stop the gradient through the moved input."
     ),
@@ -93,6 +96,7 @@ def train(
         seed=seed,
         device=device,
         bf16=bf16,
+        compile=compile,
         stop_gradient=stop_gradient,
         identity_init=identity_init,
         check_orientation=check_orientation,
