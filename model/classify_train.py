@@ -27,6 +27,7 @@ from itnet.model.classify_data import (
     load_splits,
     training_batch,
 )
+from itnet.model.optim import CompiledForward, bn_momentum, learning_rate, set_schedule
 from itnet.model.scanner import scan_config
 
 
@@ -56,6 +57,7 @@ class ClassifyConfig(BaseModel):
     widths: tuple[tuple[int, ...], tuple[int, ...]] | None = None  # (point, head) for tiny tests
     max_shapes_per_class: int | None = None  # tiny tests: a few shapes of each class
     init_from: Path | None = None  # start from these weights (a longer run of a table row)
+    compile: bool = False  # torch.compile the network for the training steps
 
 
 def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
@@ -181,21 +183,15 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     )
     losses: list[float] = []
     started = time.time()
+    forward = CompiledForward(net, config.compile)
     while step < config.steps:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
         x, y = training_batch(splits["train"], config.batch, config.points, rng, scan_configs)
-        lr = config.lr * config.lr_decay ** (step / config.decay_every)
-        for group in opt.param_groups:
-            group["lr"] = lr
-        momentum = max(
-            config.bn_momentum[1], config.bn_momentum[0] * 0.5 ** (step / config.decay_every)
-        )
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm1d):
-                module.momentum = momentum
+        lr = learning_rate(config.lr, config.lr_decay, config.decay_every, step)
+        set_schedule(net, opt, lr, bn_momentum(config.bn_momentum, config.decay_every, step))
         net.train()
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.bf16):
-            logits, penalty = net(torch.from_numpy(x))
+            logits, penalty = forward(torch.from_numpy(x))
         loss = torch.nn.functional.cross_entropy(logits.float(), torch.from_numpy(y)) + penalty
         opt.zero_grad(set_to_none=True)
         loss.backward()

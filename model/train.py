@@ -10,10 +10,8 @@ from __future__ import annotations
 import json
 import math
 import time
-import warnings
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import torch
@@ -24,6 +22,7 @@ from itnet.model.category_set import CategorySet, category_names, load_category_
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
 from itnet.model.network import ITNet, NetworkConfig, point_loss
+from itnet.model.optim import CompiledForward, bn_momentum, learning_rate, set_schedule
 from itnet.model.scanner import PAPER_VIEWS, scan_config
 
 
@@ -69,20 +68,6 @@ class TrainConfig(BaseModel):
     val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
     threads: int = 0  # 0: torch's default
     compile: bool = False  # torch.compile the unrolled network for the training steps
-
-
-def _bn_momentum(config: TrainConfig, step: int) -> float:
-    """Halves every ``bn_decay_every`` steps, in stairs (PointNet's ``staircase=True``): a
-    compiled network is specialised on the momentum, so it changes only a few times a run."""
-    start, end = config.bn_momentum
-    return max(end, start * 0.5 ** (step // config.bn_decay_every))
-
-
-def _compiled(net: ITNet) -> Callable[..., list[torch.Tensor]]:
-    """``net`` through torch.compile (inductor; on 2 CPU cores a training step of the paper's
-    network takes 0.45-0.55 s against 0.8 s eager, after ~25 s of compilation). The parameters
-    and buffers stay ``net``'s: checkpoints and validation use ``net`` itself."""
-    return cast(Callable[..., list[torch.Tensor]], torch.compile(net, dynamic=False))
 
 
 def _save(
@@ -161,7 +146,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         )
         + "\n"
     )
-    forward = _compiled(net) if config.compile else net
+    forward = CompiledForward(net, config.compile)
     bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
     losses: list[float] = []
     started = time.time()
@@ -174,22 +159,11 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         x_t = torch.from_numpy(x).to(config.device)
         target_t = torch.from_numpy(target).to(config.device)
         turns = torch.from_numpy(data.turns[picked]).to(config.device)
-        lr = config.lr * config.lr_decay ** (step / config.decay_every)
-        for group in opt.param_groups:
-            group["lr"] = lr
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm1d):
-                module.momentum = _bn_momentum(config, step)
+        lr = learning_rate(config.lr, config.lr_decay, config.decay_every, step)
+        set_schedule(net, opt, lr, bn_momentum(config.bn_momentum, config.bn_decay_every, step))
         net.train()
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
-            try:
-                poses = forward(x_t, config.iterations, stop_gradient=config.stop_gradient)
-            except Exception as error:  # no C++ compiler, an unsupported platform: stay eager
-                if forward is net:
-                    raise
-                warnings.warn(f"torch.compile failed, training eagerly: {error}", stacklevel=1)
-                forward = net
-                poses = net(x_t, config.iterations, stop_gradient=config.stop_gradient)
+            poses = forward(x_t, config.iterations, stop_gradient=config.stop_gradient)
         loss = point_loss(poses[-1].float(), target_t, x_t, turns)
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -166,7 +166,8 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
 
 def test_compiled_training_matches_eager(shape_folder, tmp_path):
     """torch.compile changes the speed of a training step, not its numbers."""
-    from itnet.model.train import TrainConfig, _bn_momentum, train
+    from itnet.model.optim import bn_momentum
+    from itnet.model.train import TrainConfig, train
 
     losses = {}
     for compiled in (False, True):
@@ -181,5 +182,8 @@ def test_compiled_training_matches_eager(shape_folder, tmp_path):
     assert len(losses[True]) == 3
     assert np.allclose(losses[True], losses[False], rtol=1e-3), losses
     # BatchNorm momentum in stairs: a compiled network is specialised on it.
-    stairs = {_bn_momentum(config, step) for step in range(0, 5 * config.bn_decay_every, 7)}
+    stairs = {
+        bn_momentum(config.bn_momentum, config.bn_decay_every, step)
+        for step in range(0, 5 * config.bn_decay_every, 7)
+    }
     assert sorted(stairs, reverse=True) == [0.5, 0.25, 0.125, 0.0625, 0.03125]
