@@ -1,4 +1,4 @@
-"""What the pose and the classifier trainers share: their schedules and the compiled forward.
+"""What the trainers share: their schedules, the moving average of weights, the compiled forward.
 
 Both follow PointNet's recipe: the learning rate decays smoothly (``lr · decay^(step / every)``),
 the BatchNorm momentum halves in stairs every ``every`` steps down to a floor (TensorFlow's
@@ -14,6 +14,7 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 
 def learning_rate(lr: float, decay: float, every: int, step: int) -> float:
@@ -34,6 +35,15 @@ def set_schedule(net: nn.Module, opt: torch.optim.Optimizer, lr: float, momentum
     for module in net.modules():
         if isinstance(module, nn.modules.batchnorm._BatchNorm):
             module.momentum = momentum
+
+
+def average_of(net: nn.Module, decay: float | None) -> AveragedModel | None:
+    """An exponential moving average of ``net``'s weights and BatchNorm statistics (``decay``
+    per step; None or 0: none), updated with ``update_parameters(net)`` after each step. Its
+    ``module`` is a network of ``net``'s kind, validated and saved like ``net``."""
+    if not decay:
+        return None
+    return AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(decay), use_buffers=True)
 
 
 class CompiledForward:

@@ -16,13 +16,20 @@ from typing import Any
 import numpy as np
 import torch
 from pydantic import BaseModel
+from torch.optim.swa_utils import AveragedModel
 
 from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.category_set import CategorySet, category_names, load_category_set
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
 from itnet.model.network import ITNet, NetworkConfig, point_loss
-from itnet.model.optim import CompiledForward, bn_momentum, learning_rate, set_schedule
+from itnet.model.optim import (
+    CompiledForward,
+    average_of,
+    bn_momentum,
+    learning_rate,
+    set_schedule,
+)
 from itnet.model.scanner import PAPER_VIEWS, scan_config
 
 
@@ -68,6 +75,7 @@ class TrainConfig(BaseModel):
     val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
     threads: int = 0  # 0: torch's default
     compile: bool = False  # torch.compile the unrolled network for the training steps
+    ema: float | None = None  # decay of an exponential moving average of the weights (0.999)
 
 
 def _save(
@@ -77,11 +85,15 @@ def _save(
     step: int,
     config: TrainConfig,
     metrics: dict,
+    ema: AveragedModel | None = None,
 ) -> None:
+    """``net``'s weights as "model" (the network to ship or resume), and for resume the optimiser
+    and, when given, the moving average."""
     tmp = path.with_suffix(".tmp")
     torch.save(
         {
             "model": net.state_dict(),
+            **({"ema": ema.state_dict()} if ema is not None else {}),
             "optimizer": opt.state_dict(),
             "step": step,
             "config": config.model_dump(mode="json"),
@@ -132,6 +144,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         step, best = state["step"], state["metrics"].get("best", best)
     elif config.init_from is not None:
         net.load_state_dict(torch.load(config.init_from, map_location=config.device)["model"])
+    ema = average_of(net, config.ema)
+    if ema is not None and resume and last.exists() and "ema" in state:
+        ema.load_state_dict(state["ema"])  # a run without it starts its average here
     log = (config.out / "log.jsonl").open("a")
     log.write(
         json.dumps(
@@ -168,6 +183,8 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if ema is not None:
+            ema.update_parameters(net)
         step += 1
         losses.append(float(loss.detach()))
         bar.update(1)
@@ -186,11 +203,17 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
                 + "\n"
             )
         if step % config.eval_every == 0 or step == config.steps:
-            metrics = {"step": step, **validate(net, data, config)}
+            metrics, chosen = {"step": step, "weights": "raw", **validate(net, data, config)}, net
+            if ema is not None:  # the average competes with the raw weights on validation
+                averaged = validate(ema.module, data, config)
+                metrics["raw_val_accuracy"] = metrics["val_accuracy"]
+                metrics["ema_val_accuracy"] = averaged["val_accuracy"]
+                if averaged["val_accuracy"] > metrics["val_accuracy"]:
+                    metrics, chosen = {**metrics, **averaged, "weights": "ema"}, ema.module
             if metrics["val_accuracy"] > best["val_accuracy"]:
                 best = metrics
-                _save(config.out / "best.pt", net, opt, step, config, {"best": best, **metrics})
-            _save(last, net, opt, step, config, {"best": best, **metrics})
+                _save(config.out / "best.pt", chosen, opt, step, config, {"best": best, **metrics})
+            _save(last, net, opt, step, config, {"best": best, **metrics}, ema)
             log.write(json.dumps({"event": "val", **metrics}) + "\n")
             log.flush()
             if not math.isfinite(float(np.mean(losses[-config.log_every :]))):

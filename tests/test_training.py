@@ -82,6 +82,14 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [e["step"] for e in log if e.get("event") == "start"] == [0, 10]
     assert [e["step"] for e in log if e.get("event") == "val"] == [10, 20]
+    # The moving average (on by default) competes with the raw weights at each validation.
+    for entry in (e for e in log if e.get("event") == "val"):
+        picked = entry[f"{entry['weights']}_val_accuracy"]
+        assert (
+            entry["val_accuracy"]
+            == picked
+            == max(entry["raw_val_accuracy"], entry["ema_val_accuracy"])
+        )
     assert (run / "best.pt").exists() and json.loads((run / "config.json").read_text())[
         "steps"
     ] == 20
@@ -187,3 +195,22 @@ def test_compiled_training_matches_eager(shape_folder, tmp_path):
         for step in range(0, 5 * config.bn_decay_every, 7)
     }
     assert sorted(stairs, reverse=True) == [0.5, 0.25, 0.125, 0.0625, 0.03125]
+
+
+def test_moving_average_of_weights():
+    import torch
+
+    from itnet.model.optim import average_of
+
+    net = torch.nn.Sequential(torch.nn.Linear(2, 3), torch.nn.BatchNorm1d(3))
+    assert average_of(net, 0) is None and average_of(net, None) is None
+    ema = average_of(net, 0.75)
+    ema.update_parameters(net)  # the first update copies
+    weight = net[0].weight.detach().clone()
+    with torch.no_grad():
+        net[0].weight.add_(4.0)
+    net.train()(torch.randn(8, 2))  # moves the BatchNorm statistics too
+    ema.update_parameters(net)
+    assert torch.allclose(ema.module[0].weight, weight + 1.0)  # 0.75 old + 0.25 new
+    mean = ema.module[1].running_mean
+    assert torch.allclose(mean, 0.25 * net[1].running_mean)  # from 0: averaged like weights

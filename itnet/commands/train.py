@@ -43,6 +43,11 @@ def train(
     compile: bool = typer.Option(
         True, help="torch.compile the training step (~1.7x on a CPU; eager if it cannot compile)."
     ),
+    ema: float = typer.Option(
+        0.999,
+        help="Keep an exponential moving average of the weights (this decay per step; 0: none); "
+        "at each validation the average competes with the raw weights for best.pt.",
+    ),
     stop_gradient: bool = typer.Option(
         True, help="Paper: stop the gradient through the moved input."
     ),
@@ -97,6 +102,7 @@ def train(
         device=device,
         bf16=bf16,
         compile=compile,
+        ema=ema or None,
         stop_gradient=stop_gradient,
         identity_init=identity_init,
         check_orientation=check_orientation,
