@@ -111,9 +111,13 @@ def plot_confusion(result: dict, path: Path, name: str | None = None) -> Path:
 def write_report(out: Path, docs: Path, shipped: Path | None = None) -> list[Path]:
     """docs/classification.json (the rows' results), the table and per-class markdown pasted
     into docs/classification.md between markers, and docs/confusion.png of the best row (by
-    validation accuracy), or of the ``shipped`` run's (its folder) when given. Returns the
-    written paths."""
+    validation accuracy), or of the ``shipped`` run's (its folder) when given. Without finished
+    rows under ``out``, the rows recorded in docs/classification.json stay (a new shipped run
+    re-plots without rerunning the table). Returns the written paths."""
     rows = finished_rows(out)
+    previous = docs / "classification.json"
+    if not rows and previous.exists():  # the rows' runs are gone: keep the table as recorded
+        rows = json.loads(previous.read_text())["rows"]
     if not rows:
         raise FileNotFoundError(f"{out}: no finished rows (result.json)")
     best = max(rows, key=lambda v: rows[v]["val"]["accuracy"])
