@@ -80,7 +80,9 @@ def test_bad_request_gets_its_4xx_and_the_next_succeeds(
     error = reply.json()
     assert words in error["detail"]
     assert isinstance(error["kind"], str) and error["kind"]
-    good = client.post("/v1/estimate", json={"points": GOOD, "max_iterations": 2})
+    good = client.post(
+        "/v1/estimate", json={"points": GOOD, "max_iterations": 2, "budget_ms": 5000}
+    )
     assert good.status_code == 200
     assert good.json()["iterations"] == 2
 

@@ -34,13 +34,15 @@ def test_http_json_binary_and_bad_input(server: str) -> None:
     with httpx.Client(base_url=server, timeout=10) as http:
         assert http.get("/healthz").json() == {"status": "ok"}
         assert [m["name"] for m in http.get("/v1/models").json()["models"]] == ["tiny"]
-        by_json = http.post("/v1/estimate", json={"points": POINTS.tolist(), "max_iterations": 3})
+        by_json = http.post(
+            "/v1/estimate", json={"points": POINTS.tolist(), "max_iterations": 3, "budget_ms": 5000}
+        )
         assert by_json.status_code == 200 and by_json.json()["iterations"] == 3
         by_binary = http.post(
             "/v1/estimate",
             content=POINTS.astype("<f4").tobytes(),
             headers={"content-type": "application/octet-stream"},
-            params={"max_iterations": 3},
+            params={"max_iterations": 3, "budget_ms": 5000},
         )
         assert by_binary.status_code == 200
         np.testing.assert_allclose(
