@@ -98,8 +98,13 @@ def test_a_live_server_under_load_keeps_the_budget(
     """Twelve clients in closed loops for 2 s against 4 slots: every answer within budget plus
     the margin, the excess refused at once, nothing else. (The clients are coroutines of one
     thread: client threads would fight the server for this process's GIL.)"""
+    from itnet.service.benchmark import time_step_ms
+
     model = load_model(heavy_model_dir / "tiny.onnx", threads=1, concurrent_steps=1)
-    budget_ms = 60.0
+    # Four requests share one step at a time: the budget must fit a few steps of this machine
+    # (about 10 ms a step on a fast core, 25 ms on a slow one), or most answers run none.
+    step_ms = time_step_ms(heavy_model_dir / "tiny.onnx", 1, len(points), 1, repeats=10)
+    budget_ms = max(60.0, 8 * step_ms)
     request = {"points": points, "budget_ms": budget_ms, "max_iterations": 100}
 
     async def load(url: str) -> list[tuple[int, dict]]:
