@@ -5,7 +5,7 @@ ModelNet10 test split, in-process, onnxruntime with the service's session option
     python -m benchmarks.classify_latency [--model-dir itnet/models] [--runs 300]
 
 Prints the median, 90th and 99th percentile in ms, the machine and the thread count. Run it as
-``/tmp/quiet.sh python -m benchmarks.classify_latency`` when a training job shares the machine.
+``bash scripts/quiet.sh python -m benchmarks.classify_latency`` when a training job shares the machine.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.classifier import VARIANTS, Classifier, ClassifierConfig
 from itnet.model.classify_data import (
     SCAN_MIX,
+    LabelledShapes,
     class_names,
     fixed_views,
     load_splits,
@@ -66,6 +67,34 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
     if config.widths is not None:
         widths = {"point_channels": config.widths[0], "head_channels": config.widths[1]}
     return ClassifierConfig(**{**vars(base), "classes": classes, **widths})
+
+
+def run_splits(config: ClassifyConfig) -> tuple[list[str], dict[str, LabelledShapes]]:
+    """(class names, {'train', 'val', 'test'} -> labelled shapes) of a run: the dataset's split,
+    validation carved from train, at most ``max_shapes_per_class`` per class if set."""
+    classes = class_names(config.data)
+    splits = load_splits(
+        config.data, classes, config.validation_fraction, config.seed, config.cache
+    )
+    if config.max_shapes_per_class is not None:
+        for split in splits.values():
+            keep = np.concatenate(
+                [
+                    np.flatnonzero(split.labels == k)[: config.max_shapes_per_class]
+                    for k in range(len(classes))
+                ]
+            )
+            split.shapes, split.labels = [split.shapes[i] for i in keep], split.labels[keep]
+    return classes, splits
+
+
+def run_views(
+    config: ClassifyConfig, splits: dict[str, LabelledShapes], split: str
+) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    """A run's fixed 'val' or 'test' views (the same every time: seeded, cached) -> (points
+    (V, N, 3), labels (V,))."""
+    views, seed = {"val": (config.val_views, 7), "test": (config.test_views, 13)}[split]
+    return fixed_views(splits[split], views, config.points, config.seed + seed, config.cache)
 
 
 @torch.no_grad()
@@ -133,23 +162,9 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
         config = config.model_copy(update={"bf16": fast_bf16()})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
-    classes = class_names(config.data)
-    splits = load_splits(
-        config.data, classes, config.validation_fraction, config.seed, config.cache
-    )
-    if config.max_shapes_per_class is not None:
-        for split in splits.values():
-            keep = np.concatenate(
-                [
-                    np.flatnonzero(split.labels == k)[: config.max_shapes_per_class]
-                    for k in range(len(classes))
-                ]
-            )
-            split.shapes, split.labels = [split.shapes[i] for i in keep], split.labels[keep]
+    classes, splits = run_splits(config)
     scan_configs = [scan_config(o) for o in SCAN_MIX]
-    val_x, val_y = fixed_views(
-        splits["val"], config.val_views, config.points, config.seed + 7, config.cache
-    )
+    val_x, val_y = run_views(config, splits, "val")
 
     torch.manual_seed(config.seed)
     net = Classifier(network_config(config, len(classes)))
@@ -236,9 +251,7 @@ def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x
     if path.exists():
         return json.loads(path.read_text())
     net, state = load_classifier(config.out / "best.pt")
-    test_x, test_y = fixed_views(
-        splits["test"], config.test_views, config.points, config.seed + 13, config.cache
-    )
+    test_x, test_y = run_views(config, splits, "test")
     val_probs = predict(net, val_x)
     result = {
         "variant": config.variant,

@@ -50,10 +50,12 @@ def test_folded_step_is_the_network_step(tiny_net, rng):
 def test_int8_graph_is_close_to_float_and_marked(tiny_model_dir, tmp_path, rng):
     import onnx
 
-    from itnet.export.quantize import quantize_step
+    from itnet.export.quantize import quantize_point_layers
     from itnet.geometry import rotation_error_deg
 
-    path = quantize_step(tiny_model_dir / "tiny.onnx", tmp_path / "tiny8.onnx", name="tiny8")
+    path = quantize_point_layers(
+        tiny_model_dir / "tiny.onnx", tmp_path / "tiny8.onnx", name="tiny8"
+    )
     ops = {n.op_type for n in onnx.load(str(path)).graph.node}
     assert ops & {"MatMulInteger", "DynamicQuantizeMatMul", "MatMulIntegerToFloat"}
     fp32, int8 = (load_model(p, warm_up=False) for p in (tiny_model_dir / "tiny.onnx", path))
@@ -71,7 +73,7 @@ def test_quantize_refuses_a_graph_without_the_point_layers(tmp_path):
     import onnx
     from onnx import TensorProto, helper
 
-    from itnet.export.quantize import quantize_step
+    from itnet.export.quantize import quantize_point_layers
 
     graph = helper.make_graph(
         [helper.make_node("Relu", ["x"], ["y"])],
@@ -81,4 +83,4 @@ def test_quantize_refuses_a_graph_without_the_point_layers(tmp_path):
     )
     onnx.save(helper.make_model(graph), str(tmp_path / "relu.onnx"))
     with pytest.raises(ValueError, match="point_w"):
-        quantize_step(tmp_path / "relu.onnx", tmp_path / "out.onnx")
+        quantize_point_layers(tmp_path / "relu.onnx", tmp_path / "out.onnx")

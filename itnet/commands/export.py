@@ -40,7 +40,7 @@ def export(
     import torch
 
     from itnet.export.onnx_export import export_step
-    from itnet.export.quantize import quantize_step
+    from itnet.export.quantize import quantize_point_layers
     from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
     from itnet.model_card import ModelCard
@@ -88,7 +88,7 @@ def export(
     )
     if int8:
         with tempfile.TemporaryDirectory() as tmp:
-            quantize_step(export_step(net, card, Path(tmp) / "float32.onnx"), out)
+            quantize_point_layers(export_step(net, card, Path(tmp) / "float32.onnx"), out)
     else:
         export_step(net, card, out)
     model = load_model(out, warm_up=False)

@@ -58,3 +58,41 @@ def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path
         if e.get("event") == "start"
     ]
     assert [s["step"] for s in starts] == [0, 60]
+
+
+@pytest.mark.parametrize("int8", [False, True])
+def test_exported_card_carries_the_accuracy_measured_on_the_graph(
+    three_classes: Path, tmp_path: Path, int8: bool
+) -> None:
+    import onnx
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.export.classifier_export import score_graph
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    config = ClassifyConfig(
+        data=three_classes, variant="itnet-1", out=tmp_path / "run", cache=tmp_path / "cache",
+        steps=20, batch=16, points=64, lr=3e-3, decay_every=1000, eval_every=10, log_every=10,
+        val_views=2, test_views=2, widths=((16, 32, 64), (32, 16)), bf16=False,
+    )  # fmt: skip
+    result = train(config)
+    out, report = tmp_path / "c.onnx", tmp_path / "export.json"
+    args = ["classify-export", str(config.out), "--out", str(out), "--report", str(report)]
+    run = CliRunner().invoke(app, [*args, *(["--int8"] if int8 else [])])
+    assert run.exit_code == 0, run.output
+    graph = load_any(out, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.classes == ["ball", "plate", "rod"]
+    assert graph.card.precision == ("int8" if int8 else "float32")
+    ops = {n.op_type for n in onnx.load(str(out)).graph.node}
+    assert bool(ops & {"MatMulInteger", "DynamicQuantizeMatMul"}) == int8
+    scores = score_graph(graph, config.out)
+    assert scores.test_probs.shape == (12, 3) and scores.val_probs.shape[1] == 3
+    measured = float((scores.test_probs.argmax(1) == scores.test_labels).mean())
+    assert graph.card.accuracy == pytest.approx(measured, abs=1e-4)
+    if not int8:  # the float32 graph is torch's network: the same answers on the same views
+        assert graph.card.accuracy == pytest.approx(result["test"]["accuracy"], abs=1e-4)
+    written = json.loads(report.read_text())
+    assert written["card"]["precision"] == graph.card.precision
+    assert written["unsure"]["test_views"] == 12
+    assert written["unsure"]["accuracy"] == pytest.approx(measured, abs=1e-4)
