@@ -18,7 +18,6 @@ import torch
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.classifier import VARIANTS, Classifier, ClassifierConfig
 from itnet.model.classify_data import (
     SCAN_MIX,
@@ -28,7 +27,13 @@ from itnet.model.classify_data import (
     load_splits,
     training_batch,
 )
-from itnet.model.optim import CompiledForward, bn_momentum, learning_rate, set_schedule
+from itnet.model.optim import (
+    CompiledForward,
+    bn_momentum,
+    learning_rate,
+    prepare_cpu,
+    set_schedule,
+)
 from itnet.model.scanner import scan_config
 
 
@@ -156,10 +161,7 @@ def load_classifier(path: Path) -> tuple[Classifier, dict]:
 
 def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     """Train (or resume) one variant; returns ``result.json``'s content (val + test of best.pt)."""
-    torch.set_num_threads(config.threads)
-    keep_large_allocations()
-    if config.bf16 is None:
-        config = config.model_copy(update={"bf16": fast_bf16()})
+    config = config.model_copy(update={"bf16": prepare_cpu(config.threads, config.bf16)})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     classes, splits = run_splits(config)

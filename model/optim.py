@@ -16,6 +16,18 @@ import torch
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
+from itnet.cpu import fast_bf16, keep_large_allocations
+
+
+def prepare_cpu(threads: int, bf16: bool | None, device: str = "cpu") -> bool:
+    """Set up this process for training: ``threads`` torch threads (0: torch's default), glibc
+    keeping large buffers (``itnet.cpu.keep_large_allocations``). Returns whether to autocast
+    matmuls to bfloat16: ``bf16`` if given, else where it pays (``itnet.cpu.fast_bf16``)."""
+    if threads:
+        torch.set_num_threads(threads)
+    keep_large_allocations()
+    return fast_bf16(device) if bf16 is None else bf16
+
 
 def learning_rate(lr: float, decay: float, every: int, step: int) -> float:
     """The rate at ``step``: ``lr`` multiplied by ``decay`` every ``every`` steps, smoothly."""

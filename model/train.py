@@ -18,7 +18,6 @@ import torch
 from pydantic import BaseModel
 from torch.optim.swa_utils import AveragedModel
 
-from itnet.cpu import fast_bf16, keep_large_allocations
 from itnet.model.category_set import CategorySet, category_names, load_category_set
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
@@ -28,6 +27,7 @@ from itnet.model.optim import (
     average_of,
     bn_momentum,
     learning_rate,
+    prepare_cpu,
     set_schedule,
 )
 from itnet.model.scanner import PAPER_VIEWS, scan_config
@@ -109,11 +109,8 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     """Train (or resume) a run; returns the best validation metrics."""
     from tqdm import tqdm
 
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    keep_large_allocations()
-    if config.bf16 is None:
-        config = config.model_copy(update={"bf16": fast_bf16(config.device)})
+    bf16 = prepare_cpu(config.threads, config.bf16, config.device)
+    config = config.model_copy(update={"bf16": bf16})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     data = load_category_set(

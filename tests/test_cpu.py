@@ -42,3 +42,22 @@ def test_unreadable_cpuinfo_means_no_flags(tmp_path):
 
 def test_allocator_setting_applies_on_glibc():
     assert cpu.keep_large_allocations() is True
+
+
+@pytest.mark.parametrize(("extra", "fast"), [("", False), ("amx_bf16", True)])
+def test_trainers_take_bf16_from_the_cpu_unless_told(tmp_path, monkeypatch, extra, fast):
+    import torch
+
+    from itnet.model.optim import prepare_cpu
+
+    info = _info(tmp_path, extra)
+    monkeypatch.setattr(cpu, "cpu_info", lambda: info)
+    threads = torch.get_num_threads()
+    try:
+        assert prepare_cpu(1, None) is fast
+        assert torch.get_num_threads() == 1
+        assert prepare_cpu(0, True) is True and prepare_cpu(0, False) is False
+        assert prepare_cpu(0, None, device="cuda") is False
+        assert torch.get_num_threads() == 1  # 0: left as it was
+    finally:
+        torch.set_num_threads(threads)
