@@ -74,3 +74,16 @@ def test_training_reduces_the_loss_on_a_small_set():
         opt.step()
         losses.append(float(loss))
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_exported_update_is_the_quaternion_pose_for_any_quaternion_length():
+    from itnet.model.network import ExportableStep
+
+    step = ExportableStep(ITNet(NetworkConfig()).eval())
+    gen = torch.Generator().manual_seed(5)
+    output = torch.randn(256, 7, generator=gen) * torch.tensor([4.0, 4, 4, 4, 1, 1, 1])
+    got, want = step.update(output), quat_wxyz_translation_to_pose(output)
+    assert torch.allclose(got, want, atol=2e-6)
+    rotation = got[:, :3, :3]
+    eye = torch.eye(3).expand(256, 3, 3)
+    assert torch.allclose(rotation @ rotation.transpose(1, 2), eye, atol=2e-6)  # a rotation
