@@ -69,10 +69,19 @@ def training_batch(
     points: int,
     rng: np.random.Generator,
     configs: list[ScanConfig],
+    balanced: bool = False,
 ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
     """Fresh random views -> (points (B, points, 3), labels (B,)). Shapes are drawn uniformly,
-    so classes come in proportion to their share of the split."""
-    index = rng.integers(len(data.shapes), size=batch)
+    so classes come in proportion to their share of the split; ``balanced``: each view's class
+    is drawn uniformly, then one of its shapes (ModelNet10's training split has 106 bathtubs and
+    889 chairs, its test split 50-100 shapes of every class)."""
+    if balanced:
+        classes = np.unique(data.labels)
+        index = np.array(
+            [rng.choice(np.flatnonzero(data.labels == c)) for c in rng.choice(classes, batch)]
+        )
+    else:
+        index = rng.integers(len(data.shapes), size=batch)
     x = np.empty((batch, points, 3), np.float32)
     for b, i in enumerate(index):
         shape = data.shapes[i]

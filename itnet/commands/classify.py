@@ -186,6 +186,11 @@ def classify_train(
     decay_every: int = typer.Option(800, help="Multiply the learning rate by 0.7 every N steps."),
     bn_momentum: float = typer.Option(0.1, help="BatchNorm momentum at step 0 (floor 0.01)."),
     init_from: Path | None = typer.Option(None, help="Start from this checkpoint's weights."),
+    balanced: bool = typer.Option(
+        False,
+        help="Classes weigh alike: drawn uniformly into batches, best.pt chosen on the "
+        "validation's mean class accuracy.",
+    ),
     eval_every: int = typer.Option(200, help="Validate and checkpoint every N steps."),
     threads: int = typer.Option(1, help="torch threads."),
     compile: bool = typer.Option(
@@ -205,6 +210,7 @@ def classify_train(
         decay_every=decay_every,
         bn_momentum=(bn_momentum, 0.01),
         init_from=init_from,
+        balanced=balanced,
         eval_every=eval_every,
         threads=threads,
         cache=cache,

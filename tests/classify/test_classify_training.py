@@ -96,3 +96,54 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     assert written["card"]["precision"] == graph.card.precision
     assert written["unsure"]["test_views"] == 12
     assert written["unsure"]["accuracy"] == pytest.approx(measured, abs=1e-4)
+
+
+def test_balanced_batches_draw_classes_alike() -> None:
+    from itnet.model.classify_data import LabelledShapes, training_batch
+    from itnet.model.scanner import scan_config
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(4)
+    shapes = [Shape(f"s{i}", SHAPES["ball"](rng, 300)) for i in range(40)]
+    labels = np.array([0] * 36 + [1] * 3 + [2] * 1)  # 90% / 7.5% / 2.5%
+    data = LabelledShapes(shapes, labels)
+    configs = [scan_config({})]
+    drawn = {False: [], True: []}
+    for balanced in (False, True):
+        for step in range(6):
+            x, y = training_batch(data, 32, 64, np.random.default_rng(step), configs, balanced)
+            assert x.shape == (32, 64, 3) and np.isfinite(x).all()
+            drawn[balanced] += list(y)
+    share = {b: np.bincount(drawn[b], minlength=3) / len(drawn[b]) for b in drawn}
+    assert share[False][0] > 0.8  # in proportion to the split
+    assert np.all(np.abs(share[True] - 1 / 3) < 0.1), share[True]  # one third each
+
+
+def test_balanced_run_keeps_the_best_mean_class_accuracy(tmp_path: Path) -> None:
+    import torch
+
+    rng = np.random.default_rng(1)
+    for name, count in (("ball", 30), ("plate", 6), ("rod", 6)):  # validation: 6, 1, 1 shapes
+        for split, n in (("train", count), ("test", 2)):
+            (tmp_path / "data" / name / split).mkdir(parents=True)
+            for i in range(n):
+                cloud = SHAPES[name](rng, 400) * rng.uniform(0.8, 1.2, 3)
+                np.save(tmp_path / "data" / name / split / f"{name}_{i}.npy", cloud)
+    config = ClassifyConfig(
+        data=tmp_path / "data", variant="none", out=tmp_path / "run", cache=tmp_path / "cache",
+        steps=40, batch=8, points=32, lr=3e-3, decay_every=1000, eval_every=5, log_every=5,
+        val_views=2, test_views=2, widths=((8, 16, 32), (16, 8)), bf16=False, balanced=True,
+        validation_fraction=0.2,
+    )  # fmt: skip
+    train(config)
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    vals = [e for e in log if e.get("event") == "val"]
+    assert len(vals) == 8
+
+    def first_best(key: str) -> int:
+        return max(vals, key=lambda e: (e[key], -e["step"]))["step"]
+
+    # the two rules disagree on this run, so the test tells them apart
+    assert first_best("val_mean_class") != first_best("val_accuracy"), vals
+    state = torch.load(tmp_path / "run" / "best.pt", map_location="cpu", weights_only=False)
+    assert state["step"] == first_best("val_mean_class")
