@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -159,7 +160,11 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         + "\n"
     )
     forward = CompiledForward(net, config.compile)
-    bar = tqdm(total=config.steps, initial=step, disable=not progress, desc="train")
+    # a log file (nohup) gets a line a minute, a terminal a live bar
+    every_s = 1.0 if sys.stderr.isatty() else 60.0
+    bar = tqdm(
+        total=config.steps, initial=step, disable=not progress, desc="train", mininterval=every_s
+    )
     losses: list[float] = []
     started = time.time()
     while step < config.steps:
@@ -187,7 +192,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         bar.update(1)
         if step % config.log_every == 0:
             mean = float(np.mean(losses[-config.log_every :]))
-            bar.set_postfix(loss=f"{mean:.4f}", lr=f"{lr:.1e}", val=f"{best['val_accuracy']:.3f}")
+            bar.set_postfix(
+                loss=f"{mean:.4f}", lr=f"{lr:.1e}", val=f"{best['val_accuracy']:.3f}", refresh=False
+            )
             log.write(
                 json.dumps(
                     {
