@@ -178,11 +178,13 @@ def test_probes_are_answered_when_every_connection_is_busy(slow_server: LiveServ
 
 
 def test_elapsed_ms_counts_from_the_first_byte(slow_server: LiveServer, points: list) -> None:
-    """A request whose head took 200 ms to arrive, with a 100 ms budget: its reply says so
-    (elapsed >= 200 ms, no step) and comes at once (before: the clock started when the head was
-    complete, and the run spent another 100 ms)."""
+    """A request whose head took 200 ms to arrive, with a 150 ms budget: its reply says so
+    (elapsed >= 200 ms, no step) and comes without spending the budget again (before: the clock
+    started when the head was complete, and the run took ~7 steps of 20 ms in another 150 ms).
+    No step is the sharp check; the wait only has to stay under the budget, because parsing the
+    body took up to 120 ms on a loaded 2-core host."""
     port = slow_server.host_port[1]
-    body = json.dumps({"points": points, "budget_ms": 100}).encode()
+    body = json.dumps({"points": points, "budget_ms": 150}).encode()
     full = head(length=len(body)) + body
     sock = socket.create_connection(("127.0.0.1", port), timeout=5)
     sock.sendall(full[:10])
@@ -197,7 +199,7 @@ def test_elapsed_ms_counts_from_the_first_byte(slow_server: LiveServer, points: 
     sock.close()
     data = json.loads(reply.split(b"\r\n\r\n", 1)[1])
     assert data["elapsed_ms"] >= 200 and data["iterations"] == 0, data["elapsed_ms"]
-    assert waited_ms < 60
+    assert waited_ms < 150
 
 
 def test_a_body_trickled_within_the_idle_time_still_meets_its_deadline(
