@@ -20,6 +20,17 @@ SHAPES = {
 }
 
 
+def tiny_run(data: Path, out: Path, **overrides: object) -> ClassifyConfig:
+    """A tiny itnet-1 run on ``data`` into ``out``/run (cache in ``out``/cache)."""
+    base = {
+        "data": data, "variant": "itnet-1", "out": out / "run", "cache": out / "cache",
+        "steps": 60, "batch": 16, "points": 64, "lr": 3e-3, "decay_every": 1000,
+        "eval_every": 30, "log_every": 10, "val_views": 2, "test_views": 2,
+        "widths": ((16, 32, 64), (32, 16)), "bf16": False,
+    }  # fmt: skip
+    return ClassifyConfig.model_validate({**base, **overrides})
+
+
 @pytest.fixture(scope="module")
 def three_classes(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rng = np.random.default_rng(0)
@@ -36,11 +47,7 @@ def three_classes(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path: Path) -> None:
-    config = ClassifyConfig(
-        data=three_classes, variant="itnet-1", out=tmp_path / "run", cache=tmp_path / "cache",
-        steps=60, batch=16, points=64, lr=3e-3, decay_every=1000, eval_every=30, log_every=10,
-        val_views=2, test_views=2, widths=((16, 32, 64), (32, 16)), bf16=False,
-    )  # fmt: skip
+    config = tiny_run(three_classes, tmp_path)
     result = train(config)
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     losses = [entry["loss"] for entry in log if "loss" in entry]
@@ -71,11 +78,7 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     from itnet.export.classifier_export import score_graph
     from itnet.service.runtime import LoadedClassifier, load_any
 
-    config = ClassifyConfig(
-        data=three_classes, variant="itnet-1", out=tmp_path / "run", cache=tmp_path / "cache",
-        steps=20, batch=16, points=64, lr=3e-3, decay_every=1000, eval_every=10, log_every=10,
-        val_views=2, test_views=2, widths=((16, 32, 64), (32, 16)), bf16=False,
-    )  # fmt: skip
+    config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10)
     result = train(config)
     out, report = tmp_path / "c.onnx", tmp_path / "export.json"
     args = ["classify-export", str(config.out), "--out", str(out), "--report", str(report)]
@@ -129,11 +132,9 @@ def test_balanced_run_keeps_the_best_mean_class_accuracy(tmp_path: Path) -> None
             for i in range(n):
                 cloud = SHAPES[name](rng, 400) * rng.uniform(0.8, 1.2, 3)
                 np.save(tmp_path / "data" / name / split / f"{name}_{i}.npy", cloud)
-    config = ClassifyConfig(
-        data=tmp_path / "data", variant="none", out=tmp_path / "run", cache=tmp_path / "cache",
-        steps=40, batch=8, points=32, lr=3e-3, decay_every=1000, eval_every=5, log_every=5,
-        val_views=2, test_views=2, widths=((8, 16, 32), (16, 8)), bf16=False, balanced=True,
-        validation_fraction=0.2,
+    config = tiny_run(
+        tmp_path / "data", tmp_path, variant="none", steps=40, batch=8, points=32, eval_every=5,
+        log_every=5, widths=((8, 16, 32), (16, 8)), balanced=True, validation_fraction=0.2,
     )  # fmt: skip
     train(config)
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
