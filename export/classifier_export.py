@@ -160,7 +160,7 @@ def card_from_run(
     threshold = choose_threshold(list(scores.val_probs.max(1)), list(correct), target)
     return ClassifierCard(
         classes=result["classes"],
-        points=points or int(config["points"]),
+        points=points or trained_points(run),
         transformer=result["variant"],
         threshold=threshold,
         accuracy=round(test["accuracy"], 4),
@@ -180,6 +180,11 @@ def card_from_run(
             "validation": round(val["accuracy"], 4),
         },
     )
+
+
+def trained_points(run: Path) -> int:
+    """Points per view the run trained with (its config.json)."""
+    return int(json.loads((run / "config.json").read_text())["points"])
 
 
 def unsure_split(scores: GraphScores, threshold: float) -> dict[str, float]:

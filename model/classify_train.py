@@ -260,15 +260,12 @@ def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x
         return json.loads(path.read_text())
     net, state = load_classifier(config.out / "best.pt")
     test_x, test_y = run_views(config, splits, "test")
-    val_probs = predict(net, val_x)
     result = {
         "variant": config.variant,
         "classes": classes,
         "best_step": state["step"],
         "steps": config.steps,
-        "val": metrics(val_probs, val_y, classes),
-        "val_max_probability": val_probs.max(1).tolist(),
-        "val_correct": (val_probs.argmax(1) == val_y).tolist(),
+        "val": metrics(predict(net, val_x), val_y, classes),
         "test": metrics(predict(net, test_x), test_y, classes),
     }
     path.write_text(json.dumps(result))

@@ -125,6 +125,7 @@ def classify_export(
         card_from_run,
         export_classifier,
         score_graph,
+        trained_points,
         unsure_split,
     )
     from itnet.export.onnx_export import save_with_card
@@ -137,7 +138,7 @@ def classify_export(
     result = json.loads((run / "result.json").read_text())
     provisional = ClassifierCard(
         classes=result["classes"],
-        points=points or net_points(run),
+        points=points or trained_points(run),
         transformer=result["variant"],
     )
     with tempfile.TemporaryDirectory() as tmp:
@@ -170,11 +171,6 @@ def classify_export(
         split = unsure_split(scores, card.threshold)
         report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))
         typer.echo(f"test views at the threshold: {json.dumps(split)}; wrote {report}")
-
-
-def net_points(run: Path) -> int:
-    """Points per view the run trained with (its config.json)."""
-    return int(json.loads((run / "config.json").read_text())["points"])
 
 
 def classify_train(
