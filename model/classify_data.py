@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.model.data import cached_scan_set, load_shapes, split_files
-from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_shape
+from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_of
 from itnet.model.shapes import Shape
 from itnet.preprocess import estimate_normalization, resample
 
@@ -86,7 +86,7 @@ def training_batch(
     for b, i in enumerate(index):
         shape = data.shapes[i]
         config = configs[int(rng.integers(len(configs)))]
-        cloud, _ = scan_shape(shape.points, rng, config, shape.triangles)
+        cloud, _ = scan_of(shape, rng, config)
         x[b] = normalised_view(cloud, points, rng)
     return x, data.labels[index]
 

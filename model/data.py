@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.model.scanner import ScanConfig, scan_shape
+from itnet.model.scanner import ScanConfig, scan_of
 from itnet.model.shapes import Shape, check_yaw, list_shape_files, load_shape
 from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
 
@@ -139,7 +139,7 @@ def make_scan_set(
     clouds, poses, radii, names = [], [], [], []
     for shape in shapes:
         for _ in range(views):
-            cloud, pose = scan_shape(shape.points, rng, _pick(configs, rng), shape.triangles)
+            cloud, pose = scan_of(shape, rng, _pick(configs, rng))
             unit = 10 ** rng.uniform(-2, 2)
             pose = pose.copy()
             pose[:3, 3] *= unit
@@ -190,6 +190,6 @@ def training_batch(
     if indices is None:
         indices = rng.integers(len(shapes), size=batch)
     for b, i in enumerate(indices):
-        cloud, pose = scan_shape(shapes[i].points, rng, _pick(configs, rng), shapes[i].triangles)
+        cloud, pose = scan_of(shapes[i], rng, _pick(configs, rng))
         xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
     return xs, targets

@@ -14,6 +14,9 @@ Two scanners:
   up to ~60 degrees. These "occluded" views (the defaults) are what the product is measured on.
   ``PAPER_VIEWS`` is the paper's rule, the nearest point per pixel and nothing else: on sparse
   point sets a good part of the far side shows through, so those views are easier.
+  ``SURFACE_VIEWS`` (``splat`` > 0) see each point as a small oriented disc and z-buffer the
+  discs exactly (``model/surface.py``): the point set behaves like the surface it was sampled
+  from, as a depth camera sees a mesh.
 * ``raycast_scan``: for meshes, open3d ray casting through a pinhole camera.
 """
 
@@ -32,6 +35,8 @@ from itnet.geometry import (
     random_rotation,
     rigid_from_rotation_translation,
 )
+from itnet.model.shapes import Shape
+from itnet.model.surface import splat_visible, surface_discs
 
 
 @dataclass(frozen=True)
@@ -48,6 +53,7 @@ class ScanConfig:
     outlier_fraction: tuple[float, float] = (0.0, 0.01)
     raycast_resolution: tuple[int, int] = (96, 160)  # image width range for mesh ray casting
     min_points: int = 64
+    splat: float = 0.0  # > 0: points are discs this many local spacings wide (SURFACE_VIEWS)
 
 
 PAPER_VIEWS: dict[str, object] = {
@@ -56,6 +62,17 @@ PAPER_VIEWS: dict[str, object] = {
     "occlusion_tolerance": float("inf"),
 }
 """ScanConfig overrides for the paper's z-buffer rule (the nearest point of each pixel)."""
+
+SURFACE_VIEWS: dict[str, object] = {"splat": 1.0, "tolerance": 0.03}
+"""ScanConfig overrides for surface views: each point a disc as wide as the local spacing, seen
+when within 0.03 radii of the nearest disc at its pixel (``model/surface.py``)."""
+
+VIEW_RULES: dict[str, dict[str, object]] = {
+    "occluded": {},
+    "paper": PAPER_VIEWS,
+    "surface": SURFACE_VIEWS,
+}
+"""The named view rules (``--scanner``) and their ScanConfig overrides."""
 
 
 def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
@@ -146,17 +163,47 @@ def raycast_scan(
     return directions[ok] * hit[ok, None]
 
 
+def surfel_scan(
+    points: NDArray,
+    discs: tuple[NDArray, NDArray],
+    camera_from_canonical: NDArray,
+    pixel: float,
+    splat: float,
+    tolerance: float,
+) -> NDArray[np.float64]:
+    """Canonical points (M, 3) with their ``surface_discs`` (normals (M, 3), spacing (M,)) ->
+    the visible ones in the camera frame (K, 3), each point a disc ``splat`` spacings wide."""
+    camera_points = apply_rigid(camera_from_canonical, points)
+    camera_normals = discs[0] @ camera_from_canonical[:3, :3].T
+    seen = splat_visible(camera_points, camera_normals, splat * discs[1], pixel, tolerance)
+    return camera_points[seen]
+
+
 def scan_shape(
     points: NDArray,
     rng: np.random.Generator,
     config: ScanConfig,
     triangles: NDArray | None = None,
+    discs: tuple[NDArray, NDArray] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """One random partial scan of a canonical shape -> (camera-frame points (K, 3),
-    T_canonical_from_input (4, 4)). Retries viewpoints until at least ``min_points`` are seen."""
+    T_canonical_from_input (4, 4)). Retries viewpoints until at least ``min_points`` are seen.
+    ``discs``: the points' ``surface_discs`` for surface views (computed here when not given)."""
+    if config.splat <= 0 or triangles is not None:
+        discs = None
+    elif discs is None:
+        discs = surface_discs(points)
     for _ in range(20):
         camera_from_canonical = random_camera_pose(rng, config)
-        if triangles is None:
+        if triangles is not None:
+            width = int(rng.integers(*config.raycast_resolution))
+            seen = raycast_scan(points, triangles, camera_from_canonical, width)
+        elif discs is not None:
+            pixel = rng.uniform(*config.pixel)
+            seen = surfel_scan(
+                points, discs, camera_from_canonical, pixel, config.splat, config.tolerance
+            )
+        else:
             seen = zbuffer_scan(
                 points,
                 camera_from_canonical,
@@ -164,9 +211,15 @@ def scan_shape(
                 config.tolerance,
                 config.occlusion_tolerance,
             )
-        else:
-            width = int(rng.integers(*config.raycast_resolution))
-            seen = raycast_scan(points, triangles, camera_from_canonical, width)
         if len(seen) >= config.min_points:
             return add_sensor_effects(seen, rng, config), invert_rigid(camera_from_canonical)
     raise ValueError("no viewpoint saw enough of the shape")
+
+
+def scan_of(
+    shape: Shape, rng: np.random.Generator, config: ScanConfig
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``scan_shape`` of a Shape: its mesh when it has one, its kept surface discs for surface
+    views."""
+    discs = shape.discs() if config.splat > 0 and shape.triangles is None else None
+    return scan_shape(shape.points, rng, config, shape.triangles, discs)

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from itnet.cloud_io import SUFFIXES as CLOUD_SUFFIXES
 from itnet.cloud_io import read_cloud
 from itnet.geometry import axis_angle_to_matrix
+from itnet.model.surface import surface_discs
 
 MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
 FRAME_ROTATIONS: dict[str, NDArray[np.float64]] = {
@@ -41,6 +42,16 @@ class Shape:
     points: NDArray[np.float64]
     triangles: NDArray[np.int64] | None = None
     notes: list[str] = field(default_factory=list)
+    _discs: tuple[NDArray[np.float64], NDArray[np.float64]] | None = field(
+        default=None, repr=False, compare=False
+    )
+
+    def discs(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The points' surface discs (normals (M, 3), spacing (M,); ``surface.surface_discs``),
+        computed on first use and kept: surface views of a shape reuse them every scan."""
+        if self._discs is None:
+            self._discs = surface_discs(self.points)
+        return self._discs
 
 
 def to_canonical(points: NDArray, frame: str) -> tuple[NDArray[np.float64], float]:

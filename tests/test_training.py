@@ -94,16 +94,17 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
         "steps"
     ] == 20
 
-    # Fine-tune from it, selecting on the paper's views; a bad scanner name is refused.
+    # Fine-tune from it on all three kinds of views, selecting on surface views; a bad scanner
+    # name is refused.
     out_at = train.index("--out") + 1
     tune = [*train[:out_at], str(tmp_path / "tune"), *train[out_at + 1 :], "--steps", "10"]
-    tuned = runner.invoke(
-        app, [*tune, "--init-from", str(run / "best.pt"), "--val-scanner", "paper"]
-    )
+    init = ["--init-from", str(run / "best.pt")]
+    tuned = runner.invoke(app, [*tune, *init, "--val-scanner", "surface", "--surface-views"])
     assert tuned.exit_code == 0, tuned.output
     config = json.loads((tmp_path / "tune" / "config.json").read_text())
     assert config["init_from"] == str(run / "best.pt")
-    assert config["val_scan"]["tolerance"] == 0.0 and len(config["scan_mix"]) == 2
+    assert config["val_scan"] == {"splat": 1.0, "tolerance": 0.03}
+    assert config["scan_mix"][1]["tolerance"] == 0.0 and config["scan_mix"][2]["splat"] == 1.0
     assert runner.invoke(app, [*tune, "--val-scanner", "nearest"]).exit_code == 2
 
     ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "512"]

@@ -29,7 +29,8 @@ def evaluate(
     scanner: str = typer.Option(
         "occluded",
         help="Test views: 'occluded' (z-buffer with the 3x3 occlusion test, the product's "
-        "benchmark) or 'paper' (the paper's nearest point per pixel; see model/scanner.py).",
+        "benchmark), 'paper' (the paper's nearest point per pixel) or 'surface' (each point a disc, "
+        "as a camera sees a mesh); see model/scanner.py.",
     ),
     out: Path = typer.Option(Path("runs/eval"), help="Folder for report.json and anytime.png."),
     dump_scans: Path | None = typer.Option(
@@ -48,14 +49,14 @@ def evaluate(
     from itnet.model.category_set import test_scans
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
-    from itnet.model.scanner import PAPER_VIEWS, scan_config
+    from itnet.model.scanner import VIEW_RULES, scan_config
 
     batch = 50  # clouds per network call
     if (checkpoint is None) == (onnx is None):
         raise typer.BadParameter("give exactly one of --checkpoint or --onnx")
-    if scanner not in ("occluded", "paper"):
-        raise typer.BadParameter("--scanner must be 'occluded' or 'paper'")
-    config = scan_config(PAPER_VIEWS if scanner == "paper" else {})
+    if scanner not in VIEW_RULES:
+        raise typer.BadParameter(f"--scanner must be one of {', '.join(VIEW_RULES)}")
+    config = scan_config(VIEW_RULES[scanner])
     if checkpoint is not None:
         from itnet.model.evaluate import torch_step
         from itnet.model.train import load_checkpoint

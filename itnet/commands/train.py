@@ -61,10 +61,16 @@ def train(
         0.5, help="BatchNorm momentum at step 0 (halves every DECAY_EVERY steps, floor 0.01)."
     ),
     val_scanner: str = typer.Option(
-        "occluded", help="Validation views (model selection): 'occluded' or 'paper'."
+        "occluded",
+        help="Validation views (model selection): 'occluded', 'paper' or 'surface'.",
     ),
     paper_views: bool = typer.Option(
         True, help="Train on the paper's z-buffer views too, half of the scans (view variety)."
+    ),
+    surface_views: bool = typer.Option(
+        False,
+        help="Train on surface views too (each point a disc, as a camera sees a mesh; "
+        "model/surface.py): the scans are split evenly between the kinds of views.",
     ),
     cache: Path = typer.Option(Path("cache"), help="Cache of canonical shapes and fixed scans."),
 ) -> None:
@@ -73,14 +79,14 @@ def train(
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
     --device cuda --batch 100 --steps 20000 --decay-every 2000.
     """
-    from itnet.model.scanner import PAPER_VIEWS
+    from itnet.model.scanner import PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
     from itnet.model.train import TrainConfig
     from itnet.symmetry import SYMMETRY_NAMES
 
     if symmetry != "auto" and symmetry not in SYMMETRY_NAMES:
         raise typer.BadParameter(f"--symmetry must be auto or one of {', '.join(SYMMETRY_NAMES)}")
-    if val_scanner not in ("occluded", "paper"):
-        raise typer.BadParameter("--val-scanner must be 'occluded' or 'paper'")
+    if val_scanner not in VIEW_RULES:
+        raise typer.BadParameter(f"--val-scanner must be one of {', '.join(VIEW_RULES)}")
     from itnet.model.train import train as run_training
 
     config = TrainConfig(
@@ -109,8 +115,8 @@ def train(
         cache=cache,
         init_from=init_from,
         bn_momentum=(bn_momentum, 0.01),
-        scan_mix=[{}, PAPER_VIEWS] if paper_views else [{}],
-        val_scan=PAPER_VIEWS if val_scanner == "paper" else {},
+        scan_mix=[{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)],
+        val_scan=VIEW_RULES[val_scanner],
     )
     best = run_training(config, resume=resume)
     typer.echo(
