@@ -62,7 +62,7 @@ def splat_visible(
     s = p[:, :2] / z[:, None] / angular  # continuous pixel coordinates
     own = np.floor(s).astype(np.int64)
     reach = np.minimum(np.ceil(r / (angular * z)).astype(np.int64), MAX_PIXEL_REACH)
-    span = np.arange(-MAX_PIXEL_REACH, MAX_PIXEL_REACH + 1)
+    span = np.arange(-reach.max(), reach.max() + 1)
     du, dv = (o.ravel() for o in np.meshgrid(span, span, indexing="ij"))
     offsets_of = (np.abs(du)[None] <= reach[:, None]) & (np.abs(dv)[None] <= reach[:, None])
     point, k = np.nonzero(offsets_of)  # candidate (disc, pixel) pairs
