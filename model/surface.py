@@ -21,13 +21,14 @@ MAX_PIXEL_REACH = 6  # pixels a disc may cover from its centre's pixel, each way
 
 
 def surface_discs(
-    points: NDArray, neighbours: int = 8, block: int = 2048
+    points: NDArray, neighbours: int = 8, cells: int = 4_000_000
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Points (M, 3) -> (unit normals (M, 3), local spacing (M,)).
 
     The normal is the least-variance direction of the point and its ``neighbours`` nearest
     neighbours (sign arbitrary: the z-buffer does not need it); the spacing is the mean distance
-    to those neighbours. Brute-force neighbours in blocks of ``block`` rows (M ≤ a few 10^4).
+    to those neighbours. Brute-force neighbours, a block of rows at a time with at most
+    ``cells`` distances in memory (32 MB by default).
     """
     p = np.asarray(points, dtype=np.float64)
     k = min(neighbours, len(p) - 1)
@@ -35,6 +36,7 @@ def surface_discs(
         raise ValueError(f"need at least 3 points for surface discs, got {len(p)}")
     normals, spacing = np.empty_like(p), np.empty(len(p))
     sq = (p * p).sum(1)
+    block = max(1, cells // len(p))
     for start in range(0, len(p), block):
         rows = slice(start, start + block)
         d2 = np.maximum(sq[rows, None] + sq[None, :] - 2 * p[rows] @ p.T, 0.0)

@@ -95,3 +95,10 @@ def test_surface_scans_of_a_shape_reuse_its_discs(rng, monkeypatch):
     assert 0.15 * 600 < len(cloud) < 0.6 * 600 and 0.15 * 600 < len(cloud2) < 0.6 * 600
     # A point-z-buffer rule leaves the shape without discs.
     scan_of(Shape("other", _sphere(rng, 600)), rng, scan_config(PAPER_VIEWS))
+
+
+def test_discs_come_out_the_same_a_few_rows_at_a_time(rng):
+    points = rng.normal(size=(700, 3))
+    whole, blocked = surface_discs(points), surface_discs(points, cells=5000)  # 7 rows a block
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", whole[0], blocked[0])), 1.0)
+    assert np.allclose(whole[1], blocked[1])
