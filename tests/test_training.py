@@ -108,6 +108,9 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     assert runner.invoke(app, [*tune, "--val-scanner", "nearest"]).exit_code == 2
 
     ev = ["eval", *common, "--views", "2", "--iterations", "3", "--points", "512"]
+    ev += ["--scanner", "surface"]  # the torch and ONNX evaluations below on surface views
+    bad = runner.invoke(app, [*ev[:-1], "nearest", "--checkpoint", str(run / "best.pt")])
+    assert bad.exit_code == 2 and "occluded, paper, surface" in bad.output
     torch_eval = runner.invoke(
         app, [*ev, "--checkpoint", str(run / "best.pt"), "--out", str(tmp_path / "e1")]
     )
@@ -146,6 +149,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     assert onnx_eval.exit_code == 0, onnx_eval.output
     r1, r2 = (json.loads((tmp_path / e / "report.json").read_text()) for e in ("e1", "e2"))
     assert np.allclose(r1["median_rotation_deg"], r2["median_rotation_deg"], atol=0.05)
+    assert r1["scanner"] == r2["scanner"] == "surface"
     assert (tmp_path / "e1" / "anytime.png").stat().st_size > 10_000
 
     scans = sorted((tmp_path / "scans").glob("*.npy"))
