@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from torch import Tensor, nn
 
 from itnet.export.onnx_export import save_with_card
-from itnet.model.classifier import Classifier, PointNetHead
+from itnet.model.classify.network import Classifier, PointNetHead
 from itnet.model.network import ExportableStep, _folded, _folded_mlp
 from itnet.model_card import ClassifierCard
 
@@ -133,7 +133,7 @@ class GraphScores:
 def score_graph(model: LoadedClassifier, run: Path) -> GraphScores:
     """Run an exported graph over the run's fixed validation and test views, one view per call
     as the service runs it (an int8 graph quantises its activations with one scale per call)."""
-    from itnet.model.classify_train import ClassifyConfig, run_splits, run_views
+    from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
 
     config = ClassifyConfig.model_validate_json((run / "config.json").read_text())
     _, splits = run_splits(config)
@@ -150,7 +150,7 @@ def card_from_run(
 ) -> ClassifierCard:
     """The card of a finished run's exported graph: classes and training from the run, test
     accuracy and the unsure threshold (chosen on the validation views) from ``scores``."""
-    from itnet.model.classify_train import metrics
+    from itnet.model.classify.train import metrics
 
     result = json.loads((run / "result.json").read_text())
     config = json.loads((run / "config.json").read_text())

@@ -73,8 +73,8 @@ def classify_experiment(
 ) -> None:
     """Train every row of the table (resumable: finished rows are skipped), then write the
     report. Rows: none, T-Net (1, 2 iterations), T-Net + regulariser (1, 2), IT-Net (1, 2)."""
-    from itnet.model.classify_experiment import ORDER, run_table
-    from itnet.model.classify_train import ClassifyConfig
+    from itnet.model.classify.experiment import ORDER, run_table
+    from itnet.model.classify.train import ClassifyConfig
 
     base = ClassifyConfig(
         data=data,
@@ -92,7 +92,7 @@ def classify_experiment(
     if not report_only:
         run_table(base, out, ORDER)
     if docs is not None:
-        from itnet.model.classify_report import write_report
+        from itnet.model.classify.report import write_report
 
         for path in write_report(out, docs, shipped):
             typer.echo(f"wrote {path}")
@@ -130,7 +130,7 @@ def classify_export(
     )
     from itnet.export.onnx_export import save_with_card
     from itnet.export.quantize import quantize_point_layers
-    from itnet.model.classify_train import load_classifier
+    from itnet.model.classify.train import load_classifier
     from itnet.model_card import ClassifierCard
     from itnet.service.runtime import LoadedClassifier, load_any
 
@@ -195,7 +195,7 @@ def classify_train(
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes and fixed views."),
 ) -> None:
     """Train one classifier (resumable), e.g. the shipped one: a table row trained longer."""
-    from itnet.model.classify_train import ClassifyConfig, train
+    from itnet.model.classify.train import ClassifyConfig, train
 
     config = ClassifyConfig(
         data=data,

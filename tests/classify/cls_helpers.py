@@ -11,7 +11,7 @@ TINY = {"point_channels": (8, 16, 32), "head_channels": (16, 8)}
 
 
 def tiny_classifier(transformer: str = "itnet", iterations: int = 1, classes: int = 3, **kw: Any):  # type: ignore[no-untyped-def]
-    from itnet.model.classifier import Classifier, ClassifierConfig
+    from itnet.model.classify.network import Classifier, ClassifierConfig
 
     config = ClassifierConfig(
         classes=classes, transformer=transformer, iterations=iterations, **TINY, **kw

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from itnet.model.classify_train import ClassifyConfig, train
+from itnet.model.classify.train import ClassifyConfig, train
 
 SHAPES = {
     "plate": lambda r, n: r.uniform(-1, 1, (n, 3)) * [1.0, 0.05, 0.7],
@@ -102,7 +102,7 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
 
 
 def test_balanced_batches_draw_classes_alike() -> None:
-    from itnet.model.classify_data import LabelledShapes, training_batch
+    from itnet.model.classify.data import LabelledShapes, training_batch
     from itnet.model.scanner import scan_config
     from itnet.model.shapes import Shape
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.model.classify_report import write_report
-from itnet.model.classify_train import metrics
+from itnet.model.classify.report import write_report
+from itnet.model.classify.train import metrics
 
 CLASSES = ["bed", "chair", "table"]
 

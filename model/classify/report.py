@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.model.classifier import PAPER_ACCURACY, VARIANTS
+from itnet.model.classify.network import PAPER_ACCURACY, VARIANTS
 
 LABELS = {
     "none": "none",

@@ -18,8 +18,7 @@ import torch
 from numpy.typing import NDArray
 from pydantic import BaseModel
 
-from itnet.model.classifier import VARIANTS, Classifier, ClassifierConfig
-from itnet.model.classify_data import (
+from itnet.model.classify.data import (
     SCAN_MIX,
     LabelledShapes,
     class_names,
@@ -27,6 +26,7 @@ from itnet.model.classify_data import (
     load_splits,
     training_batch,
 )
+from itnet.model.classify.network import VARIANTS, Classifier, ClassifierConfig
 from itnet.model.optim import (
     CompiledForward,
     bn_momentum,

@@ -3,15 +3,15 @@ budget, one after the other (each resumable), then the report.
 
 ``run_table`` trains the rows that have no ``result.json`` yet; ``itnet classify-experiment``
 calls it, then writes ``docs/classification.md`` (+ .json) and ``docs/confusion.png``
-(``model.classify_report``).
+(``itnet.model.classify.report``).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from itnet.model.classifier import VARIANTS
-from itnet.model.classify_train import ClassifyConfig, train
+from itnet.model.classify.network import VARIANTS
+from itnet.model.classify.train import ClassifyConfig, train
 
 ORDER = ("itnet-2", "none", "itnet-1", "tnet-1", "tnet-reg-1", "tnet-reg-2", "tnet-2")
 """Training order: the product's candidate first, so an interrupted table still has it."""
