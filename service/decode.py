@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
-from itnet.service.parse_pool import ParsePool
+from itnet.service.guards.parse_pool import ParsePool
 from itnet.service.schemas import EstimateParams, EstimateRequest
 
 JSON_TYPES = ("application/json",)
@@ -133,7 +133,7 @@ def count_points(body: bytes | str, max_points: int) -> None:
 
 class Decoder:
     """Decoding under a server's limits: the point count bounded before parsing; JSON bodies of
-    ``heavy_bytes`` or more parsed in a worker process (``service/parse_pool.py``), ``lanes`` at
+    ``heavy_bytes`` or more parsed in a worker process (``service/guards/parse_pool.py``), ``lanes`` at
     a time (a request that finds them taken gets a 503 at once)."""
 
     def __init__(

@@ -17,10 +17,10 @@ from typing import Any
 from fastapi import FastAPI
 
 from itnet.service.app import create_app
-from itnet.service.protocol import GuardedHttpToolsProtocol
+from itnet.service.guards.protocol import GuardedHttpToolsProtocol
+from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
 from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
-from itnet.service.ws_protocol import GuardedWebSocketProtocol
 
 FACTORY = "itnet.service.server:app_from_env"
 log = logging.getLogger("itnet.service")

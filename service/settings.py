@@ -85,13 +85,13 @@ class LimitSettings(BaseModel):
 
 
 class ServerSettings(BaseModel):
-    """The connection-level limits, enforced by uvicorn and ``itnet.service.protocol``."""
+    """The connection-level limits, enforced by uvicorn and ``itnet.service.guards.protocol``."""
 
     max_connections: int = Field(
         default=256,
         ge=1,
         description="open connections, HTTP and WebSocket; a newcomer evicts the stalest idle "
-        "one (service/connections.py)",
+        "one (service/guards/connections.py)",
     )
     probe_connections: int = Field(
         default=16,

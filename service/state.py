@@ -14,11 +14,11 @@ from functools import partial
 
 from numpy.typing import ArrayLike
 
-from itnet.service.byte_budget import ByteBudget
 from itnet.service.decode import Decoder, shorten
 from itnet.service.draining import StreamDrain
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.errors import ServiceError
+from itnet.service.guards.byte_budget import ByteBudget
 from itnet.service.handback import HandbackTimer
 from itnet.service.metrics import Metrics
 from itnet.service.recognition import AUTO, RecognisedRun, recognise
@@ -83,7 +83,7 @@ class ServiceState:
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics
         )
         self.handback = HandbackTimer()
-        # Request bytes held at once (service/byte_budget.py), and decoding under the limits.
+        # Request bytes held at once (service/guards/byte_budget.py), and decoding under the limits.
         self.buffers = ByteBudget(limits.max_buffered_bytes)
         self.decoder = Decoder(limits.max_points, limits.heavy_json_bytes,
                                limits.json_parse_lanes, limits.retry_after_s)  # fmt: skip

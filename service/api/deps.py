@@ -9,7 +9,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 from starlette.requests import HTTPConnection
 
-from itnet.service.body import limited_body
+from itnet.service.guards.body import limited_body
 from itnet.service.metrics import ARRIVED
 from itnet.service.state import ServiceState
 
@@ -30,7 +30,7 @@ async def gate_open(state: StateDep) -> None:
 
 
 async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
-    """The request body under the server's limits (``service/body.py``: size, encoding, the
+    """The request body under the server's limits (``service/guards/body.py``: size, encoding, the
     byte budget, a deadline from the first byte), held in the budget until the request ends."""
     limits = state.settings.limits
     async with limited_body(request, limits, state.buffers, arrival(request)) as body:

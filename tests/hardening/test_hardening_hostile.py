@@ -229,7 +229,7 @@ def test_large_requests_leave_a_quarter_of_the_budget_to_small_ones() -> None:
     """Uploads that announce the body limit and stall fill at most three quarters of the byte
     budget: an ordinary request still fits (before: they took all of it, and every request
     got 503 until they timed out)."""
-    from itnet.service.byte_budget import ByteBudget
+    from itnet.service.guards.byte_budget import ByteBudget
 
     budget = ByteBudget(16 * 2**20, large=2**20)
     stalled = 0

@@ -23,10 +23,10 @@ from hardening_helpers import SERVER, LiveServer, wait_for
 from itnet.service.api.routes.stream import _stream_run
 from itnet.service.app import create_app
 from itnet.service.engine import AnytimeRun
+from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
 from itnet.service.runtime import LoadedModel
 from itnet.service.server import uvicorn_options
 from itnet.service.settings import ServerSettings, Settings
-from itnet.service.ws_protocol import GuardedWebSocketProtocol
 
 
 def raw(server: LiveServer, data: bytes = b"") -> socket.socket:

@@ -1,4 +1,4 @@
-"""Large JSON bodies are parsed in a worker process (``service/parse_pool.py``, issue 14 (b) and
+"""Large JSON bodies are parsed in a worker process (``service/guards/parse_pool.py``, issue 14 (b) and
 (c)): other requests are not held up by the parse, the server never holds the parsed lists, bad
 bodies get the same 4xx as in-process, and the worker goes away when idle."""
 
@@ -19,7 +19,7 @@ from hardening_helpers import LIMITS, LiveServer, cloud, live_server, wait_for
 
 from itnet.service.decode import Decoder, decode_json
 from itnet.service.errors import ServiceError
-from itnet.service.parse_pool import ParsePool
+from itnet.service.guards.parse_pool import ParsePool
 from itnet.service.runtime import LoadedModel
 from itnet.service.schemas import EstimateRequest, StreamRequest
 from itnet.service.settings import Settings

@@ -20,8 +20,8 @@ from contextlib import asynccontextmanager
 import anyio
 from starlette.requests import ClientDisconnect, Request
 
-from itnet.service.byte_budget import ByteBudget
 from itnet.service.errors import ServiceError, too_large
+from itnet.service.guards.byte_budget import ByteBudget
 from itnet.service.settings import LimitSettings
 
 

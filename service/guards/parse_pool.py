@@ -4,13 +4,13 @@ A 250,000-point JSON body takes pydantic ~0.3 s, all of it holding the GIL: in-p
 other request of the server waits that long (issue 14: replies of 50 ms budgets came back
 +580 ms late beside one client looping such bodies), and the parsed Python lists left the
 server's heap ~90 MiB larger afterwards. Here the body goes down a pipe to a worker process
-(``service/parse_worker.py``), which runs the server's own checks (so a bad body gets the same
+(``service/guards/parse_worker.py``), which runs the server's own checks (so a bad body gets the same
 4xx) and sends back the cloud as float64 bytes (24 bytes a point) and the request's other
 fields. The server only moves bytes (pipe reads and writes release the GIL); it never holds the
 parsed lists.
 
 * At most ``workers`` processes (``json_parse_lanes``), each started on demand (a plain
-  subprocess running ``python -m itnet.service.parse_worker``: no ``fork`` of a threaded
+  subprocess running ``python -m itnet.service.guards.parse_worker``: no ``fork`` of a threaded
   server, no re-import of its ``__main__``) and stopped after ``idle_s`` without a body, so
   their memory (~50 MiB each, mostly imports) is given back when large bodies stop.
 * How many bodies wait is bounded by the caller (``Decoder``'s lanes: one parse per worker,
@@ -50,7 +50,7 @@ class _Worker:
 
     def __init__(self) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "itnet.service.parse_worker"],
+            [sys.executable, "-m", "itnet.service.guards.parse_worker"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
         )

@@ -1,4 +1,4 @@
-"""The large-JSON parser's worker process: ``python -m itnet.service.parse_worker``.
+"""The large-JSON parser's worker process: ``python -m itnet.service.guards.parse_worker``.
 
 It reads requests from stdin and writes replies to stdout, one at a time, until stdin closes.
 

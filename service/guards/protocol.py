@@ -1,6 +1,6 @@
 """uvicorn's httptools protocol with the connection limits it lacks.
 
-* **Every connection counts** (``service/connections.py``): HTTP connections and the WebSockets
+* **Every connection counts** (``service/guards/connections.py``): HTTP connections and the WebSockets
   they upgrade to share ``max_connections``. A newcomer to a full table evicts the connection
   that has waited longest without a request under way (an unfinished head, an idle keep-alive,
   a WebSocket that has not sent its request), so slow senders and idle sockets cannot keep out a
@@ -29,8 +29,8 @@ import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from uvicorn.server import ServerState
 
-from itnet.service.byte_budget import ByteBudget
-from itnet.service.connections import Admission, ConnectionTable, Phase
+from itnet.service.guards.byte_budget import ByteBudget
+from itnet.service.guards.connections import Admission, ConnectionTable, Phase
 from itnet.service.metrics import ARRIVED
 from itnet.service.settings import ServerSettings
 
@@ -176,7 +176,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         raw_reply(self.transport, b"503 Service Unavailable", body, headers)
 
     def _evict(self) -> None:
-        """Chosen to make room (service/connections.py): close without a word."""
+        """Chosen to make room (service/guards/connections.py): close without a word."""
         self._stop_head()
         if not self.transport.is_closing():
             self.transport.close()

@@ -1,6 +1,6 @@
 """uvicorn's WebSocket protocol (websockets, sans-I/O) with the limits it lacks.
 
-* The connection stays in the server's connection table (``service/connections.py``) after the
+* The connection stays in the server's connection table (``service/guards/connections.py``) after the
   upgrade: ``WS_WAIT`` (evictable) until its first message, ``BUSY`` after.
 * The bytes of messages being received, over every connection, come from one budget
   (``ws_buffer_bytes``). The websockets library refuses a frame whose header announces more than
@@ -24,9 +24,9 @@ from typing import Any
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.frames import Frame
 
-from itnet.service.connections import Phase
+from itnet.service.guards.connections import Phase
+from itnet.service.guards.protocol import Limits
 from itnet.service.metrics import ARRIVED
-from itnet.service.protocol import Limits
 
 MAX_FRAGMENTS = 1024
 TRY_LATER, BAD_DATA, TOO_BIG = 1013, 1007, 1009
@@ -131,7 +131,7 @@ class GuardedWebSocketProtocol(WebSocketsSansIOProtocol):
         return True
 
     def _evict(self) -> None:
-        """Chosen to make room (service/connections.py): close 1013 (try again later)."""
+        """Chosen to make room (service/guards/connections.py): close 1013 (try again later)."""
         self._fail(TRY_LATER, "the server is full; retry later")
 
     def _fail(self, code: int, reason: str) -> None:
