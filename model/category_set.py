@@ -70,6 +70,27 @@ def test_scans(
     return cached_scan_set(shapes, views, seed, scan, cache), orientation
 
 
+def validation_scans(
+    data: Path,
+    cat: Category,
+    views: int = 4,
+    seed: int = 0,
+    scan: ScanConfig | None = None,
+    cache: Path = Path("cache"),
+    frame: str = "modelnet",
+    check_orientation: bool = True,
+    validation_fraction: float = 0.1,
+) -> ScanSet:
+    """A category's fixed validation scans (cached): its held-out training shapes
+    (``validation_fraction``, split by ``seed``), ``views`` each, seeded ``seed + 7``: what
+    ``itnet train`` validates on (with its defaults)."""
+    files = split_files(data, cat.name, validation_fraction, seed)["val"]
+    shapes, _ = load_shapes(files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry)
+    if not shapes:  # every one dropped by the orientation check: the caller says why
+        return ScanSet([], np.empty((0, 4, 4)), np.empty(0), [])
+    return cached_scan_set(shapes, views, seed + 7, scan or ScanConfig(), cache)
+
+
 def _turns(symmetry: str, size: int) -> NDArray[np.float32]:
     """A symmetry's turns as (size, 4, 4) homogeneous rotations, cycled to fill ``size``."""
     rotations = symmetry_group(symmetry, LOSS_YAW_SAMPLES)
@@ -104,17 +125,20 @@ def load_category_set(
         train, orientation[name] = load_shapes(
             files["train"], frame, cache, check_orientation, **load
         )
-        val, _ = load_shapes(files["val"], frame, cache, check_orientation, **load)
-        if not train or not val:
+        validation[name] = validation_scans(
+            data, cat, val_views, seed, val_scan, cache, frame, check_orientation,
+            validation_fraction,
+        )  # fmt: skip
+        if not train or not validation[name].clouds:
             raise ValueError(
-                f"{name}: the orientation check kept {len(train)} training and {len(val)} "
+                f"{name}: the orientation check kept {len(train)} training and "
+                f"{len(validation[name].clouds) // val_views} "
                 f"validation shapes ({orientation[name]}); if the shapes look alike turned about "
                 f"up, give the category its symmetry (--symmetry yaw180, yaw90 or yaw)"
             )
         shapes += train
         probabilities.append(np.full(len(train), 1.0 / (len(cats) * len(train))))
         turns.append(np.repeat(_turns(cat.symmetry, group)[None], len(train), axis=0))
-        validation[name] = cached_scan_set(val, val_views, seed + 7, val_scan, cache)
     return CategorySet(
         cats,
         shapes,
