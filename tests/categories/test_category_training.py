@@ -108,3 +108,29 @@ def test_a_category_left_empty_by_the_orientation_check_says_what_to_do(
         category_set.load_category_set(
             two_categories, ["bench"], "canonical", tmp_path, True, 0.2, 0, 1, scan_config()
         )
+
+
+def test_benchmarks_see_the_validation_scans_training_chose_on(two_categories, tmp_path):
+    from itnet.model.categories import category
+    from itnet.model.category_set import load_category_set, validation_scans
+    from itnet.model.scanner import PAPER_VIEWS, scan_config
+
+    cache, scan = tmp_path / "cache", scan_config(PAPER_VIEWS)
+    run = load_category_set(
+        two_categories, ["seat", "bench"], "canonical", cache, False, 0.3, 5, 2, scan
+    )
+    for name in ("seat", "bench"):
+        alone = validation_scans(
+            two_categories, category(name), 2, 5, scan, cache, "canonical", False, 0.3
+        )
+        assert alone.names == run.validation[name].names and len(alone.names) == 2 * 3
+        for a, b in zip(alone.clouds, run.validation[name].clouds):
+            assert np.array_equal(a, b)
+        assert np.array_equal(alone.poses, run.validation[name].poses)
+    seat = validation_scans(
+        two_categories, category("seat"), 2, 5, scan, cache, "canonical", False, 0.3
+    )
+    reseeded = validation_scans(
+        two_categories, category("seat"), 2, 6, scan, cache, "canonical", False, 0.3
+    )
+    assert not all(np.array_equal(a, b) for a, b in zip(reseeded.clouds, seat.clouds))
