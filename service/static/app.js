@@ -3,7 +3,8 @@
 // The URL holds the state, so a link reproduces a run:
 //   /?example=chair_a&model=chair&budget_ms=50&run=1          (opens the example and runs it)
 //   /?tab=align&a=chair_a&b=chair_b&refine=1&run=1            (aligns an example pair)
-// Other keys: max_iterations, play_ms (0: show iterations as they arrive). When a run ends, its
+// Other keys: max_iterations, ensemble (K runs on subsets, fused), play_ms (0: show iterations
+// as they arrive). When a run ends, its
 // final JSON is written into #result.
 
 import { getJSON, readCloudFile, streamEstimate } from './api.js';
@@ -31,7 +32,11 @@ function saveUrl(extra = {}) {
     budget_ms: $('budget').value,
     max_iterations: $('max-iterations').value || null,
     ...(tab === 'pose'
-      ? { example: state.clouds.main?.example ?? null, play_ms: $('play').value === '250' ? null : $('play').value }
+      ? {
+          example: state.clouds.main?.example ?? null,
+          ensemble: $('ensemble').value === '1' ? null : $('ensemble').value,
+          play_ms: $('play').value === '250' ? null : $('play').value,
+        }
       : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
     ...extra,
   };
@@ -101,6 +106,13 @@ function request() {
   return body;
 }
 
+/** The pose tab's request: the shared fields, plus the ensemble when more than one run. */
+function poseRequest() {
+  const body = request();
+  if (Number($('ensemble').value) > 1) body.ensemble = Number($('ensemble').value);
+  return body;
+}
+
 function runPose() {
   const cloud = state.clouds.main;
   if (!cloud) return setStatus('pick an example or drop a file first', true);
@@ -117,7 +129,7 @@ function runPose() {
   setButtons(true);
   setStatus(`running ${cloud.name}…`);
   saveUrl({ run: '1' });
-  state.stream = streamEstimate({ points: cloud.points, ...request() }, { onMessage, onClose });
+  state.stream = streamEstimate({ points: cloud.points, ...poseRequest() }, { onMessage, onClose });
 }
 
 function onMessage(message) {
@@ -131,7 +143,8 @@ function onMessage(message) {
     $('iterations').textContent = String(result.iterations);
     $('stopped-by').textContent = result.stopped_by;
     $('timing').textContent = `(${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, model ${result.model})`;
-    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, stopped by ${result.stopped_by}`);
+    const runs = result.ensemble ? `, ${result.ensemble} runs fused` : '';
+    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms${runs}, stopped by ${result.stopped_by}`);
     pump();
   } else if (message.type === 'error') {
     setStatus(`refused: ${message.detail}`, true);
@@ -235,6 +248,7 @@ async function main() {
   options($('example-b'), clouds, params.get('b') ?? examples.pairs[0]?.b ?? clouds[1]);
   if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
+  if (['4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;
   setTab(params.get('tab') === 'align' ? 'align' : 'pose');
@@ -242,7 +256,7 @@ async function main() {
 
   document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
   $('model').addEventListener('change', () => { showModel(); saveUrl(); });
-  for (const id of ['budget', 'max-iterations', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
+  for (const id of ['budget', 'max-iterations', 'ensemble', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
   const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');

@@ -64,6 +64,24 @@ def test_a_link_runs_an_example_live_and_ends_with_the_apis_pose(live_server, br
     assert not errors
 
 
+def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_page):
+    page = browser_page
+    page.goto(f"{live_server.url}/?example=chair_a&model=chair&budget_ms=5000"
+              "&max_iterations=3&ensemble=4&play_ms=0&run=1")  # fmt: skip
+    shown = result(page)
+    assert page.input_value("#ensemble") == "4" and "ensemble=4" in page.url
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="chair",
+                   budget_ms=5000, max_iterations=3, ensemble=4)  # fmt: skip
+    assert shown["ensemble"] == api["ensemble"] == 4 and shown["iterations"] == 3
+    assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
+    assert "4 runs fused" in page.text_content("#status")
+    # Back to one run: the request carries no ensemble, and the URL forgets it.
+    page.select_option("#ensemble", "1")
+    page.click("#run")
+    single = result(page)
+    assert "ensemble" not in single and "ensemble=" not in page.url
+
+
 def test_a_dropped_file_is_read_by_the_server_and_a_bad_one_is_refused(
     live_server, browser_page, tmp_path
 ):
