@@ -1,9 +1,9 @@
 """Every category's evaluation in one table and one plot.
 
 Reads the ``report.json`` files that ``itnet eval`` wrote for each category and scanner
-(``EVALS/<category>/{occluded,paper}/report.json``) and writes ``OUT/eval_categories.md`` (the
-README's table), ``OUT/eval_categories.json`` and ``OUT/anytime_categories.png`` (every
-category's anytime curve, occluded and paper views)::
+(``EVALS/<category>/{occluded,paper}/report.json``, and ``surface/`` where it was measured) and
+writes ``OUT/eval_categories.md`` (the README's table), ``OUT/eval_categories.json`` and
+``OUT/anytime_categories.png`` (every category's anytime curve, one panel per kind of view)::
 
     python -m itnet.model.category_report runs/eval_categories docs
 """
@@ -15,17 +15,21 @@ import math
 import sys
 from pathlib import Path
 
-SCANNERS = ("occluded", "paper")
+SCANNERS = ("occluded", "paper")  # every category has both
+OPTIONAL_SCANNERS = ("surface",)  # shown where measured (views as a camera sees a mesh)
 SHOWN_ITERATION = 10
 
 
 def load_reports(evals: Path) -> dict[str, dict[str, dict]]:
-    """{category: {scanner: report}} for every category folder holding both scanners' reports."""
+    """{category: {scanner: report}} for every category folder holding both required scanners'
+    reports (and the optional ones it has)."""
     out: dict[str, dict[str, dict]] = {}
     for folder in sorted(p for p in evals.iterdir() if p.is_dir()):
-        reports = {s: folder / s / "report.json" for s in SCANNERS}
-        if all(p.exists() for p in reports.values()):
-            out[folder.name] = {s: json.loads(p.read_text()) for s, p in reports.items()}
+        reports = {s: folder / s / "report.json" for s in SCANNERS + OPTIONAL_SCANNERS}
+        if all(reports[s].exists() for s in SCANNERS):
+            out[folder.name] = {
+                s: json.loads(p.read_text()) for s, p in reports.items() if p.exists()
+            }
     return out
 
 
@@ -34,24 +38,31 @@ def _stderr_points(accuracy: float, scans: int) -> float:
 
 
 def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
-    """Markdown: per category, accuracy at ``k`` iterations on both scanners (± one standard
+    """Markdown: per category, accuracy at ``k`` iterations on every scanner (± one standard
     error), rotation/translation shares and median errors on occluded views, objects kept."""
     lines = [
         f"| category | symmetry | test objects (kept / turned / dropped) | scans | occluded views: "
         f"accuracy % at {k} | rot < 10° % | trans < 0.1 % | median rot ° | median trans (r) "
-        f"| paper views: accuracy % at {k} | median rot ° |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| surface views: accuracy % at {k} | paper views: accuracy % at {k} | median rot ° |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, by in reports.items():
         occ, pap = by["occluded"], by["paper"]
         i = occ["iterations"].index(k)
         o = occ.get("orientation", {})
         kept = f"{o.get('kept', '?')} / {o.get('turned', '?')} / {o.get('dropped', '?')}"
+        surface = by.get("surface")
+        surf = (
+            f"**{100 * surface['accuracy'][i]:.1f}** ± "
+            f"{_stderr_points(surface['accuracy'][i], surface['scans']):.1f}"
+            if surface
+            else "–"
+        )
         lines.append(
             f"| {name} | {occ.get('symmetry', 'none')} | {kept} | {occ['scans']} | "
             f"**{100 * occ['accuracy'][i]:.1f}** ± {_stderr_points(occ['accuracy'][i], occ['scans']):.1f} | "
             f"{100 * occ['rotation_accuracy'][i]:.1f} | {100 * occ['translation_accuracy'][i]:.1f} | "
-            f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | "
+            f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | {surf} | "
             f"**{100 * pap['accuracy'][i]:.1f}** ± {_stderr_points(pap['accuracy'][i], pap['scans']):.1f} | "
             f"{pap['median_rotation_deg'][i]:.1f} |"
         )
@@ -59,16 +70,21 @@ def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
 
 
 def plot(reports: dict[str, dict[str, dict]], path: Path) -> Path:
-    """Two panels (occluded, paper views): accuracy by iteration, one line per category."""
+    """One panel per kind of view (occluded, surface where measured, paper): accuracy by
+    iteration, one line per category."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6), sharey=True)
+    shown = ["occluded"] + [s for s in OPTIONAL_SCANNERS if any(s in by for by in reports.values())]
+    shown.append("paper")
+    fig, axes = plt.subplots(1, len(shown), figsize=(6.5 * len(shown), 4.6), sharey=True)
     colours = plt.get_cmap("tab10")
-    for ax, scanner in zip(axes, SCANNERS):
+    for ax, scanner in zip(axes, shown):
         for c, (name, by) in enumerate(reports.items()):
+            if scanner not in by:
+                continue
             rep = by[scanner]
             ax.plot(rep["iterations"], [100 * a for a in rep["accuracy"]], "o-", ms=2.5,
                     color=colours(c % 10), label=f"{name} ({rep.get('symmetry', 'none')})")  # fmt: skip
@@ -77,7 +93,7 @@ def plot(reports: dict[str, dict[str, dict]], path: Path) -> Path:
         ax.set(xlabel="iterations", title=f"{scanner} views", ylim=(0, 100))
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("accuracy at (10°, 0.1 r), %")
-    axes[1].legend(fontsize=8, loc="lower right")
+    axes[-1].legend(fontsize=8, loc="lower right")
     fig.suptitle("Anytime accuracy of every category (held-out ModelNet10 test objects)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

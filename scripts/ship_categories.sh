@@ -2,9 +2,10 @@
 # Evaluate a network trained on several categories and ship one model per category.
 #   bash scripts/ship_categories.sh RUN [CATEGORY...]    (default: every ModelNet10 class)
 #   KEEP="chair" bash scripts/ship_categories.sh RUN ... # also re-measure shipped models kept as they are
-# For each category: test-split curves of the torch checkpoint (occluded and paper views), an int8
+# For each category: the test-split curve of the torch checkpoint (occluded views), an int8
 # ONNX model with the measured accuracy in its card (itnet/models/<category>.onnx), the same curves
-# through onnxruntime (what the service runs); then the table and plot of every category in docs/.
+# through onnxruntime (what the service runs) on occluded, surface and paper views; then the table
+# and plot of every category in docs/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MALLOC_MMAP_THRESHOLD_=33554432  # steadier, faster torch on CPU
@@ -21,7 +22,7 @@ for cat in $categories; do
     --report "runs/eval_torch/$cat/occluded/report.json" --out "itnet/models/$cat.onnx"
 done
 for cat in $(printf "%s\n" $categories ${KEEP:-} | sort -u); do
-  for scanner in occluded paper; do
+  for scanner in occluded surface paper; do
     $itnet eval --onnx "itnet/models/$cat.onnx" --scanner "$scanner" --iterations 20 \
       --out "$evals/$cat/$scanner" | tail -n 1
   done

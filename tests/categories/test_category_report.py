@@ -34,3 +34,26 @@ def test_table_and_plot_cover_every_evaluated_category(tmp_path):
     assert (out / "anytime_categories.png").stat().st_size > 10_000
     assert "sofa" in json.loads((out / "eval_categories.json").read_text())
     assert table(load_reports(evals)).count("\n") == 4  # header, rule, two rows
+    assert "| 0.050 | – | **50.0**" in text  # no surface views measured: a dash
+
+
+def test_surface_views_get_their_column_and_panel_where_measured(tmp_path):
+    evals, out = tmp_path / "evals", tmp_path / "docs"
+    out.mkdir()
+    for scanner, acc in (("occluded", 0.5), ("surface", 0.625), ("paper", 0.75)):
+        folder = evals / "toilet" / scanner
+        folder.mkdir(parents=True)
+        (folder / "report.json").write_text(json.dumps(_report([0.0] + [acc] * 20, "none")))
+    (evals / "sofa" / "occluded").mkdir(parents=True)  # a category without surface views
+    (evals / "sofa" / "paper").mkdir(parents=True)
+    for scanner in ("occluded", "paper"):
+        (evals / "sofa" / scanner / "report.json").write_text(
+            json.dumps(_report([0.2] * 21, "none"))
+        )
+    reports = load_reports(evals)
+    assert set(reports["toilet"]) == {"occluded", "surface", "paper"}
+    assert set(reports["sofa"]) == {"occluded", "paper"}
+    main([str(evals), str(out)])
+    text = (out / "eval_categories.md").read_text()
+    assert "| 0.050 | **62.5** ± 7.7 | **75.0** ± 6.8 |" in text
+    assert "| sofa |" in text and "| – | **20.0**" in text
