@@ -1,10 +1,12 @@
-"""Make the example clouds in itnet/examples/: two partial scans of one held-out chair.
+"""Make the example clouds in itnet/examples/: two partial scans of one held-out object.
 
     .venv/bin/python scripts/make_examples.py
     .venv/bin/python scripts/make_examples.py --seed 39 --name chair_quarter   # a symmetric case
+    .venv/bin/python scripts/make_examples.py --category table --radius 0.8 --name table \
+        --shape ../shared/data/modelnet10/table/test/table_0400.pcd
 
-The chair is a ModelNet10 *test* shape (never trained on), mapped to the canonical frame
-(``itnet.model.shapes``), given a real size (bounding-sphere radius ``--radius`` metres) and
+The object is a ModelNet10 *test* shape (never trained on), mapped to its category's canonical
+frame (``itnet.model.shapes`` and the category's turn, ``itnet.model.categories``), given a real size (bounding-sphere radius ``--radius`` metres) and
 scanned twice by the project's virtual depth camera (``itnet.model.scanner``) from seeded random
 viewpoints. Each scan is in its own camera frame (metres), as a depth camera would deliver it.
 Writes NAME_a.ply, NAME_b.ply (binary float32) and NAME_truth.json (the true T_b_from_a and
@@ -22,6 +24,7 @@ import numpy as np
 from itnet.alignment.hypotheses import relative_pose
 from itnet.cloud_io import write_ply
 from itnet.geometry import rotation_error_deg
+from itnet.model.categories import category
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import load_shape
 
@@ -33,13 +36,14 @@ def main() -> None:
     test_chairs = ROOT.parent / "shared/data/modelnet10/chair/test"
     parser.add_argument("--shape", type=Path, default=test_chairs / "chair_0894.pcd")
     parser.add_argument("--seed", type=int, default=3)
-    parser.add_argument("--radius", type=float, default=0.45, help="chair size, metres")
+    parser.add_argument("--radius", type=float, default=0.45, help="object size, metres")
     parser.add_argument("--min-angle", type=float, default=60.0, help="least view change, deg")
     parser.add_argument("--out", type=Path, default=ROOT / "itnet/examples")
     parser.add_argument("--name", default="chair", help="file name prefix")
+    parser.add_argument("--category", default="chair", help="ModelNet10 class of --shape")
     args = parser.parse_args()
 
-    shape = load_shape(args.shape, "modelnet")
+    shape = load_shape(args.shape, "modelnet", category(args.category).quarter_turns)
     rng = np.random.default_rng(args.seed)
     config = ScanConfig(outlier_fraction=(0.0, 0.0))
     cloud_a, pose_a = scan_shape(shape.points, rng, config)
@@ -56,6 +60,7 @@ def main() -> None:
     write_ply(args.out / f"{args.name}_b.ply", cloud_b)
     truth = {
         "source": f"ModelNet10 test shape {args.shape.name}, frame 'modelnet' -> canonical",
+        "category": args.category,
         "seed": args.seed,
         "radius_m": args.radius,
         "points": [len(cloud_a), len(cloud_b)],
