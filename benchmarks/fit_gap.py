@@ -35,13 +35,13 @@ def main() -> None:
     cat = category(model.card.category, model.card.symmetry)
     files = split_files(args.data, cat.name, 0.1, 0)
     config = scan_config(VIEW_RULES[args.scanner])
+    step = lambda x, p: model.step(x, p)[0]  # noqa: E731
     for split in ("train", "val"):
         shapes, _ = load_shapes(
             files[split][: args.shapes], "modelnet", args.cache, True, cat.quarter_turns,
             cat.symmetry,
         )  # fmt: skip
         scans = cached_scan_set(shapes, 4, 7, config, args.cache)
-        step = lambda x, p: model.step(x, p)[0]  # noqa: E731
         rep = report(anytime_poses(step, scans, 10, model.card.points), scans, cat.symmetry)[0]
         acc = rep.accuracy[-1]
         print(

@@ -37,6 +37,14 @@ def _stderr_points(accuracy: float, scans: int) -> float:
     return 100 * math.sqrt(max(accuracy * (1 - accuracy), 1e-12) / scans)
 
 
+def _accuracy_cell(report: dict | None, i: int) -> str:
+    """'**acc** ± s.e.' (percent) at index ``i`` of a report; '–' where it was not measured."""
+    if report is None:
+        return "–"
+    accuracy = report["accuracy"][i]
+    return f"**{100 * accuracy:.1f}** ± {_stderr_points(accuracy, report['scans']):.1f}"
+
+
 def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
     """Markdown: per category, accuracy at ``k`` iterations on every scanner (± one standard
     error), rotation/translation shares and median errors on occluded views, objects kept."""
@@ -51,19 +59,12 @@ def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
         i = occ["iterations"].index(k)
         o = occ.get("orientation", {})
         kept = f"{o.get('kept', '?')} / {o.get('turned', '?')} / {o.get('dropped', '?')}"
-        surface = by.get("surface")
-        surf = (
-            f"**{100 * surface['accuracy'][i]:.1f}** ± "
-            f"{_stderr_points(surface['accuracy'][i], surface['scans']):.1f}"
-            if surface
-            else "–"
-        )
         lines.append(
             f"| {name} | {occ.get('symmetry', 'none')} | {kept} | {occ['scans']} | "
-            f"**{100 * occ['accuracy'][i]:.1f}** ± {_stderr_points(occ['accuracy'][i], occ['scans']):.1f} | "
+            f"{_accuracy_cell(occ, i)} | "
             f"{100 * occ['rotation_accuracy'][i]:.1f} | {100 * occ['translation_accuracy'][i]:.1f} | "
-            f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | {surf} | "
-            f"**{100 * pap['accuracy'][i]:.1f}** ± {_stderr_points(pap['accuracy'][i], pap['scans']):.1f} | "
+            f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | "
+            f"{_accuracy_cell(by.get('surface'), i)} | {_accuracy_cell(pap, i)} | "
             f"{pap['median_rotation_deg'][i]:.1f} |"
         )
     return "\n".join(lines) + "\n"
