@@ -6,10 +6,12 @@ budgets and the deadlines from the first byte.
 
 from __future__ import annotations
 
-import asyncio
 import json
 import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import httpx
 from hardening_helpers import LIMITS, SERVER, LiveServer, masked_frame_head, wait_for, ws_handshake
@@ -22,55 +24,34 @@ def head(path: str = "/v1/estimate", length: int | None = None, extra: str = "")
     return ("\r\n".join(lines) + "\r\n" + extra + "\r\n").encode()
 
 
-async def slowloris(port: int, stop: float, opened: list[int]) -> None:
-    """One attacker: a request head a byte every 0.1 s, reconnecting whenever it is closed."""
-    data = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: " + b"a" * 1000
-    while time.perf_counter() < stop:
-        try:
-            reader, writer = await asyncio.open_connection("127.0.0.1", port)
-        except OSError:
-            await asyncio.sleep(0.05)
-            continue
-        opened[0] += 1
-        try:
-            for byte in data:
-                if time.perf_counter() > stop or reader.at_eof():
-                    break
-                writer.write(bytes([byte]))
-                await writer.drain()
-                await asyncio.sleep(0.1)
-        except OSError:
-            pass
-        finally:
-            writer.close()
-
-
 def test_slowloris_beyond_max_connections_cannot_take_the_service(
     slow_server: LiveServer, points: list
 ) -> None:
-    """1.5x max_connections slow-loris sockets for 2 s: estimates and /healthz on fresh
-    connections are still answered 200 (before: 503 once the sockets filled the limit)."""
+    """1.5x max_connections slow-loris sockets (another process, slowloris.py) for 2 s:
+    estimates and /healthz on fresh connections are still answered 200 (before: 503 once the
+    sockets filled the limit)."""
     port = slow_server.host_port[1]
     request = {"points": points, "budget_ms": 60, "max_iterations": 2}
-
-    async def attack() -> tuple[list[int], list[int], int]:
-        stop, opened = time.perf_counter() + 2.0, [0]
-        attackers = [
-            asyncio.create_task(slowloris(port, stop, opened))
-            for _ in range(SERVER.max_connections * 3 // 2)
-        ]
-        await asyncio.sleep(0.5)  # the table is full of them
+    script = Path(__file__).with_name("slowloris.py")
+    sockets = SERVER.max_connections * 3 // 2
+    attackers = subprocess.Popen(
+        [sys.executable, str(script), str(port), str(sockets), "2.0"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert attackers.stdout is not None
+        assert attackers.stdout.readline().strip() == "ready"  # every attacker is connected
+        stop = time.perf_counter() + 1.5
         estimates, probes = [], []
         while time.perf_counter() < stop:
-            async with httpx.AsyncClient(base_url=slow_server.url, timeout=5) as http:
-                estimates.append((await http.post("/v1/estimate", json=request)).status_code)
-            async with httpx.AsyncClient(base_url=slow_server.url, timeout=5) as http:
-                probes.append((await http.get("/healthz")).status_code)
-            await asyncio.sleep(0.05)
-        await asyncio.gather(*attackers)
-        return estimates, probes, opened[0]
-
-    estimates, probes, opened = asyncio.run(attack())
+            with httpx.Client(base_url=slow_server.url, timeout=5) as http:
+                estimates.append(http.post("/v1/estimate", json=request).status_code)
+            with httpx.Client(base_url=slow_server.url, timeout=5) as http:
+                probes.append(http.get("/healthz").status_code)
+            time.sleep(0.05)
+        opened = int(attackers.communicate(timeout=10)[0].strip())
+    finally:
+        attackers.kill()
     assert opened > SERVER.max_connections  # the attack did fill the table
     assert probes and probes.count(200) == len(probes), probes
     assert len(estimates) >= 5 and estimates.count(200) >= 0.95 * len(estimates), estimates
