@@ -220,20 +220,39 @@ def pose_update_matrices() -> tuple[Tensor, Tensor, Tensor]:
     return from_quaternion, from_translation, bottom
 
 
+POINT_LOSSES = ("squared", "distance")
+
+
+def _per_point(diff: Tensor, kind: str) -> Tensor:
+    """(..., 3) differences -> (...) per-point loss: ``squared`` ||d||², ``distance`` ||d||."""
+    squared = diff.square().sum(-1)
+    if kind == "squared":
+        return squared
+    if kind == "distance":
+        return (squared + 1e-12).sqrt()  # the epsilon keeps the gradient finite at 0
+    raise ValueError(f"unknown point loss {kind!r}; one of {', '.join(POINT_LOSSES)}")
+
+
 def point_loss(
-    pose_estimate: Tensor, pose_target: Tensor, points: Tensor, symmetries: Tensor | None = None
+    pose_estimate: Tensor,
+    pose_target: Tensor,
+    points: Tensor,
+    symmetries: Tensor | None = None,
+    kind: str = "squared",
 ) -> Tensor:
     """PLoss: mean over batch and points of ||T_est x - T_gt x||^2. Poses (B,4,4), points (B,N,3).
 
     With ``symmetries`` (B, G, 4, 4): each example's equivalent targets are ``S_g @ T_gt`` (turns
     about the canonical origin, ``itnet.symmetry``), and its loss is the smallest over g (an
-    example with fewer turns repeats one of them)."""
+    example with fewer turns repeats one of them). ``kind="distance"`` takes ||·|| instead of
+    ||·||² (the paper's): its gradient does not fade as the estimate nears the target, which
+    weighs small errors (precision) more against large ones."""
     if symmetries is None:
         diff = apply_pose(pose_estimate, points) - apply_pose(pose_target, points)
-        return diff.square().sum(-1).mean()
+        return _per_point(diff, kind).mean()
     b, g = symmetries.shape[:2]
     targets = (symmetries @ pose_target[:, None]).reshape(b * g, 4, 4)
     repeated = points[:, None].expand(b, g, *points.shape[1:]).reshape(b * g, *points.shape[1:])
     estimate = apply_pose(pose_estimate, points)[:, None]  # (B, 1, N, 3)
     diff = estimate - apply_pose(targets, repeated).reshape(b, g, *points.shape[1:])
-    return diff.square().sum(-1).mean(-1).amin(1).mean()
+    return _per_point(diff, kind).mean(-1).amin(1).mean()

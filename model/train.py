@@ -12,11 +12,11 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 from torch.optim.swa_utils import AveragedModel
 
 from itnet.model.category_set import CategorySet, category_names, load_category_set
@@ -49,6 +49,8 @@ class TrainConfig(BaseModel):
     points: int = 256
     eval_points: int = 256  # what the runtime feeds a model trained on 256 points
     iterations: int = 5
+    loss: Literal["squared", "distance"] = "squared"  # per point (network.point_loss)
+    supervise_last: int = Field(1, ge=1)  # loss averaged over the last M iterations (all if more)
     eval_iterations: int = 10
     lr: float = 1e-3
     lr_decay: float = 0.7
@@ -181,7 +183,12 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         net.train()
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
             poses = forward(x_t, config.iterations, stop_gradient=config.stop_gradient)
-        loss = point_loss(poses[-1].float(), target_t, x_t, turns)
+        loss = torch.stack(
+            [
+                point_loss(pose.float(), target_t, x_t, turns, config.loss)
+                for pose in poses[-config.supervise_last :]
+            ]
+        ).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -87,3 +87,32 @@ def test_exported_update_is_the_quaternion_pose_for_any_quaternion_length():
     rotation = got[:, :3, :3]
     eye = torch.eye(3).expand(256, 3, 3)
     assert torch.allclose(rotation @ rotation.transpose(1, 2), eye, atol=2e-6)  # a rotation
+
+
+def test_distance_loss_is_the_mean_point_distance_and_keeps_its_gradient_near_the_target():
+    """``kind="distance"`` is mean ||T x - T* x|| (the paper's is its square); near the target
+    its gradient keeps its size where the squared loss's fades."""
+    x = torch.randn(2, 50, 3, dtype=torch.float64)
+    target = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
+    for offset in (0.5, 0.01):
+        shift = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+        shift[:, 0, 3] = offset
+        assert torch.isclose(
+            point_loss(shift, target, x, kind="distance"), torch.tensor(offset, dtype=torch.float64)
+        )
+        assert torch.isclose(
+            point_loss(shift, target, x), torch.tensor(offset**2, dtype=torch.float64)
+        )
+    grads = {}
+    for kind in ("squared", "distance"):
+        pose = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+        pose[:, 0, 3] = 0.01
+        pose.requires_grad_(True)
+        point_loss(pose, target, x, kind=kind).backward()
+        grads[kind] = pose.grad[:, 0, 3].abs().sum().item()
+    assert grads["distance"] > 20 * grads["squared"]
+    exact = torch.eye(4).expand(2, 4, 4).clone().requires_grad_(True)
+    point_loss(exact, torch.eye(4).expand(2, 4, 4), x.float(), kind="distance").backward()
+    assert torch.isfinite(exact.grad).all()  # finite at zero distance
+    with pytest.raises(ValueError, match="unknown point loss"):
+        point_loss(exact, target.float(), x.float(), kind="cubic")

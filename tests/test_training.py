@@ -219,3 +219,31 @@ def test_moving_average_of_weights():
     assert torch.allclose(ema.module[0].weight, weight + 1.0)  # 0.75 old + 0.25 new
     mean = ema.module[1].running_mean
     assert torch.allclose(mean, 0.25 * net[1].running_mean)  # from 0: averaged like weights
+
+
+def test_loss_options_reach_the_training_step(shape_folder, tmp_path):
+    """--loss distance and --supervise-last change the optimised loss (same seed, same scans:
+    different losses at step 2; at step 1 every iteration is the identity, so only the kind of
+    loss tells), are kept in config.json, and a bad --loss is refused."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.model.train import TrainConfig, train
+
+    second = {}
+    for loss, last in (("squared", 1), ("squared", 2), ("distance", 1)):
+        config = TrainConfig(
+            data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache",
+            out=tmp_path / f"run-{loss}-{last}", steps=2, batch=8, points=64, iterations=2,
+            eval_every=2, log_every=1, threads=1, bf16=False, compile=False, loss=loss,
+            supervise_last=last,
+        )  # fmt: skip
+        train(config, resume=False, progress=False)
+        log = (config.out / "log.jsonl").read_text().splitlines()
+        second[loss, last] = [json.loads(line)["loss"] for line in log if '"loss"' in line][1]
+        saved = json.loads((config.out / "config.json").read_text())
+        assert (saved["loss"], saved["supervise_last"]) == (loss, last)
+    assert all(np.isfinite(v) for v in second.values())
+    assert len({round(v, 6) for v in second.values()}) == 3, second
+    refused = CliRunner().invoke(app, ["train", "--loss", "cubic", "--out", str(tmp_path / "no")])
+    assert refused.exit_code != 0 and "--loss must be one of" in refused.output

@@ -30,6 +30,14 @@ def train(
     batch: int = typer.Option(32, help="Scans per step."),
     points: int = typer.Option(256, help="Points per training scan."),
     iterations: int = typer.Option(5, help="Unrolled IT-Net iterations."),
+    loss: str = typer.Option(
+        "squared",
+        help="Per-point loss: squared (the paper's ||T x - T* x||²) | distance (||T x - T* x||, "
+        "whose gradient does not fade near the target: weighs precision more).",
+    ),
+    supervise_last: int = typer.Option(
+        1, min=1, help="Average the loss over the last M unrolled iterations (the paper: 1)."
+    ),
     lr: float = typer.Option(1e-3, help="Initial Adam learning rate."),
     decay_every: int = typer.Option(1125, help="Multiply the learning rate by 0.7 every N steps."),
     eval_every: int = typer.Option(500, help="Validate and checkpoint every N steps."),
@@ -79,12 +87,15 @@ def train(
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
     --device cuda --batch 100 --steps 20000 --decay-every 2000.
     """
+    from itnet.model.network import POINT_LOSSES
     from itnet.model.scanner import PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
     from itnet.model.train import TrainConfig
     from itnet.symmetry import SYMMETRY_NAMES
 
     if symmetry != "auto" and symmetry not in SYMMETRY_NAMES:
         raise typer.BadParameter(f"--symmetry must be auto or one of {', '.join(SYMMETRY_NAMES)}")
+    if loss not in POINT_LOSSES:
+        raise typer.BadParameter(f"--loss must be one of {', '.join(POINT_LOSSES)}")
     if val_scanner not in VIEW_RULES:
         raise typer.BadParameter(f"--val-scanner must be one of {', '.join(VIEW_RULES)}")
     from itnet.model.train import train as run_training
@@ -100,6 +111,8 @@ def train(
         batch=batch,
         points=points,
         iterations=iterations,
+        loss=loss,  # type: ignore[arg-type]  # checked against POINT_LOSSES above
+        supervise_last=supervise_last,
         lr=lr,
         decay_every=decay_every,
         bn_decay_every=decay_every,
