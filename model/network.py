@@ -12,15 +12,31 @@ import torch
 from torch import Tensor, nn
 
 IDENTITY_OUTPUT = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # quaternion WXYZ, translation xyz
+# the rotation's first two columns (Zhou et al., CVPR 2019), translation xyz
+IDENTITY_OUTPUT_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+ROTATIONS = ("quaternion", "6d")
 
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    """Architecture switches. The defaults are the paper's; the flags rerun its ablations."""
+    """Architecture switches. The defaults are the paper's; the flags rerun its ablations.
+
+    ``rotation``: what the regressor's output parameterises, ``quaternion`` (the paper's: 4
+    numbers, normalised) or ``6d`` (the rotation's first two columns, made orthonormal by
+    Gram-Schmidt: continuous over all rotations, where a quaternion is not, Zhou et al. 2019)."""
 
     point_channels: tuple[int, ...] = (64, 128, 1024)
     head_channels: tuple[int, ...] = (512, 256)
     identity_init: bool = True
+    rotation: str = "quaternion"
+
+    def __post_init__(self) -> None:
+        if self.rotation not in ROTATIONS:
+            raise ValueError(f"unknown rotation {self.rotation!r}; one of {', '.join(ROTATIONS)}")
+
+    @property
+    def outputs(self) -> int:
+        return 7 if self.rotation == "quaternion" else 9
 
 
 def quat_wxyz_translation_to_pose(output: Tensor) -> Tensor:
@@ -46,6 +62,30 @@ def quat_wxyz_translation_to_pose(output: Tensor) -> Tensor:
     return torch.cat([top, bottom.expand(output.shape[0], 1, 4)], dim=1)
 
 
+def six_d_translation_to_pose(output: Tensor) -> Tensor:
+    """(B, 9) = two 3-vectors a1, a2 + translation -> rigid pose (B, 4, 4). The rotation's
+    columns: b1 = a1/|a1|, b2 = the part of a2 orthogonal to b1, normalised, b3 = b1 × b2.
+    Written with elementwise products only, so that the ONNX export needs no cross product."""
+    a1, a2, t = output[:, 0:3], output[:, 3:6], output[:, 6:9]
+    b1 = a1 / a1.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    a2 = a2 - (b1 * a2).sum(-1, keepdim=True) * b1
+    b2 = a2 / a2.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    x1, y1, z1 = b1.unbind(-1)
+    x2, y2, z2 = b2.unbind(-1)
+    b3 = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], dim=-1)
+    rotation = torch.stack([b1, b2, b3], dim=-1)  # columns
+    top = torch.cat([rotation, t[:, :, None]], dim=-1)
+    bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=output.dtype, device=output.device)
+    return torch.cat([top, bottom.expand(output.shape[0], 1, 4)], dim=1)
+
+
+def output_to_pose(output: Tensor, rotation: str) -> Tensor:
+    """The regressor's output (B, 7 | 9) -> rigid pose (B, 4, 4), as ``rotation`` reads it."""
+    if rotation == "6d":
+        return six_d_translation_to_pose(output)
+    return quat_wxyz_translation_to_pose(output)
+
+
 def apply_pose(pose: Tensor, points: Tensor) -> Tensor:
     """Pose (B, 4, 4) applied to points (B, N, 3) -> (B, N, 3)."""
     return points @ pose[:, :3, :3].transpose(1, 2) + pose[:, None, :3, 3]
@@ -59,20 +99,22 @@ def _mlp(channels: list[int]) -> nn.Sequential:
 
 
 class PoseRegressor(nn.Module):
-    """PointNet: shared MLP 3->64->128->1024, max-pool, MLP 1024->512->256, linear 256->7."""
+    """PointNet: shared MLP 3->64->128->1024, max-pool, MLP 1024->512->256, linear 256->7 (9)."""
 
     def __init__(self, config: NetworkConfig) -> None:
         super().__init__()
         self.point_mlp = _mlp([3, *config.point_channels])
         self.head = _mlp([config.point_channels[-1], *config.head_channels])
-        self.out = nn.Linear(config.head_channels[-1], 7)
+        self.out = nn.Linear(config.head_channels[-1], config.outputs)
         if config.identity_init:
             nn.init.zeros_(self.out.weight)
+            identity = IDENTITY_OUTPUT if config.rotation == "quaternion" else IDENTITY_OUTPUT_6D
             with torch.no_grad():
-                self.out.bias.copy_(torch.tensor(IDENTITY_OUTPUT))
+                self.out.bias.copy_(torch.tensor(identity))
 
     def forward(self, points: Tensor) -> Tensor:
-        """Points (B, N, 3) -> (B, 7): quaternion WXYZ (unnormalised) + translation."""
+        """Points (B, N, 3) -> (B, 7): quaternion WXYZ (unnormalised) + translation; with the
+        6D rotation (B, 9): two unnormalised columns + translation."""
         b, n, _ = points.shape
         features = self.point_mlp(points.reshape(b * n, 3)).reshape(b, n, -1)
         hidden = self.head(features.amax(dim=1))
@@ -98,7 +140,8 @@ class ITNet(nn.Module):
         flows only through the composition (the paper's choice).
         """
         moving = pose.detach() if stop_gradient else pose
-        delta = quat_wxyz_translation_to_pose(self.regressor(apply_pose(moving, points)))
+        output = self.regressor(apply_pose(moving, points))
+        delta = output_to_pose(output, self.config.rotation)
         return delta @ pose, delta
 
     def forward(self, points: Tensor, iterations: int, stop_gradient: bool = True) -> list[Tensor]:
@@ -154,6 +197,7 @@ class ExportableStep(nn.Module):
             self.register_buffer(f"head_w{i}", w.t().contiguous())
             self.register_buffer(f"head_b{i}", b.contiguous())
         self.point_layers, self.head_layers = len(point), len(head)
+        self.rotation = net.config.rotation
         from_quaternion, from_translation, bottom = pose_update_matrices()
         self.register_buffer("update_from_quaternion", from_quaternion)
         self.register_buffer("update_from_translation", from_translation)
@@ -177,7 +221,10 @@ class ExportableStep(nn.Module):
 
     def update(self, output: Tensor) -> Tensor:
         """(B, 7) quaternion WXYZ (any length) + translation -> (B, 4, 4), as
-        ``quat_wxyz_translation_to_pose``: R = C · vec(q qᵀ) / |q|²."""
+        ``quat_wxyz_translation_to_pose``: R = C · vec(q qᵀ) / |q|². (B, 9) with the 6D
+        rotation: ``six_d_translation_to_pose``."""
+        if self.rotation == "6d":
+            return six_d_translation_to_pose(output)
         q, t = output[:, :4], output[:, 4:7]
         outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
         norm = (q * q).sum(-1, keepdim=True).clamp_min(1e-16)

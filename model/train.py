@@ -62,6 +62,9 @@ class TrainConfig(BaseModel):
     bn_decay_every: int = 1250
     stop_gradient: bool = True
     identity_init: bool = True
+    rotation: Literal["quaternion", "6d"] = "quaternion"  # network.NetworkConfig.rotation
+    point_channels: tuple[int, ...] = (64, 128, 1024)  # the per-point MLP (the paper's widths)
+    head_channels: tuple[int, ...] = (512, 256)
     validation_fraction: float = 0.1
     val_views: int = 4
     test_views: int = 5
@@ -133,7 +136,11 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     train_scan_configs = [scan_config(noise, overrides) for overrides in config.scan_mix]
 
     torch.manual_seed(config.seed)
-    net = ITNet(NetworkConfig(identity_init=config.identity_init)).to(config.device)
+    net = ITNet(
+        NetworkConfig(
+            config.point_channels, config.head_channels, config.identity_init, config.rotation
+        )
+    ).to(config.device)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step, best = 0, {"val_accuracy": -1.0}
     last = config.out / "last.pt"
@@ -143,7 +150,15 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         opt.load_state_dict(state["optimizer"])
         step, best = state["step"], state["metrics"].get("best", best)
     elif config.init_from is not None:
-        net.load_state_dict(torch.load(config.init_from, map_location=config.device)["model"])
+        init = torch.load(config.init_from, map_location=config.device, weights_only=False)
+        theirs = network_config(init.get("network", {}))
+        shape = ("point_channels", "head_channels", "rotation")
+        if any(getattr(theirs, k) != getattr(net.config, k) for k in shape):
+            raise ValueError(
+                f"--init-from {config.init_from}: its network ({theirs}) is not this run's "
+                f"({net.config}); match --rotation and the widths, or start from scratch"
+            )
+        net.load_state_dict(init["model"])
     ema = average_of(net, config.ema)
     if ema is not None and resume and last.exists() and "ema" in state:
         ema.load_state_dict(state["ema"])  # a run without it starts its average here
@@ -246,14 +261,16 @@ def validate(net: ITNet, data: CategorySet, config: TrainConfig) -> dict:
     return {"val_accuracy": mean_curve[-1], "val_curve": mean_curve, "val_categories": per_category}
 
 
+def network_config(saved: dict[str, Any]) -> NetworkConfig:
+    """A checkpoint's ``network`` entry (lists where tuples were; older ones lack newer fields,
+    which take their defaults) -> ``NetworkConfig``."""
+    return NetworkConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
+
+
 def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
     """A trained network (eval mode, CPU) and its checkpoint dict."""
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = ITNet(
-        NetworkConfig(
-            **{k: tuple(v) if isinstance(v, list) else v for k, v in state["network"].items()}
-        )
-    )
+    net = ITNet(network_config(state["network"]))
     net.load_state_dict(state["model"])
     return net.eval(), state
 

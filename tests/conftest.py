@@ -22,7 +22,7 @@ os.environ.setdefault("ITNET_GC_FREEZE", "false")
 
 
 def make_tiny_net(  # type: ignore[no-untyped-def]
-    seed: int = 0, point_channels: tuple[int, ...] = (16, 32, 64)
+    seed: int = 0, point_channels: tuple[int, ...] = (16, 32, 64), rotation: str = "quaternion"
 ):
     """A small ITNet with random weights and random BatchNorm statistics (eval mode)."""
     import torch
@@ -30,7 +30,8 @@ def make_tiny_net(  # type: ignore[no-untyped-def]
     from itnet.model.network import ITNet, NetworkConfig
 
     torch.manual_seed(seed)
-    net = ITNet(NetworkConfig(point_channels=point_channels, head_channels=(32, 16)))
+    config = NetworkConfig(point_channels=point_channels, head_channels=(32, 16), rotation=rotation)
+    net = ITNet(config)
     with torch.no_grad():
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm1d):

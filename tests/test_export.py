@@ -84,3 +84,31 @@ def test_quantize_refuses_a_graph_without_the_point_layers(tmp_path):
     onnx.save(helper.make_model(graph), str(tmp_path / "relu.onnx"))
     with pytest.raises(ValueError, match="point_w"):
         quantize_point_layers(tmp_path / "relu.onnx", tmp_path / "out.onnx")
+
+
+def test_6d_rotation_step_exports_and_matches_torch(make_net, tmp_path, rng):
+    """A network with the 6D rotation (Gram-Schmidt in the graph): the folded step and the ONNX
+    graph, int8 too, compute its pose; every update is a rotation; the served loop runs it."""
+    from itnet.export.onnx_export import export_step
+    from itnet.export.quantize import quantize_point_layers
+    from itnet.model.network import ExportableStep
+
+    net = make_net(seed=3, rotation="6d")
+    card = ModelCard(name="six", category="chair", points=256, recommended_iterations=5)
+    export_step(net, card, tmp_path / "six.onnx")
+    quantize_point_layers(tmp_path / "six.onnx", tmp_path / "six-int8.onnx")
+    x = rng.normal(size=(4, 300, 3)).astype(np.float32)
+    pose = np.eye(4, dtype=np.float32)[None].repeat(4, 0)
+    pose[:, :3, 3] = rng.normal(size=(4, 3))
+    with torch.no_grad():
+        want, want_delta = net.step(torch.from_numpy(x), torch.from_numpy(pose))
+        folded, _ = ExportableStep(net)(torch.from_numpy(x), torch.from_numpy(pose))
+    assert torch.abs(folded - want).max() < 1e-5
+    got, delta = load_model(tmp_path / "six.onnx", warm_up=False).step(x, pose)
+    assert np.abs(got - want.numpy()).max() < 1e-4
+    rotation = delta[:, :3, :3]
+    assert np.allclose(rotation @ rotation.transpose(0, 2, 1), np.eye(3), atol=1e-5)
+    assert np.allclose(np.linalg.det(rotation), 1.0, atol=1e-5)
+    assert np.abs(want_delta.numpy() - np.eye(4)).max() > 1e-3  # not trivially the identity
+    quantized, _ = load_model(tmp_path / "six-int8.onnx", warm_up=False).step(x, pose)
+    assert np.abs(quantized - want.numpy()).max() < 0.05

@@ -116,3 +116,28 @@ def test_distance_loss_is_the_mean_point_distance_and_keeps_its_gradient_near_th
     assert torch.isfinite(exact.grad).all()  # finite at zero distance
     with pytest.raises(ValueError, match="unknown point loss"):
         point_loss(exact, target.float(), x.float(), kind="cubic")
+
+
+def test_6d_rotation_reads_two_columns_and_starts_at_the_identity(rng):
+    """six_d_translation_to_pose: a rotation's own first two columns (scaled, the second
+    skewed toward the first) give it back; any output gives a rotation; the identity init too."""
+    from itnet.model.network import six_d_translation_to_pose
+
+    rotation = quat_wxyz_to_matrix(rng.normal(size=(5, 4)))
+    scale = rng.uniform(0.5, 3.0, size=(5, 1))
+    a1 = rotation[:, :, 0] * scale
+    a2 = rotation[:, :, 1] * 2.0 + 0.7 * rotation[:, :, 0]  # not orthogonal to a1
+    t = rng.normal(size=(5, 3))
+    pose = six_d_translation_to_pose(torch.from_numpy(np.concatenate([a1, a2, t], axis=1)))
+    assert np.allclose(pose[:, :3, :3].numpy(), rotation, atol=1e-10)
+    assert np.allclose(pose[:, :3, 3].numpy(), t) and np.allclose(pose[:, 3].numpy(), [0, 0, 0, 1])
+    any_output = six_d_translation_to_pose(torch.randn(64, 9, dtype=torch.float64))[:, :3, :3]
+    assert torch.allclose(
+        any_output @ any_output.transpose(1, 2), torch.eye(3, dtype=torch.float64)
+    )
+    assert torch.allclose(torch.linalg.det(any_output), torch.ones(64, dtype=torch.float64))
+    net = ITNet(NetworkConfig(rotation="6d")).eval()
+    for pose in net(torch.randn(2, 100, 3), 3):
+        assert torch.allclose(pose, torch.eye(4).expand(2, 4, 4), atol=1e-6)
+    with pytest.raises(ValueError, match="unknown rotation"):
+        NetworkConfig(rotation="euler")

@@ -247,3 +247,37 @@ def test_loss_options_reach_the_training_step(shape_folder, tmp_path):
     assert len({round(v, 6) for v in second.values()}) == 3, second
     refused = CliRunner().invoke(app, ["train", "--loss", "cubic", "--out", str(tmp_path / "no")])
     assert refused.exit_code != 0 and "--loss must be one of" in refused.output
+    for option, value, message in (
+        ("--rotation", "euler", "--rotation must be one of"),
+        ("--point-channels", "64,x", "positive integers"),
+        ("--head-channels", "0", "positive integers"),
+    ):
+        refused = CliRunner().invoke(app, ["train", option, value, "--out", str(tmp_path / "no")])
+        assert refused.exit_code != 0 and message in refused.output, refused.output
+
+
+def test_6d_and_wider_networks_train_save_and_refuse_a_mismatched_init(shape_folder, tmp_path):
+    """--rotation 6d and the widths reach the network, travel in the checkpoint (load_checkpoint
+    rebuilds them), and fine-tuning from a checkpoint of another network is refused by name.
+    Checkpoints from before the switch (no "rotation") read as the quaternion."""
+    import pytest
+
+    from itnet.model.train import TrainConfig, load_checkpoint, network_config, train
+
+    common = dict(
+        data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache", steps=2,
+        batch=8, points=64, iterations=2, eval_every=2, threads=1, bf16=False, compile=False,
+    )  # fmt: skip
+    six = TrainConfig(
+        **common, out=tmp_path / "six", rotation="6d", point_channels=(8, 16, 24),
+        head_channels=(12,),
+    )  # fmt: skip
+    train(six, resume=False, progress=False)
+    net, _ = load_checkpoint(six.out / "best.pt")
+    assert net.config.rotation == "6d" and net.regressor.out.out_features == 9
+    assert net.config.point_channels == (8, 16, 24) and net.config.head_channels == (12,)
+    quaternion = TrainConfig(**common, out=tmp_path / "q", init_from=six.out / "best.pt")
+    with pytest.raises(ValueError, match="is not this run's"):
+        train(quaternion, resume=False, progress=False)
+    old = {"point_channels": [64, 128, 1024], "head_channels": [512, 256], "identity_init": True}
+    assert network_config(old).rotation == "quaternion"

@@ -60,6 +60,15 @@ def train(
         True, help="Paper: stop the gradient through the moved input."
     ),
     identity_init: bool = typer.Option(True, help="Paper: last layer starts at the identity."),
+    rotation: str = typer.Option(
+        "quaternion",
+        help="What the step regresses: quaternion (the paper's) | 6d (two columns of the "
+        "rotation, Gram-Schmidt; continuous).",
+    ),
+    point_channels: str = typer.Option(
+        "64,128,1024", help="Widths of the per-point MLP (the paper's: 64,128,1024)."
+    ),
+    head_channels: str = typer.Option("512,256", help="Widths of the head (the paper's)."),
     check_orientation: bool = typer.Option(True, help="Fix/drop shapes turned about the up axis."),
     resume: bool = typer.Option(True, help="Continue from OUT/last.pt when it exists."),
     init_from: Path | None = typer.Option(
@@ -87,13 +96,17 @@ def train(
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
     --device cuda --batch 100 --steps 20000 --decay-every 2000.
     """
-    from itnet.model.network import POINT_LOSSES
+    from itnet.model.network import POINT_LOSSES, ROTATIONS
     from itnet.model.scanner import PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
     from itnet.model.train import TrainConfig
     from itnet.symmetry import SYMMETRY_NAMES
 
     if symmetry != "auto" and symmetry not in SYMMETRY_NAMES:
         raise typer.BadParameter(f"--symmetry must be auto or one of {', '.join(SYMMETRY_NAMES)}")
+    if rotation not in ROTATIONS:
+        raise typer.BadParameter(f"--rotation must be one of {', '.join(ROTATIONS)}")
+    widths = {"--point-channels": point_channels, "--head-channels": head_channels}
+    parsed = {name: _widths(name, text) for name, text in widths.items()}
     if loss not in POINT_LOSSES:
         raise typer.BadParameter(f"--loss must be one of {', '.join(POINT_LOSSES)}")
     if val_scanner not in VIEW_RULES:
@@ -124,6 +137,9 @@ def train(
         ema=ema or None,
         stop_gradient=stop_gradient,
         identity_init=identity_init,
+        rotation=rotation,  # type: ignore[arg-type]  # checked against ROTATIONS above
+        point_channels=parsed["--point-channels"],
+        head_channels=parsed["--head-channels"],
         check_orientation=check_orientation,
         cache=cache,
         init_from=init_from,
@@ -136,3 +152,14 @@ def train(
         f"best validation accuracy {best['val_accuracy']:.3f} at step {best.get('step')}; "
         f"checkpoint {out / 'best.pt'}"
     )
+
+
+def _widths(option: str, text: str) -> tuple[int, ...]:
+    """'64,128,1024' -> (64, 128, 1024); anything but positive integers is refused."""
+    try:
+        widths = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        widths = ()
+    if not widths or min(widths) < 1:
+        raise typer.BadParameter(f"{option} takes positive integers separated by commas: {text!r}")
+    return widths
