@@ -203,3 +203,23 @@ def test_the_shipped_table_poses_and_aligns_its_example_within_its_symmetry():
     assert angle < 10
     shift = apply_rigid(moved, centroid[None]) - apply_rigid(true_b_from_a, centroid[None])
     assert np.linalg.norm(shift) < 0.1 * truth["radius_m"]
+
+
+def test_the_shipped_toilet_aligns_its_example_pair():
+    """The installed toilet model on a held-out ModelNet10 toilet scanned twice in metres (the
+    first pair made, not picked). Posed alone, view a's centre is 0.15 r off and view b is
+    turned front to back (misses, as about half of occluded views are); the pair is aligned all
+    the same, because itnet-align tries each view's iterates and turns and lets ICP and the
+    overlap score choose."""
+    truth = json.loads((EXAMPLES / "toilet_truth.json").read_text())
+    a, b = EXAMPLES / "toilet_a.ply", EXAMPLES / "toilet_b.ply"
+    aligned = CliRunner().invoke(align_app, [str(a), str(b), "--model", "toilet", "--json"])
+    assert aligned.exit_code == 0, aligned.output
+    moved = np.array(json.loads(aligned.output.strip().splitlines()[-1])["T_b_from_a"])
+    true_b_from_a = np.array(truth["T_b_from_a"])
+    turn = relative_pose(moved, true_b_from_a)
+    angle = np.degrees(np.arccos(np.clip((np.trace(turn[:3, :3]) - 1) / 2, -1, 1)))
+    assert angle < 10
+    centroid = read_cloud(a).mean(axis=0)
+    shift = apply_rigid(moved, centroid[None]) - apply_rigid(true_b_from_a, centroid[None])
+    assert np.linalg.norm(shift) < 0.1 * truth["radius_m"]
