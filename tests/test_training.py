@@ -90,6 +90,10 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
             == picked
             == max(entry["raw_val_accuracy"], entry["ema_val_accuracy"])
         )
+        # precision beside accuracy: the chosen weights' median errors at the last iteration
+        chosen = entry[f"{entry['weights']}_val_median_rotation_deg"]
+        assert 0 <= entry["val_median_rotation_deg"] == chosen <= 180
+        assert entry["val_median_translation"] >= 0
     assert (run / "best.pt").exists() and json.loads((run / "config.json").read_text())[
         "steps"
     ] == 20
