@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
@@ -66,3 +67,22 @@ def test_export_names_the_model_after_its_category(tmp_path):
     assert result.exit_code == 0, result.output
     card = load_model(out, warm_up=False).card
     assert (card.name, card.category) == ("mug", "mug")
+
+
+@pytest.mark.parametrize("name", ["chair", "toilet"])
+def test_shipped_weights_are_the_shipped_model(name):
+    """itnet/models/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
+    serves, up to the int8 rounding of its point layers."""
+    torch = pytest.importorskip("torch")
+    from itnet.geometry import rotation_error_deg
+    from itnet.model.train import load_checkpoint
+
+    net, _ = load_checkpoint(SHIPPED / f"{name}.pt")
+    served = load_model(SHIPPED / f"{name}.onnx", warm_up=False)
+    x = np.random.default_rng(0).normal(size=(8, 256, 3)).astype(np.float32)
+    pose = np.tile(np.eye(4, dtype=np.float32), (8, 1, 1))
+    with torch.no_grad():
+        want = net.step(torch.from_numpy(x), torch.from_numpy(pose))[0].numpy()
+    got = served.step(x, pose)[0]
+    assert rotation_error_deg(got[:, :3, :3], want[:, :3, :3]).max() < 3.0
+    assert np.abs(got[:, :3, 3] - want[:, :3, 3]).max() < 0.05
