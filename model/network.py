@@ -7,6 +7,7 @@ of ``itnet.preprocess``; quaternions are WXYZ.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import torch
 from torch import Tensor, nn
@@ -14,7 +15,8 @@ from torch import Tensor, nn
 IDENTITY_OUTPUT = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # quaternion WXYZ, translation xyz
 # the rotation's first two columns (Zhou et al., CVPR 2019), translation xyz
 IDENTITY_OUTPUT_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
-ROTATIONS = ("quaternion", "6d")
+Rotation = Literal["quaternion", "6d"]
+ROTATIONS: tuple[str, ...] = get_args(Rotation)
 
 
 @dataclass(frozen=True)
@@ -267,7 +269,8 @@ def pose_update_matrices() -> tuple[Tensor, Tensor, Tensor]:
     return from_quaternion, from_translation, bottom
 
 
-POINT_LOSSES = ("squared", "distance")
+PointLoss = Literal["squared", "distance"]
+POINT_LOSSES: tuple[str, ...] = get_args(PointLoss)
 
 
 def _per_point(diff: Tensor, kind: str) -> Tensor:

@@ -12,7 +12,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,7 +22,7 @@ from torch.optim.swa_utils import AveragedModel
 from itnet.model.category_set import CategorySet, category_names, load_category_set
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
-from itnet.model.network import ITNet, NetworkConfig, point_loss
+from itnet.model.network import ITNet, NetworkConfig, PointLoss, Rotation, point_loss
 from itnet.model.optim import (
     CompiledForward,
     average_of,
@@ -49,7 +49,7 @@ class TrainConfig(BaseModel):
     points: int = 256
     eval_points: int = 256  # what the runtime feeds a model trained on 256 points
     iterations: int = 5
-    loss: Literal["squared", "distance"] = "squared"  # per point (network.point_loss)
+    loss: PointLoss = "squared"  # per point (network.point_loss)
     supervise_last: int = Field(1, ge=1)  # loss averaged over the last M iterations (all if more)
     eval_iterations: int = 10
     lr: float = 1e-3
@@ -62,7 +62,7 @@ class TrainConfig(BaseModel):
     bn_decay_every: int = 1250
     stop_gradient: bool = True
     identity_init: bool = True
-    rotation: Literal["quaternion", "6d"] = "quaternion"  # network.NetworkConfig.rotation
+    rotation: Rotation = "quaternion"  # network.NetworkConfig.rotation
     point_channels: tuple[int, ...] = (64, 128, 1024)  # the per-point MLP (the paper's widths)
     head_channels: tuple[int, ...] = (512, 256)
     validation_fraction: float = 0.1
