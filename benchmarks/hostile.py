@@ -39,6 +39,7 @@ import httpx
 import numpy as np
 import typer
 
+from benchmarks import slowloris
 from benchmarks.harness import (
     ClientPlan,
     CpuMeter,
@@ -63,26 +64,6 @@ async def _open(port: int) -> tuple[asyncio.StreamReader, asyncio.StreamWriter] 
     except OSError:
         await asyncio.sleep(0.05)
         return None
-
-
-async def _slowloris(port: int, stop: float) -> None:
-    data = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: " + b"a" * 100_000
-    while time.time() < stop:
-        pair = await _open(port)
-        if pair is None:
-            continue
-        reader, writer = pair
-        try:
-            for i in range(len(data)):
-                if time.time() > stop or reader.at_eof():
-                    break
-                writer.write(data[i : i + 1])
-                await writer.drain()
-                await asyncio.sleep(0.5)
-        except OSError:
-            pass
-        finally:
-            writer.close()
 
 
 async def _ws(port: int, stop: float, frame: bytes | None) -> None:
@@ -160,7 +141,7 @@ def attack(name: str, url: str, seconds: float) -> None:
 
     async def run() -> None:
         if name == "slowloris":
-            await asyncio.gather(*(_slowloris(port, stop) for _ in range(300)))
+            await slowloris.attack(port, 300, seconds, slowloris.request_head(100_000), 0.5, False)
         elif name == "idle_ws":
             await asyncio.gather(*(_ws(port, stop, None) for _ in range(1000)))
         elif name == "ws_frames":

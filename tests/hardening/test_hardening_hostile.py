@@ -16,6 +16,8 @@ from pathlib import Path
 import httpx
 from hardening_helpers import LIMITS, SERVER, LiveServer, masked_frame_head, wait_for, ws_handshake
 
+REPO = Path(__file__).resolve().parents[2]
+
 
 def head(path: str = "/v1/estimate", length: int | None = None, extra: str = "") -> bytes:
     lines = [f"POST {path} HTTP/1.1", "Host: x", "Content-Type: application/json"]
@@ -27,16 +29,15 @@ def head(path: str = "/v1/estimate", length: int | None = None, extra: str = "")
 def test_slowloris_beyond_max_connections_cannot_take_the_service(
     slow_server: LiveServer, points: list
 ) -> None:
-    """1.5x max_connections slow-loris sockets (another process, slowloris.py) for 2 s:
+    """1.5x max_connections slow-loris sockets (another process, benchmarks.slowloris) for 2 s:
     estimates and /healthz on fresh connections are still answered 200 (before: 503 once the
     sockets filled the limit)."""
     port = slow_server.host_port[1]
     request = {"points": points, "budget_ms": 60, "max_iterations": 2}
-    script = Path(__file__).with_name("slowloris.py")
     sockets = SERVER.max_connections * 3 // 2
     attackers = subprocess.Popen(
-        [sys.executable, str(script), str(port), str(sockets), "2.0"],
-        stdout=subprocess.PIPE, text=True,
+        [sys.executable, "-m", "benchmarks.slowloris", str(port), str(sockets), "2.0"],
+        stdout=subprocess.PIPE, text=True, cwd=REPO,
     )  # fmt: skip
     try:
         assert attackers.stdout is not None
