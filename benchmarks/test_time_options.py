@@ -8,6 +8,7 @@ onnxruntime graph, so use a float32 model: an int8 graph quantises a batch with 
   random starting rotations on one subset, and from K starts on K subsets.
 
     python -m benchmarks.test_time_options --model itnet/models/chair-fp32.onnx --scanner surface
+    python -m benchmarks.test_time_options --model runs/x.onnx --only "single run, 256"  # as served
 
 Prints accuracy at (10°, 0.1 r) with its standard error, and the rotation (< 10°) and centre
 (< 0.1 r) accuracies. Validation views only (the shapes held out of training, seeded as
@@ -73,6 +74,9 @@ def main() -> None:
     parser.add_argument("--scanner", default="occluded", choices=sorted(VIEW_RULES))
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
+    parser.add_argument(
+        "--only", default="", help="Measure only the options whose name contains this text."
+    )
     args = parser.parse_args()
 
     model = load_model(args.model, warm_up=False)
@@ -85,6 +89,8 @@ def main() -> None:
     print(f"{model.card.category} ({args.model.name}), {args.scanner} validation views: "
           f"{len(clouds)} scans, median {int(np.median([len(c) for c in clouds]))} points")  # fmt: skip
     for name, (inputs, starts) in options(clouds, np.random.default_rng(0)).items():
+        if args.only not in name:
+            continue
         poses = run_batch(model, inputs, starts)
         fused = np.stack([fuse_poses(p, symmetry) for p in poses])
         final = np.stack([pose_from_normalized(f, n) for f, n in zip(fused, norms)])
