@@ -15,6 +15,8 @@ returns one of them and names the symmetry.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -33,10 +35,19 @@ def symmetry_turns_deg(symmetry: str, yaw_samples: int = YAW_SAMPLES) -> NDArray
 
 
 def symmetry_group(symmetry: str, yaw_samples: int = YAW_SAMPLES) -> FloatArray:
-    """The group's rotations (G, 3, 3) about the canonical +y axis, identity first."""
-    return axis_angle_to_matrix(
+    """The group's rotations (G, 3, 3) about the canonical +y axis, identity first. Computed once
+    per (symmetry, samples) and shared: the array is read-only (the ensemble mode fuses poses
+    after every step, where building it cost more than the fusion itself)."""
+    return _group(symmetry, yaw_samples)
+
+
+@lru_cache(maxsize=32)
+def _group(symmetry: str, yaw_samples: int) -> FloatArray:
+    group = axis_angle_to_matrix(
         [0.0, 1.0, 0.0], np.radians(symmetry_turns_deg(symmetry, yaw_samples))
     )
+    group.flags.writeable = False
+    return group
 
 
 def symmetric_rotation_error_deg(

@@ -17,6 +17,14 @@ def test_groups_are_turns_about_up_identity_first(name, size):
     assert np.allclose(np.linalg.det(group), 1.0)
 
 
+def test_groups_are_built_once_and_cannot_be_changed_by_a_caller():
+    group = symmetry_group("yaw90", 8)
+    assert symmetry_group("yaw90", 8) is group  # shared: the ensemble fuses after every step
+    with pytest.raises(ValueError, match="read-only"):
+        group[0, 0, 0] = 2.0
+    assert symmetry_group("yaw90", 9) is not group and len(symmetry_group("yaw", 9)) == 9
+
+
 def test_unknown_symmetry_is_refused():
     with pytest.raises(ValueError, match="unknown symmetry"):
         symmetry_group("mirror")
