@@ -111,6 +111,11 @@ def classify_export(
     report: Path | None = typer.Option(
         None, help="Also write the card and the threshold's effect on the test views (JSON)."
     ),
+    weights_out: Path | None = typer.Option(
+        None,
+        help="Also copy the run's best torch weights here, without optimiser state "
+        "(what a later fine-tune starts from: classify-train --init-from).",
+    ),
 ) -> None:
     """Export a run's best classifier (canonicaliser included) to one ONNX graph, check it
     against torch on random clouds, then measure the graph itself on the run's validation and
@@ -167,6 +172,11 @@ def classify_export(
         f"(torch: {100 * result['val']['accuracy']:.1f}%), threshold {card.threshold}; "
         f"max |onnx - torch| {diff:.2e} on a random cloud"
     )
+    if weights_out is not None:
+        from itnet.model.train import ship_checkpoint
+
+        ship_checkpoint(run / "best.pt", weights_out)
+        typer.echo(f"wrote {weights_out} ({weights_out.stat().st_size / 1e6:.1f} MB)")
     if report is not None:
         split = unsure_split(scores, card.threshold)
         report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))

@@ -72,18 +72,28 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     three_classes: Path, tmp_path: Path, int8: bool
 ) -> None:
     import onnx
+    import torch
     from typer.testing import CliRunner
 
     from itnet.cli import app
     from itnet.export.classifier_export import score_graph
+    from itnet.model.classify.train import load_classifier
     from itnet.service.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10)
     result = train(config)
     out, report = tmp_path / "c.onnx", tmp_path / "export.json"
+    weights = tmp_path / "shipped" / "c.pt"
     args = ["classify-export", str(config.out), "--out", str(out), "--report", str(report)]
+    args += ["--weights-out", str(weights)]
     run = CliRunner().invoke(app, [*args, *(["--int8"] if int8 else [])])
     assert run.exit_code == 0, run.output
+    # the shipped weights: the best checkpoint's network without its optimiser, fine-tunable
+    shipped, state = load_classifier(weights)
+    best, _ = load_classifier(config.out / "best.pt")
+    assert "optimizer" not in state and state["step"] == result["best_step"]
+    for name, value in best.state_dict().items():
+        assert torch.equal(shipped.state_dict()[name], value), name
     graph = load_any(out, warm_up=False)
     assert isinstance(graph, LoadedClassifier) and graph.card.classes == ["ball", "plate", "rod"]
     assert graph.card.precision == ("int8" if int8 else "float32")
