@@ -74,3 +74,31 @@ def test_threshold_is_the_lowest_that_reaches_the_target() -> None:
     assert choose_threshold(p, ok, 0.95) == 0.6
     assert choose_threshold([0.9, 0.8], [True, True], 0.95) == 0.0
     assert choose_threshold([0.99, 0.99], [False, False], 0.95) == 0.95
+
+
+def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
+    """itnet/models/classifier.pt (the weights a later fine-tune starts from) gives the shipped
+    float32 graph's probabilities, BatchNorm folded, on clouds of noise and on an example scan."""
+    from itnet.cloud_io import read_cloud
+    from itnet.model.classify.train import load_classifier
+    from itnet.preprocess import cap_points, estimate_normalization
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    shipped = Path(__file__).resolve().parents[2] / "itnet" / "models"
+    net, state = load_classifier(shipped / "classifier.pt")
+    graph = load_any(shipped / "classifier.onnx", warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and "optimizer" not in state
+    assert state["classes"] == graph.card.classes
+    rng = np.random.default_rng(0)
+    chair = read_cloud(shipped.parent / "examples" / "chair_a.ply")
+    x = np.concatenate(
+        [
+            rng.normal(size=(3, graph.card.points, 3)),
+            cap_points(estimate_normalization(chair).apply(chair), graph.card.points, rng)[None],
+        ]
+    ).astype(np.float32)
+    with torch.no_grad():
+        want = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+    got = graph.probabilities(x)
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    assert graph.card.classes[int(got[-1].argmax())] == "chair"
