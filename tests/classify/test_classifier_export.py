@@ -82,15 +82,16 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
     from itnet.preprocess import cap_points, estimate_normalization
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.service.api.routes.examples import examples_dir
+    from itnet.service.runtime import LoadedClassifier, default_model_dir, load_any
 
-    shipped = Path(__file__).resolve().parents[2] / "itnet" / "models"
+    shipped = default_model_dir()
     net, state = load_classifier(shipped / "classifier.pt")
     graph = load_any(shipped / "classifier.onnx", warm_up=False)
     assert isinstance(graph, LoadedClassifier) and "optimizer" not in state
     assert state["classes"] == graph.card.classes
     rng = np.random.default_rng(0)
-    chair = read_cloud(shipped.parent / "examples" / "chair_a.ply")
+    chair = read_cloud(examples_dir() / "chair_a.ply")
     x = np.concatenate(
         [
             rng.normal(size=(3, graph.card.points, 3)),
