@@ -25,7 +25,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.fusion import fuse_poses
-from itnet.geometry import invert_rigid, matrix_to_quat_wxyz, quat_wxyz_to_xyzw, rotation_angle_deg
+from itnet.geometry import (
+    invert_rigid,
+    matrix_to_quat_wxyz,
+    quat_wxyz_to_xyzw,
+    rotation_angle_deg,
+    viewing_axis_turns,
+)
 from itnet.preprocess import (
     DegenerateCloudError,
     Normalization,
@@ -175,11 +181,15 @@ class AnytimeRun(Iterator[Estimate]):
             raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {ensemble}")
         if ensemble > 1 and (starts is not None or points_per_step is not None):
             raise BadCloudError("ensemble cannot be combined with starts or points_per_step")
-        # Ensemble mode: K runs from the identity, each on its own random subset of the cloud
-        # (normalised as a whole), fused robustly after every step (itnet.fusion).
+        # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
+        # from the identity), each on its own random subset of the cloud (normalised as a
+        # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
+        # into different basins when the view is ambiguous and agree when it is not, which is
+        # what the fusion needs: on validation views (chair, table, toilet; README, *Ensemble
+        # mode*) K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
         self.ensemble = ensemble
         if ensemble > 1:
-            starts = np.tile(np.eye(3), (ensemble, 1, 1))
+            starts = viewing_axis_turns(ensemble)
         # Where the iterations begin: the identity, or ``starts`` (3x3 or Bx3x3), rotations of
         # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment.pipeline).
         # The B runs go through each step as one batch; the estimates and the convergence test

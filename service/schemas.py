@@ -47,8 +47,8 @@ class EstimateParams(BaseModel):
         default=1,
         ge=1,
         le=16,
-        description="accuracy mode: K runs on different random subsets of the cloud, fused "
-        "robustly after every iteration (each estimate is the fused pose); a step costs about K "
+        description="accuracy mode: K runs from starts turned 360/K degrees about the cloud's z "
+        "axis, each on its own random subset of the cloud, fused robustly after every iteration (each estimate is the fused pose); a step costs about K "
         "times as much, and the run still stops within budget_ms",
     )
 

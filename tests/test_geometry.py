@@ -60,3 +60,20 @@ def test_random_rotations_are_uniform(rng):
     r = g.random_rotation(rng, 20000)
     assert np.abs(r.mean(0)).max() < 0.02
     assert abs(np.radians(g.rotation_angle_deg(r)).mean() - (np.pi / 2 + 2 / np.pi)) < 0.02
+
+
+@pytest.mark.parametrize("count", [1, 3, 4, 6])
+def test_viewing_axis_turns_are_evenly_spread_about_z(count):
+    turns = g.viewing_axis_turns(count)
+    assert turns.shape == (count, 3, 3) and np.allclose(turns[0], np.eye(3))
+    assert np.allclose(turns @ np.swapaxes(turns, -1, -2), np.eye(3), atol=1e-12)
+    assert np.allclose(turns[:, :, 2], [0.0, 0.0, 1.0])  # z stays put
+    if count > 2:  # neighbours 360/count apart (with 1 or 2 the angle folds past 180)
+        steps = g.rotation_error_deg(turns, np.roll(turns, -1, axis=0))
+        assert np.allclose(steps, 360.0 / count)
+
+
+def test_viewing_axis_turns_tilt_every_second_start():
+    plain, tilted = g.viewing_axis_turns(4), g.viewing_axis_turns(4, tilt_deg=20.0)
+    assert np.allclose(tilted[::2], plain[::2])
+    assert np.allclose(g.rotation_error_deg(tilted[1::2], plain[1::2]), 20.0)

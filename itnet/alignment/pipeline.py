@@ -40,7 +40,7 @@ from itnet.alignment.hypotheses import (
     symmetry_rotations,
 )
 from itnet.alignment.overlap import Cloud, overlap, sample
-from itnet.geometry import axis_angle_to_matrix, rotation_angle_deg
+from itnet.geometry import rotation_angle_deg, viewing_axis_turns
 from itnet.preprocess import estimate_normalization
 
 
@@ -164,16 +164,9 @@ class Alignment:
 
 
 def starting_turns(count: int, tilt_deg: float = START_TILT_DEG) -> NDArray[np.float64]:
-    """``count`` starting rotations (count, 3, 3): turns about z (the viewing axis) evenly spread
-    from the identity, every second one also tilted by ``tilt_deg`` about x (the view direction
-    moves a little, as between two nearby camera positions)."""
-    out = []
-    for k in range(count):
-        turn = axis_angle_to_matrix([0.0, 0.0, 1.0], 2 * np.pi * k / count)
-        if k % 2:
-            turn = axis_angle_to_matrix([1.0, 0.0, 0.0], np.radians(tilt_deg)) @ turn
-        out.append(turn)
-    return np.asarray(out)
+    """Alignment's ``count`` starting rotations (count, 3, 3): ``geometry.viewing_axis_turns``
+    with every second start tilted by ``tilt_deg`` (measured to help alignment, above)."""
+    return viewing_axis_turns(count, tilt_deg)
 
 
 def _runs(estimate: PoseEstimator, points: NDArray, options: AlignOptions, name: str) -> list:

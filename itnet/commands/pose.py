@@ -30,8 +30,9 @@ def pose(
         1,
         min=1,
         max=16,
-        help="Accuracy mode: K runs on different random subsets of the cloud, fused robustly "
-        "after every iteration; a step costs about K times as much (still within --budget-ms).",
+        help="Accuracy mode: K runs from starts turned 360/K degrees about the cloud's z axis, "
+        "each on its own random subset, fused robustly after every iteration; a step costs about "
+        "K times as much (still within --budget-ms).",
     ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:

@@ -3,7 +3,7 @@
 // The URL holds the state, so a link reproduces a run:
 //   /?example=chair_a&model=chair&budget_ms=50&run=1          (opens the example and runs it)
 //   /?tab=align&a=chair_a&b=chair_b&refine=1&run=1            (aligns an example pair)
-// Other keys: max_iterations, ensemble (K runs on subsets, fused), play_ms (0: show iterations
+// Other keys: max_iterations, ensemble (K runs from turned starts, fused), play_ms (0: show iterations
 // as they arrive). When a run ends, its
 // final JSON is written into #result.
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from itnet.fusion import fuse_poses
+from itnet.geometry import rotation_angle_deg, viewing_axis_turns
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.runtime import load_model
 
@@ -29,6 +30,14 @@ def test_every_estimate_is_the_fused_pose_of_the_runs(model, cloud):
     fused = fuse_poses(run.poses(), model.card.symmetry)  # input units
     assert np.allclose(estimates[-1].pose, fused, atol=1e-4)
     assert run.result()["ensemble"] == 4
+
+
+def test_ensemble_runs_start_turned_about_the_viewing_axis(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=1, ensemble=4)
+    starts = run.pose_normalized[:, :3, :3]  # before the first step
+    assert np.allclose(starts, viewing_axis_turns(4), atol=1e-6)
+    assert np.allclose(starts[0], np.eye(3)) and np.allclose(starts[:, :, 2], [0, 0, 1], atol=1e-6)
+    assert np.allclose(rotation_angle_deg(starts[1:]), [90.0, 180.0, 90.0], atol=1e-3)
 
 
 def test_ensemble_of_one_is_the_plain_run(model, cloud):
