@@ -110,9 +110,10 @@ class AsyncItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         binary: bool = False,
+        units: str | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model)
+        fields = request_fields(budget_ms, max_iterations, model, units)
         try:
             if binary:
                 reply = await self._http.post(
@@ -130,9 +131,10 @@ class AsyncItnetClient:
         budget_ms: float = 50.0,
         max_iterations: int | None = None,
         model: str = "chair",
+        units: str | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
-        request = json_request(points, request_fields(budget_ms, max_iterations, model))
+        request = json_request(points, request_fields(budget_ms, max_iterations, model, units))
         try:
             url = websocket_url(self.base_url)
             connection = await connect(url, open_timeout=self.timeout, max_size=None)

@@ -108,10 +108,12 @@ class ItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         binary: bool = False,
+        units: str | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
-        point) instead of JSON. Raises ItnetRequestError (refused), ItnetConnectionError."""
-        fields = request_fields(budget_ms, max_iterations, model)
+        point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
+        cloud's size. Raises ItnetRequestError (refused), ItnetConnectionError."""
+        fields = request_fields(budget_ms, max_iterations, model, units)
         try:
             if binary:
                 reply = self._http.post(
@@ -129,9 +131,10 @@ class ItnetClient:
         budget_ms: float = 50.0,
         max_iterations: int | None = None,
         model: str = "chair",
+        units: str | None = None,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
-        request = json_request(points, request_fields(budget_ms, max_iterations, model))
+        request = json_request(points, request_fields(budget_ms, max_iterations, model, units))
         try:
             url = websocket_url(self.base_url)
             connection = connect(url, open_timeout=self.timeout, max_size=None)

@@ -110,11 +110,15 @@ def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
     return cloud
 
 
-def request_fields(budget_ms: float, max_iterations: int | None, model: str) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations only when given)."""
+def request_fields(
+    budget_ms: float, max_iterations: int | None, model: str, units: str | None = None
+) -> dict[str, Any]:
+    """The request's non-point fields (max_iterations and units only when given)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
+    if units is not None:
+        out["units"] = units
     return out
 
 

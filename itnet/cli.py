@@ -52,6 +52,7 @@ app.command("classify")(classify.classify)
 app.command("classify-experiment")(classify.classify_experiment)
 app.command("classify-export")(classify.classify_export)
 app.command("classify-train")(classify.classify_train)
+app.command("classify-size-prior")(classify.classify_size_prior)
 app.command("models")(models.models)
 
 align_app = typer.Typer(add_completion=False)

@@ -53,6 +53,23 @@ class ModelCard(BaseModel):
     training: dict[str, object] = Field(default_factory=dict)
 
 
+class SizePrior(BaseModel):
+    """How big each class's clouds are, for callers who know their cloud's unit
+    (``itnet.size_prior``): per class, a Student-t over the log of a partial view's RMS radius
+    about its centroid (the scale ``itnet.preprocess`` divides by) in metres."""
+
+    measure: str = "log of the cloud's RMS radius about its centroid, metres"
+    log_median: list[float] = Field(description="per class, in the order of the card's classes")
+    log_scale: list[float] = Field(
+        description="per class: a robust spread (1.4826 x MAD) of the log"
+    )
+    df: float = Field(3.0, description="Student-t degrees of freedom: heavy tails, so an odd size "
+                      "weighs little")  # fmt: skip
+    weight: float = Field(0.5, description="the size's log-likelihood is added times this")
+    source: str = ""  # where the sizes came from (data, unit assumed, views)
+    evaluation: str = ""  # top-1 with and without it, and on which views
+
+
 class ClassifierCard(BaseModel):
     """Metadata of an exported category classifier (``model: "auto"``): one graph, normalised
     points [B, N, 3] -> class probabilities [B, C] (the canonicaliser's steps included)."""
@@ -76,6 +93,9 @@ class ClassifierCard(BaseModel):
     inputs: dict[str, str] = {"points": "float32 [B, N, 3], normalised cloud"}
     outputs: dict[str, str] = {"probabilities": "float32 [B, C], softmax over classes"}
     training: dict[str, object] = Field(default_factory=dict)
+    size_prior: SizePrior | None = Field(
+        None, description="class sizes, used when a request gives its cloud's unit"
+    )
 
 
 def parse_card(text: str) -> ModelCard | ClassifierCard:

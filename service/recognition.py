@@ -10,6 +10,9 @@ One place for the logic; the HTTP route and the WebSocket (through ``ServiceStat
 * The winning category's pose model is the loaded model named after it, else any loaded model
   whose card has that category. None loaded: a 422 (``kind: no_pose_model``) that names the
   category, its probability, the candidates and the loaded models.
+* A known unit: a request that says its cloud's unit (``units``: m, cm, mm, in, ft) lets the
+  cloud's size count as well as its form, where the classifier's card has a size prior
+  (``itnet.size_prior``): a night stand and a dresser look alike normalised, not in metres.
 * Unsure: when the top probability is below the card's ``threshold`` (chosen on validation views,
   see docs/classification.md), the pose model still runs, and the reply says ``unsure: true``
   beside the candidates, so a client can decide.
@@ -28,6 +31,7 @@ from itnet.preprocess import DegenerateCloudError, cap_points, estimate_normaliz
 from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud
 from itnet.service.errors import ServiceError
 from itnet.service.runtime import LoadedClassifier, LoadedModel
+from itnet.size_prior import metres_per_unit, with_size
 
 AUTO = "auto"
 
@@ -46,6 +50,8 @@ class Recognition:
     candidates: list[Candidate]
     threshold: float
     elapsed_ms: float
+    size_m: float | None = None  # the clouds' RMS radius in metres (mean), when the unit is known
+    size_used: bool = False  # whether that size entered the probabilities (the card's prior)
 
     @property
     def category(self) -> str:
@@ -70,6 +76,8 @@ class Recognition:
             ],
             "unsure": self.unsure,
             "classify_ms": round(self.elapsed_ms, 3),
+            **({} if self.size_m is None else {"size_m": round(self.size_m, 6)}),
+            "size_used": self.size_used,
         }
 
 
@@ -79,9 +87,11 @@ def classify(
     top: int = 3,
     limits: Limits = Limits(),
     seed: int = 0,
+    units: str | None = None,
 ) -> Recognition:
-    """A cloud (N, 3), any unit -> its Recognition. Raises BadCloudError for a bad cloud."""
-    return classify_together(classifier, [points], top, limits, seed)
+    """A cloud (N, 3), any unit -> its Recognition. ``units``: the cloud's unit, if known (its
+    size then counts, see the module). Raises BadCloudError for a bad cloud or unit."""
+    return classify_together(classifier, [points], top, limits, seed, units)
 
 
 def classify_together(
@@ -90,11 +100,19 @@ def classify_together(
     top: int = 3,
     limits: Limits = Limits(),
     seed: int = 0,
+    units: str | None = None,
 ) -> Recognition:
     """Several clouds of one object (e.g. the two clouds of an alignment) -> one Recognition:
-    the product of the per-cloud probabilities, renormalised. Raises BadCloudError."""
+    the product of the per-cloud probabilities (each with its size's likelihood when ``units``
+    is given and the card has a size prior), renormalised. Raises BadCloudError."""
     start = time.perf_counter()
+    try:
+        to_metres = None if units is None else metres_per_unit(units)
+    except ValueError as err:
+        raise BadCloudError(str(err)) from None
+    prior = classifier.card.size_prior if to_metres is not None else None
     log_probs = np.zeros(len(classifier.card.classes))
+    sizes = []
     for points in clouds:
         cloud = validate_cloud(points, limits)
         try:
@@ -103,12 +121,18 @@ def classify_together(
             raise BadCloudError(str(err)) from None
         x = cap_points(norm.apply(cloud), classifier.card.points, np.random.default_rng(seed))
         probs = classifier.probabilities(x[None].astype(np.float32))[0]
-        log_probs += np.log(np.maximum(probs, 1e-12))
+        own = np.log(np.maximum(probs, 1e-12))
+        if to_metres is not None:
+            sizes.append(norm.scale * to_metres)
+            own = own if prior is None else with_size(own, prior, sizes[-1])
+        log_probs += own
     probs = np.exp(log_probs - log_probs.max())
     probs /= probs.sum()
     order = np.argsort(-probs, kind="stable")[: max(1, top)]
     candidates = [Candidate(classifier.card.classes[i], float(probs[i])) for i in order]
-    return Recognition(candidates, classifier.card.threshold, (time.perf_counter() - start) * 1e3)
+    elapsed_ms = (time.perf_counter() - start) * 1e3
+    size = float(np.mean(sizes)) if sizes else None
+    return Recognition(candidates, classifier.card.threshold, elapsed_ms, size, prior is not None)
 
 
 def pose_model_for(category: str, models: dict[str, LoadedModel]) -> LoadedModel | None:
@@ -124,6 +148,7 @@ def recognise(
     models: dict[str, LoadedModel],
     points: ArrayLike,
     limits: Limits = Limits(),
+    units: str | None = None,
 ) -> tuple[Recognition, LoadedModel]:
     """Classify a cloud and pick its pose model. Raises ServiceError: 422 ``no_classifier`` when
     none is loaded, 422 ``bad_cloud``, 422 ``no_pose_model`` when the category has no model."""
@@ -135,7 +160,7 @@ def recognise(
             f"({', '.join(sorted(models))})",
         )
     try:
-        recognition = classify(classifier, points, limits=limits)
+        recognition = classify(classifier, points, limits=limits, units=units)
     except BadCloudError as err:
         raise ServiceError(422, "bad_cloud", str(err)) from None
     model = pose_model_for(recognition.category, models)
@@ -173,13 +198,14 @@ def auto_run(
     budget_ms: float,
     max_iterations: int | None = None,
     started: float | None = None,
+    units: str | None = None,
     **kwargs: Any,
 ) -> RecognisedRun:
     """Classify, then set up the category model's run on one clock (``started``, default now):
     the classification's time counts against ``budget_ms``. Raises ServiceError (see
     :func:`recognise`) or BadCloudError."""
     started = time.perf_counter() if started is None else started
-    recognition, model = recognise(classifier, models, points)
+    recognition, model = recognise(classifier, models, points, units=units)
     return RecognisedRun(
         recognition,
         model,

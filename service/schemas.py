@@ -11,6 +11,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from itnet.size_prior import Unit
+
 # fail_fast: a million bad points give one error, not a million.
 # Strict: a number (integer or not), never a boolean or a numeric string.
 Point = Annotated[
@@ -48,8 +50,15 @@ class EstimateParams(BaseModel):
         ge=1,
         le=16,
         description="accuracy mode: K runs from starts turned 360/K degrees about the cloud's z "
-        "axis, each on its own random subset of the cloud, fused robustly after every iteration (each estimate is the fused pose); a step costs about K "
-        "times as much, and the run still stops within budget_ms",
+        "axis, each on its own random subset of the cloud, fused robustly after every iteration "
+        "(each estimate is the fused pose); a step costs about K times as much, and the run "
+        "still stops within budget_ms",
+    )
+    units: Unit | None = Field(
+        default=None,
+        description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
+        "toward its category as well as its form (a night stand is smaller than a dresser); "
+        "the pose does not depend on it",
     )
 
 
@@ -144,6 +153,11 @@ class AutoInfo(BaseModel):
     evaluation: str
     models: dict[str, str | None] = Field(
         description="the pose model 'auto' runs for each class (null: none loaded)"
+    )
+    sizes: str | None = Field(
+        None,
+        description="how the classifier does with the size too, when a request gives its "
+        "'units' (null: it has no size prior, and the unit is not used)",
     )
 
 

@@ -14,6 +14,8 @@ from typing import NoReturn
 
 import typer
 
+from itnet.commands import UNITS_HELP, check_units
+
 SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
 LOW_CONFIDENCE = 0.3
 
@@ -58,6 +60,7 @@ def align(
         4, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
     ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
+    units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Estimate T_b_from_a (moves A onto B) from the two clouds' canonical poses and print it."""
@@ -86,7 +89,7 @@ def align(
         typer.echo(f"note: no ICP refinement: {err}", err=True)
         refine = False
     if model == "auto":
-        model = _auto_model(server, model_dir, points_a, points_b, budget_ms)
+        model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units)
     estimate, (category, declared), close = _estimator(server, model, model_dir, budget_ms)
     options = AlignOptions(
         starts=starts,
@@ -138,7 +141,7 @@ def _exit_code(cause: BaseException | None) -> int:
     return 1
 
 
-def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # type: ignore[no-untyped-def]
+def _auto_model(server, model_dir, points_a, points_b, budget_ms, units) -> str:  # type: ignore[no-untyped-def]
     """The pose model for ``--model auto``: in-process, both clouds classified together (one
     object); with ``--server``, the service's ``model: "auto"`` on cloud A. Says which on
     stderr; fails (exit 2) when the category has no model."""
@@ -147,7 +150,9 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # typ
 
         with ItnetClient(server) as client:
             try:
-                reply = client.estimate(points_a, budget_ms, max_iterations=1, model="auto").raw
+                reply = client.estimate(
+                    points_a, budget_ms, max_iterations=1, model="auto", units=units
+                ).raw
             except ItnetClientError as err:
                 _fail(f"model auto at {server}: {err}", code=_exit_code(err))
         chosen = str(reply["model"])
@@ -159,7 +164,9 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms) -> str:  # typ
         from itnet.service.recognition import classify_together, pose_model_for
 
         try:
-            recognition = classify_together(get_classifier(model_dir), [points_a, points_b])
+            recognition = classify_together(
+                get_classifier(model_dir), [points_a, points_b], units=units
+            )
         except BadCloudError as err:
             _fail(str(err))
         loaded = pose_model_for(recognition.category, all_models(model_dir))

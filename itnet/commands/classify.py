@@ -4,15 +4,19 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import typer
+
+from itnet.commands import UNITS_HELP, check_units
 
 
 def classify(
     files: list[Path] = typer.Argument(..., help="Cloud files: .ply .pcd .xyz .pts .txt .npy"),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     top: int = typer.Option(3, help="Candidates to print (most probable first)."),
+    units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
@@ -25,7 +29,7 @@ def classify(
     failed = False
     for path in files:
         try:
-            result = recognise(classifier, read_cloud(path), top=top)
+            result = recognise(classifier, read_cloud(path), top=top, units=units)
         except (CloudReadError, BadCloudError) as err:
             message = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
             typer.echo(f"error: {message}", err=True)
@@ -228,3 +232,70 @@ def classify_train(
         f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test "
         f"{100 * test['accuracy']:.1f}% ± {100 * test['standard_error']:.1f} ({test['scans']} views)"
     )
+
+
+def classify_size_prior(
+    classifier: Path = typer.Option(
+        Path("itnet/models/classifier.onnx"), help="The exported classifier whose card to update."
+    ),
+    data: Path = typer.Option(Path("../shared/data/modelnet10"), help="ModelNet-style root."),
+    views: int = typer.Option(2, help="Random views per training shape to fit the sizes on."),
+    df: float = typer.Option(3.0, help="Student-t degrees of freedom of each class's log size."),
+    weight: float = typer.Option(0.5, help="Weight of the size's log-likelihood."),
+    split: str = typer.Option(
+        "val", help="Where to measure it: 'val' (choose here) or 'test' (once, after choosing)."
+    ),
+    write: bool = typer.Option(False, help="Write the prior and its measurement into the card."),
+    cache: Path = typer.Option(Path("cache"), help="Cache of shapes."),
+) -> None:
+    """Fit the classifier's size prior on views of the training shapes (ModelNet's units read
+    as inches), measure top-1 with and without it on views of the validation or test shapes
+    (4 a shape, seeded), and with --write store both in the classifier's card: then a request
+    that gives its cloud's unit (``units``) lets the size count (``itnet.size_prior``)."""
+    import onnx
+
+    from itnet.export.onnx_export import save_with_card
+    from itnet.model.classify.data import class_names, load_splits
+    from itnet.model.classify.size_prior import (
+        accuracy_with_and_without,
+        fit,
+        sized_views,
+        source_radii,
+    )
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    if split not in ("val", "test"):
+        raise typer.BadParameter("--split must be val or test")
+    loaded = load_any(classifier, warm_up=False)
+    if not isinstance(loaded, LoadedClassifier):
+        raise typer.BadParameter(f"{classifier} is not a classifier")
+    classes = class_names(data)
+    if classes != list(loaded.card.classes):
+        raise typer.BadParameter(f"{data}'s classes {classes} are not the card's")
+    splits = load_splits(data, classes, 0.1, 0, cache)
+    training = sized_views(splits["train"], source_radii(data, classes, "train"), views, seed=1)
+    source = (f"{data.name} training split, {views} views a shape (occluded and paper views), "
+              "its units read as inches")  # fmt: skip
+    prior = fit(training, len(classes), df, weight, source)
+    measured = sized_views(
+        splits[split], source_radii(data, classes, split), 4, {"val": 2, "test": 3}[split],
+        loaded.card.points,
+    )  # fmt: skip
+    scores = accuracy_with_and_without(loaded, measured, prior)
+    for name, median, scale in zip(classes, prior.log_median, prior.log_scale):
+        typer.echo(f"{name:12s} RMS radius of a view: median {math.exp(median):.3f} m, "
+                   f"log spread {scale:.2f}")  # fmt: skip
+    typer.echo(f"{split}: {json.dumps(scores)}")
+    if write:
+        evaluation = (
+            f"{split} views ({scores['views']}, 4 a shape, half occluded, half paper views, in "
+            f"inches): top-1 {100 * scores['top1']:.1f}% alone, "
+            f"{100 * scores['top1_with_size']:.1f}% with the size (paired gain "
+            f"{100 * scores['gain']:+.1f} ± {100 * scores['gain_stderr']:.1f}); mean class "
+            f"{100 * scores['mean_class']:.1f}% -> {100 * scores['mean_class_with_size']:.1f}%"
+        )
+        card = loaded.card.model_copy(
+            update={"size_prior": prior.model_copy(update={"evaluation": evaluation})}
+        )
+        save_with_card(onnx.load(str(classifier)), card, classifier)
+        typer.echo(f"wrote the size prior into {classifier}'s card")

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from itnet.commands import UNITS_HELP, check_units
+
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
@@ -34,6 +36,7 @@ def pose(
         "each on its own random subset, fused robustly after every iteration; a step costs about "
         "K times as much (still within --budget-ms).",
     ),
+    units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Estimate T_canonical_from_input for each file. Bad files are reported and skipped (exit 2)."""
@@ -54,7 +57,7 @@ def pose(
         if loaded is None:  # the classification counts against the budget
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
-                ensemble=ensemble,
+                ensemble=ensemble, units=units,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble

@@ -30,9 +30,13 @@ def fixed_answer_classifier(logits: list[float]):  # type: ignore[no-untyped-def
     return net.eval()
 
 
-def export_fixed(folder: Path, logits: list[float], threshold: float = 0.5) -> Path:
+def export_fixed(
+    folder: Path, logits: list[float], threshold: float = 0.5, size_prior: Any = None
+) -> Path:
     from itnet.export.classifier_export import export_classifier
     from itnet.model_card import ClassifierCard
 
-    card = ClassifierCard(classes=CLASSES, points=128, threshold=threshold, accuracy=0.9)
+    card = ClassifierCard(
+        classes=CLASSES, points=128, threshold=threshold, accuracy=0.9, size_prior=size_prior
+    )
     return export_classifier(fixed_answer_classifier(logits), card, folder / "classifier.onnx")

@@ -76,6 +76,7 @@ def test_models_lists_auto(chair_client) -> None:
     assert auto["classes"] == ["chair", "table", "sofa"]
     assert auto["threshold"] == 0.5 and auto["accuracy"] == 0.9
     assert auto["models"] == {"chair": "chair", "table": None, "sofa": None}
+    assert auto["sizes"] is None  # no size prior in this card: a request's unit is not used
 
 
 def test_category_without_a_pose_model_is_a_clear_422(table_dir: Path, box_cloud) -> None:

@@ -47,6 +47,7 @@ async def models(state: StateDep) -> ModelsResponse:
             points=card.points,
             evaluation=card.evaluation,
             models={c: None if m is None else m.card.name for c, m in picks.items()},
+            sizes=None if card.size_prior is None else card.size_prior.evaluation,
         )
     return ModelsResponse(models=infos, default_model=default if state.ready else None, auto=auto)
 
