@@ -3,7 +3,8 @@
 // The URL holds the state, so a link reproduces a run:
 //   /?example=chair_a&model=chair&budget_ms=50&run=1          (opens the example and runs it)
 //   /?tab=align&a=chair_a&b=chair_b&refine=1&run=1            (aligns an example pair)
-// Other keys: max_iterations, ensemble (K runs from turned starts, fused), play_ms (0: show iterations
+// Other keys: max_iterations, ensemble (K runs from turned starts, fused), units (the cloud's unit,
+// for model auto), play_ms (0: show iterations
 // as they arrive). When a run ends, its
 // final JSON is written into #result.
 
@@ -35,6 +36,7 @@ function saveUrl(extra = {}) {
       ? {
           example: state.clouds.main?.example ?? null,
           ensemble: $('ensemble').value === '1' ? null : $('ensemble').value,
+          units: $('units').value || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
       : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
@@ -106,10 +108,12 @@ function request() {
   return body;
 }
 
-/** The pose tab's request: the shared fields, plus the ensemble when more than one run. */
+/** The pose tab's request: the shared fields, plus the ensemble when more than one run and
+ * the cloud's unit when known. */
 function poseRequest() {
   const body = request();
   if (Number($('ensemble').value) > 1) body.ensemble = Number($('ensemble').value);
+  if ($('units').value) body.units = $('units').value;
   return body;
 }
 
@@ -150,7 +154,8 @@ function onMessage(message) {
     setStatus(`refused: ${message.detail}`, true);
   } else if (message.category) {  // model 'auto': the classifier's answer comes first
     const p = message.category_probability;
-    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}, model ${message.model ?? '?'}`);
+    const size = message.size_used ? `, size ${message.size_m.toFixed(2)} m counted` : '';
+    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}${size}, model ${message.model ?? '?'}`);
     const chosen = modelInfo(message.model ?? message.category);
     if (chosen) view.setSymmetry(chosen.symmetry);
   }
@@ -249,6 +254,7 @@ async function main() {
   if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
   if (['4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
+  if (['m', 'cm', 'mm', 'in', 'ft'].includes(params.get('units'))) $('units').value = params.get('units');
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;
   setTab(params.get('tab') === 'align' ? 'align' : 'pose');
@@ -256,7 +262,7 @@ async function main() {
 
   document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
   $('model').addEventListener('change', () => { showModel(); saveUrl(); });
-  for (const id of ['budget', 'max-iterations', 'ensemble', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
+  for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
   const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');

@@ -82,6 +82,23 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert "ensemble" not in single and "ensemble=" not in page.url
 
 
+def test_the_unit_control_lets_auto_count_the_size(live_server, browser_page):
+    page = browser_page
+    page.goto(f"{live_server.url}/?example=chair_a&model=auto&units=m&budget_ms=5000"
+              "&max_iterations=3&play_ms=0&run=1")  # fmt: skip
+    shown = result(page)
+    assert page.input_value("#units") == "m" and "units=m" in page.url
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="auto",
+                   units="m", budget_ms=5000, max_iterations=3)  # fmt: skip
+    assert shown["category"] == api["category"] == "chair" and shown["size_used"] is True
+    assert shown["size_m"] == pytest.approx(api["size_m"])
+    # Unknown again: the request carries no unit, the reply no size, the URL forgets it.
+    page.select_option("#units", "")
+    page.click("#run")
+    plain = result(page)
+    assert "size_m" not in plain and plain["size_used"] is False and "units=" not in page.url
+
+
 def test_a_dropped_file_is_read_by_the_server_and_a_bad_one_is_refused(
     live_server, browser_page, tmp_path
 ):
