@@ -33,10 +33,11 @@ from itnet.model.category_set import validation_scans
 from itnet.model.evaluate import report
 from itnet.model.scanner import VIEW_RULES, scan_config
 from itnet.preprocess import cap_points, estimate_normalization, pose_from_normalized
-from itnet.service.engine import ENSEMBLE_SUBSET
+from itnet.service.engine import ENSEMBLE_SUBSET, Limits
 from itnet.service.runtime import LoadedModel, load_model
 
 ITERATIONS = 10
+MIN_POINTS = Limits().min_points  # the engine's floor on an ensemble run's subset
 
 
 def start_rules(k: int) -> dict[str, NDArray | None]:
@@ -58,7 +59,7 @@ def pose_of(model: LoadedModel, cloud: NDArray, starts: NDArray | None, seed: in
         x = cap_points(normalized, model.card.points, rng)[None]
         pose = np.eye(4, dtype=np.float32)[None]
     else:
-        size = min(model.card.points, max(32, int(ENSEMBLE_SUBSET * len(cloud))))
+        size = min(model.card.points, max(MIN_POINTS, int(ENSEMBLE_SUBSET * len(cloud))))
         x = np.stack([cap_points(normalized, size, rng) for _ in starts])
         pose = np.tile(np.eye(4, dtype=np.float32), (len(starts), 1, 1))
         pose[:, :3, :3] = starts

@@ -256,13 +256,9 @@ def classify_size_prior(
 
     from itnet.export.onnx_export import save_with_card
     from itnet.model.classify.data import class_names, load_splits
-    from itnet.model.classify.size_prior import (
-        accuracy_with_and_without,
-        fit,
-        sized_views,
-        source_radii,
-    )
+    from itnet.model.classify.size_prior import accuracy_with_and_without, sized_views, source_radii
     from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.size_prior import fit_size_prior
 
     if split not in ("val", "test"):
         raise typer.BadParameter("--split must be val or test")
@@ -276,7 +272,9 @@ def classify_size_prior(
     training = sized_views(splits["train"], source_radii(data, classes, "train"), views, seed=1)
     source = (f"{data.name} training split, {views} views a shape (occluded and paper views), "
               "its units read as inches")  # fmt: skip
-    prior = fit(training, len(classes), df, weight, source)
+    prior = fit_size_prior(
+        training.labels, training.radii_m, len(classes), df, weight, source=source
+    )
     measured = sized_views(
         splits[split], source_radii(data, classes, split), 4, {"val": 2, "test": 3}[split],
         loaded.card.points,

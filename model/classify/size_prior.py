@@ -29,7 +29,7 @@ from itnet.model.shapes import to_canonical
 from itnet.model_card import SizePrior
 from itnet.preprocess import estimate_normalization
 from itnet.service.runtime import LoadedClassifier
-from itnet.size_prior import fit_size_prior, with_size
+from itnet.size_prior import with_size
 
 INCH_M = 0.0254  # ModelNet's unit, read as inches
 
@@ -75,10 +75,6 @@ def sized_views(
                 xs.append(normalised_view(cloud, points, rng))
     x = np.stack(xs) if points is not None else None
     return SizedViews(x, np.asarray(labels, np.int64), np.asarray(sizes))
-
-
-def fit(views: SizedViews, classes: int, df: float, weight: float, source: str) -> SizePrior:
-    return fit_size_prior(views.labels, views.radii_m, classes, df, weight, source=source)
 
 
 def accuracy_with_and_without(
