@@ -1,7 +1,8 @@
 """Robust fusion of several pose estimates of one cloud (the ensemble mode's answer).
 
 Pure numpy. K runs of IT-Net on one cloud (from different starts, on different random subsets)
-mostly agree, and the ones that went to another basin disagree wildly; the mean of all of them would be pulled off by those.
+mostly agree, and the ones that went to another basin disagree wildly; the mean of all of them
+would be pulled off by those.
 So the fused pose is:
 
 1. the medoid: the run whose rotation is closest (summed geodesic angle) to all the others, where

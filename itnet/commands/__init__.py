@@ -11,9 +11,13 @@ UNITS_HELP = (
 
 
 def check_units(value: str | None) -> str | None:
-    """typer callback: None or a unit ``itnet.size_prior`` knows."""
-    from itnet.size_prior import METRES_PER_UNIT
+    """typer callback: None or a unit ``itnet.size_prior.metres_per_unit`` knows (its message
+    for any other)."""
+    from itnet.size_prior import metres_per_unit
 
-    if value is not None and value not in METRES_PER_UNIT:
-        raise typer.BadParameter(f"{value!r} is not one of {', '.join(METRES_PER_UNIT)}")
+    if value is not None:
+        try:
+            metres_per_unit(value)
+        except ValueError as err:
+            raise typer.BadParameter(str(err)) from None
     return value
