@@ -87,10 +87,14 @@ def torch_step(net) -> StepFn:  # type: ignore[no-untyped-def]
     """A StepFn running an ITNet in eval mode (fp32)."""
     import torch
 
+    device = next(net.parameters()).device  # scans stay numpy; the network may be on a GPU
+
     def step(points: NDArray[np.float32], pose: NDArray[np.float32]) -> NDArray[np.float32]:
         net.eval()
         with torch.no_grad():
-            nxt, _ = net.step(torch.from_numpy(points), torch.from_numpy(pose))
-        return nxt.numpy()
+            nxt, _ = net.step(
+                torch.from_numpy(points).to(device), torch.from_numpy(pose).to(device)
+            )
+        return nxt.cpu().numpy()
 
     return step

@@ -31,6 +31,7 @@ from itnet.model.optim import (
     prepare_cpu,
     set_schedule,
 )
+from itnet.model.prefetch import Prefetcher
 from itnet.model.scanner import PAPER_VIEWS, scan_config
 
 
@@ -80,6 +81,7 @@ class TrainConfig(BaseModel):
     init_from: Path | None = None  # start from these weights (fine-tuning) instead of scratch
     val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
     threads: int = 0  # 0: torch's default
+    data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
     compile: bool = False  # torch.compile the unrolled network for the training steps
     ema: float | None = None  # decay of an exponential moving average of the weights (0.999)
 
@@ -113,8 +115,6 @@ def _save(
 
 def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> dict:
     """Train (or resume) a run; returns the best validation metrics."""
-    from tqdm import tqdm
-
     bf16 = prepare_cpu(config.threads, config.bf16, config.device)
     config = config.model_copy(update={"bf16": bf16})
     config.out.mkdir(parents=True, exist_ok=True)
@@ -134,6 +134,26 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     quiet = {"depth_noise": (0.0, 0.0), "jitter": (0.0, 0.0), "outlier_fraction": (0.0, 0.0)}
     noise = {} if config.sensor_noise else quiet
     train_scan_configs = [scan_config(noise, overrides) for overrides in config.scan_mix]
+
+    def make_batch(step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
+        picked = data.draw(rng, config.batch)
+        x, target = training_batch(
+            data.shapes, config.batch, config.points, rng, train_scan_configs, picked
+        )
+        return x, target, picked
+
+    prefetch = Prefetcher(make_batch, config.data_workers)  # forks before CUDA is touched
+    try:
+        return _train_loop(config, data, prefetch, resume, progress)
+    finally:
+        prefetch.close()
+
+
+def _train_loop(
+    config: TrainConfig, data: CategorySet, prefetch: Prefetcher, resume: bool, progress: bool
+) -> dict:
+    from tqdm import tqdm
 
     torch.manual_seed(config.seed)
     net = ITNet(
@@ -184,12 +204,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     )
     losses: list[float] = []
     started = time.time()
-    while step < config.steps:
-        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
-        picked = data.draw(rng, config.batch)
-        x, target = training_batch(
-            data.shapes, config.batch, config.points, rng, train_scan_configs, picked
-        )
+    for x, target, picked in prefetch.batches(step, config.steps):
         x_t = torch.from_numpy(x).to(config.device)
         target_t = torch.from_numpy(target).to(config.device)
         turns = torch.from_numpy(data.turns[picked]).to(config.device)

@@ -43,6 +43,10 @@ def train(
     eval_every: int = typer.Option(500, help="Validate and checkpoint every N steps."),
     seed: int = typer.Option(0),
     device: str = typer.Option("cpu", help="cpu | cuda"),
+    data_workers: int = typer.Option(
+        0, min=0, help="Processes making the scans ahead of each step (on a GPU the scans are "
+        "the limit: ~2 per training; 0 makes them in the training process)."
+    ),
     bf16: bool | None = typer.Option(
         None,
         "--bf16/--no-bf16",
@@ -132,6 +136,7 @@ def train(
         eval_every=eval_every,
         seed=seed,
         device=device,
+        data_workers=data_workers,
         bf16=bf16,
         compile=compile,
         ema=ema or None,

@@ -1,0 +1,276 @@
+"""Train several pose models at once on a leased GPU machine, inside a fixed time budget.
+
+The machine gets the repository and a pack of the training clouds (``model/cloud_pack.py``); it
+has PyTorch but not this project installed, and nothing can be fetched there. One command:
+
+    python3 scripts/device_train.py run --pack .pack/modelnet10-8.xz --out "$OUT" --budget 540
+
+1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
+   package-dir mapping of pyproject.toml);
+2. starts every job of ``JOBS`` at once (one process each, ``--data-workers`` more making its
+   scans) for ``CALIBRATION_STEPS`` steps: this checks the whole path (data, CUDA, validation,
+   checkpoints) and measures each job's steps per second with all of them sharing the GPU;
+3. resumes each job for as many steps as its measured rate fits in the rest of the budget, the
+   learning rate decayed over exactly those steps (×0.7 seven times);
+4. stops what is still running at the budget's end and writes, under ``--out``, the jobs' shipped
+   checkpoints (``best.pt`` without its optimiser), logs and configs in two tar files, and
+   ``summary.json`` (the device, the rates, the steps, each job's best validation).
+
+Here (no GPU) ``--device cpu`` runs the same path at toy scale; a test does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from itnet.model.train import TrainConfig
+
+REPO = Path(__file__).resolve().parent.parent
+CALIBRATION_STEPS = 150
+LR_DECAYS = 7  # the rate ends at 0.7^7 ≈ 8% of its start
+EVAL_EVERY = 500
+NO_DECAY = 10**9  # the calibration steps keep the starting rate and BatchNorm momentum
+
+# name -> TrainConfig fields. Categories the CPU runs taught from the chair's weights go on from
+# their best checkpoints; the five that never learned from the chair start from scratch.
+JOBS: dict[str, dict] = {
+    "chair": {"init_from": "itnet/models/chair.pt", "lr": 3e-4, "bn_momentum": (0.1, 0.01)},
+    "bed": {"init_from": "checkpoints/bed.pt", "lr": 5e-4, "bn_momentum": (0.1, 0.01)},
+    "sofa": {"init_from": "checkpoints/sofa.pt", "lr": 5e-4, "bn_momentum": (0.1, 0.01)},
+    "desk": {"lr": 1e-3},
+    "dresser": {"lr": 1e-3},
+    "night_stand": {"lr": 1e-3},
+    "monitor": {"lr": 1e-3},
+    "bathtub": {"lr": 1e-3},
+}
+COMMON = {"loss": "distance", "batch": 100, "ema": 0.999, "compile": False, "threads": 1}
+
+
+def package_links(root: Path) -> Path:
+    """A folder where ``import itnet`` finds this checkout with pyproject's package-dir mapping
+    (``itnet.model`` is ``model/``, ...), without installing anything."""
+    import tomllib
+
+    mapping = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-dir"
+    ]
+    top = root / "itnet"
+    top.mkdir(parents=True, exist_ok=True)
+    for entry in (REPO / "itnet").iterdir():
+        link = top / entry.name
+        if not link.exists():
+            link.symlink_to(entry)
+    for package, folder in mapping.items():
+        parts = package.split(".")
+        if len(parts) == 2 and not (top / parts[1]).exists():
+            (top / parts[1]).symlink_to(REPO / folder)
+    return root
+
+
+def job_config(name: str, args: argparse.Namespace, steps: int, decay_every: int) -> TrainConfig:
+    from itnet.model.train import TrainConfig
+
+    fields = {**COMMON, **JOBS[name]}
+    if "init_from" in fields:
+        fields["init_from"] = REPO / fields["init_from"]
+    if args.tiny:  # the CPU check: a small network and batch, a few validation scans
+        fields.update(batch=8, point_channels=(16, 32, 64), head_channels=(32, 16), init_from=None)
+        fields.update(validation_fraction=0.05, val_views=1)
+    return TrainConfig(
+        category=name,
+        data=args.data,
+        cache=args.work / "cache",
+        out=args.work / "runs" / name,
+        steps=steps,
+        decay_every=decay_every,
+        bn_decay_every=decay_every,
+        eval_every=min(EVAL_EVERY, steps) if steps > CALIBRATION_STEPS else CALIBRATION_STEPS,
+        device=args.device,
+        data_workers=args.data_workers,
+        **fields,
+    )
+
+
+def run_job(args: argparse.Namespace) -> None:
+    from itnet.model.train import train
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # unwind: the data workers stop
+    config = job_config(args.name, args, args.steps, args.decay_every)
+    best = train(config, resume=True, progress=False)
+    print(json.dumps({"job": args.name, "best": best.get("val_accuracy")}), flush=True)
+
+
+def _start(name: str, args: argparse.Namespace, steps: int, decay_every: int) -> subprocess.Popen:
+    log = (args.work / f"{name}.out").open("a")
+    command = [sys.executable, __file__, "job", "--name", name, "--steps", str(steps)]
+    command += ["--decay-every", str(decay_every), "--device", args.device]
+    command += ["--data", str(args.data), "--work", str(args.work)]
+    command += ["--data-workers", str(args.data_workers)] + (["--tiny"] if args.tiny else [])
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+
+
+def _wait(procs: dict[str, subprocess.Popen], deadline: float) -> None:
+    """Wait for every process until ``deadline``; then stop the rest (their best.pt stays)."""
+    while any(p.poll() is None for p in procs.values()) and time.time() < deadline:
+        time.sleep(1.0)
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p in procs.values():
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
+def _log(args: argparse.Namespace, name: str) -> list[dict]:
+    path = args.work / "runs" / name / "log.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def _rate(entries: list[dict]) -> float | None:
+    """Steps per second between the second logged step and the last (start-up excluded)."""
+    timed = [e for e in entries if "seconds" in e]
+    if len(timed) < 3:
+        return None
+    first, last = timed[1], timed[-1]
+    return (last["step"] - first["step"]) / max(1e-6, last["seconds"] - first["seconds"])
+
+
+def _tail(args: argparse.Namespace, name: str, lines: int = 25) -> str:
+    path = args.work / f"{name}.out"
+    return "\n".join(path.read_text().splitlines()[-lines:]) if path.exists() else "(no output)"
+
+
+def run(args: argparse.Namespace) -> int:
+    started = time.time()
+    end = started + args.budget
+    args.work.mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.pack is not None:
+        from itnet.model.cloud_pack import unpack
+
+        print(f"unpacked {unpack(args.pack, args.data)} shapes", flush=True)
+    names = args.jobs or list(JOBS)
+    summary: dict = {"device": args.device, "budget_s": args.budget, "jobs": {}}
+    if args.device == "cuda":
+        import torch
+
+        summary["gpu"] = torch.cuda.get_device_name(0)
+        summary["torch"] = torch.__version__
+    summary["cpus"] = os.cpu_count()
+
+    first = args.calibration_steps
+    procs = {n: _start(n, args, first, NO_DECAY) for n in names}
+    _wait(procs, started + args.budget * 0.45)
+    failed = [n for n, p in procs.items() if p.returncode != 0]
+    for n in failed:
+        print(f"--- {n} failed (exit {procs[n].returncode}):\n{_tail(args, n)}", flush=True)
+    alive = [n for n in names if n not in failed]
+    if not alive:
+        json.dump(summary, (args.out / "summary.json").open("w"), indent=1)
+        return 1
+    calibrated = time.time()
+    left = end - calibrated - args.margin
+    plans = {}
+    for n in alive:
+        rate = _rate(_log(args, n)) or 0.0
+        # a restart (imports, CUDA, cached data) and a validation every EVAL_EVERY steps
+        more = int(rate * max(0.0, left - args.restart_s) * args.safety)
+        more -= int(rate * (more // EVAL_EVERY) * args.validation_s)
+        steps = first + max(0, more)
+        plans[n] = {"rate_steps_per_s": round(rate, 2), "steps": steps}
+        summary["jobs"][n] = {**plans[n], "calibration_s": round(calibrated - started, 1)}
+    print(json.dumps({"calibrated_after_s": round(calibrated - started, 1), **plans}), flush=True)
+    procs = {
+        n: _start(n, args, p["steps"], max(1, round(p["steps"] / LR_DECAYS)))
+        for n, p in plans.items()
+        if p["steps"] > first
+    }
+    _wait(procs, end - args.margin / 2)
+    for n in plans:
+        entries = _log(args, n)
+        vals = [e for e in entries if e.get("event") == "val"]
+        best = max(vals, key=lambda e: e["val_accuracy"], default={})
+        summary["jobs"][n].update(
+            exit=procs[n].returncode if n in procs else 0,
+            steps_done=max((e.get("step", 0) for e in entries), default=0),
+            best_step=best.get("step"),
+            best_val_accuracy=best.get("val_accuracy"),
+            val_curve=[(e["step"], e["val_accuracy"]) for e in vals],
+        )
+        if n in procs and procs[n].returncode not in (0, 143):
+            print(f"--- {n} exit {procs[n].returncode}:\n{_tail(args, n)}", flush=True)
+    summary["wall_s"] = round(time.time() - started, 1)
+    _pack_results(args, list(plans), summary)
+    print(json.dumps(summary["jobs"], indent=1), flush=True)
+    return 0
+
+
+def _pack_results(args: argparse.Namespace, names: list[str], summary: dict) -> None:
+    """Shipped checkpoints, logs and configs -> tar files of at most ~4 jobs (under 16 MiB)."""
+    from itnet.model.train import ship_checkpoint
+
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    for start in range(0, len(names), 4):
+        with tarfile.open(args.out / f"runs-{start // 4 + 1}.tar", "w") as tar:
+            for n in names[start : start + 4]:
+                run_dir = args.work / "runs" / n
+                if (run_dir / "best.pt").exists():
+                    shipped = ship_checkpoint(run_dir / "best.pt", args.work / "ship" / f"{n}.pt")
+                    tar.add(shipped, arcname=f"{n}/best.pt")
+                for extra in ("log.jsonl", "config.json"):
+                    if (run_dir / extra).exists():
+                        tar.add(run_dir / extra, arcname=f"{n}/{extra}")
+                if (args.work / f"{n}.out").exists():
+                    tar.add(args.work / f"{n}.out", arcname=f"{n}/output.txt")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name in ("run", "job"):
+        p = sub.add_parser(name)
+        p.add_argument("--device", default="cuda")
+        p.add_argument("--data", type=Path, default=Path("/tmp/itnet-data/modelnet10"))
+        p.add_argument("--work", type=Path, default=Path("/tmp/itnet-work"))
+        p.add_argument("--data-workers", type=int, default=2)
+        p.add_argument("--tiny", action="store_true", help="toy network and batch (CPU check)")
+    run_p = sub.choices["run"]
+    run_p.add_argument("--pack", type=Path, default=None, help="cloud pack to unpack into --data")
+    run_p.add_argument("--out", type=Path, required=True)
+    run_p.add_argument("--budget", type=float, default=540.0, help="seconds for everything")
+    run_p.add_argument("--jobs", nargs="*", choices=list(JOBS), help="default: every job")
+    run_p.add_argument("--calibration-steps", type=int, default=CALIBRATION_STEPS)
+    run_p.add_argument("--margin", type=float, default=30.0, help="seconds kept for packing")
+    run_p.add_argument("--restart-s", type=float, default=25.0)
+    run_p.add_argument("--validation-s", type=float, default=4.0)
+    run_p.add_argument("--safety", type=float, default=0.9)
+    job_p = sub.choices["job"]
+    job_p.add_argument("--name", required=True, choices=list(JOBS))
+    job_p.add_argument("--steps", type=int, required=True)
+    job_p.add_argument("--decay-every", type=int, required=True)
+    args = parser.parse_args()
+    sys.path.insert(0, str(package_links(Path("/tmp/itnet-pkg"))))
+    os.environ["PYTHONPATH"] = os.pathsep.join(
+        [str(Path("/tmp/itnet-pkg")), *filter(None, [os.environ.get("PYTHONPATH")])]
+    )
+    if args.command == "job":
+        run_job(args)
+        return 0
+    return run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
