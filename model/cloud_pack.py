@@ -2,8 +2,9 @@
 
 A leased GPU machine takes the repository and little beside it (64 MiB in all here), and the
 ModelNet10 clouds are ~50 MB as float32. A pack stores each shape's points on a 16-bit grid over
-its own bounding box (error ≤ 1/131,070 of the box's side, ~0.0004 mm on a 50 cm chair: far
-below the training scans' depth noise), sorted in Morton order and delta-coded so that LZMA
+its own bounding box (grid error ≤ 1/131,070 of the box's side, ~0.004 mm on a 50 cm chair: far
+below the training scans' depth noise; the decoded float32 adds its own rounding, which for a
+cloud far from the origin can exceed the grid's), sorted in Morton order and delta-coded so that LZMA
 shrinks them to about half of the raw 16-bit size. Point order carries no meaning in a cloud.
 
 ``pack(root, categories)`` reads ``root/CATEGORY/{train,test}/*`` (any cloud format
@@ -60,12 +61,18 @@ def pack(root: Path, categories: list[str], out: Path) -> dict[str, int]:
     """Every shape of ``categories`` under ``root`` -> one LZMA-compressed file at ``out``.
     Returns the number of shapes per category."""
     names, boxes, counts, deltas, per_category = [], [], [], [], {}
+    seen: set[str] = set()
     for category in categories:
         per_category[category] = 0
         for split in SPLITS:
-            for path in list_shape_files(root / category / split):
+            folder = root / category / split
+            for path in list_shape_files(folder):
+                name = f"{category}/{split}/{path.relative_to(folder).with_suffix('').as_posix()}"
+                if name in seen:
+                    raise ValueError(f"{path}: two shapes would unpack to {name}.npy")
+                seen.add(name)
                 box, coded = encode(read_cloud(path))
-                names.append(f"{category}/{split}/{path.stem}")
+                names.append(name)
                 boxes.append(box)
                 counts.append(len(coded))
                 deltas.append(coded.T)  # planar: x deltas, then y, then z

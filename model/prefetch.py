@@ -46,14 +46,16 @@ class Prefetcher:
 
     def batches(self, start: int, stop: int) -> Iterator[Any]:
         if self.pool is None:
+            if self.workers:
+                raise RuntimeError("this Prefetcher is closed: its workers are gone")
             for step in range(start, stop):
                 yield self.make(step)
             return
-        pending: deque[AsyncResult] = deque()
+        pool, pending = self.pool, deque[AsyncResult]()  # closed later: "Pool not running"
         nxt = start
         while nxt < stop or pending:
             while nxt < stop and len(pending) < self.ahead:
-                pending.append(self.pool.apply_async(_make, (nxt,)))
+                pending.append(pool.apply_async(_make, (nxt,)))
                 nxt += 1
             yield pending.popleft().get()
 

@@ -206,6 +206,26 @@ def test_compiled_training_matches_eager(shape_folder, tmp_path):
     assert sorted(stairs, reverse=True) == [0.5, 0.25, 0.125, 0.0625, 0.03125]
 
 
+def test_data_workers_train_on_the_same_batches(shape_folder, tmp_path):
+    """--data-workers makes the scans in other processes, ahead of the step: the same batches
+    (each step's are seeded by the step), so the same losses as making them in the loop."""
+    from itnet.model.train import TrainConfig, train
+
+    losses = {}
+    for workers in (0, 2):
+        config = TrainConfig(
+            data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache",
+            out=tmp_path / f"run-{workers}", steps=4, batch=8, points=64, iterations=2,
+            eval_every=4, log_every=1, threads=1, bf16=False, compile=False,
+            data_workers=workers,
+        )  # fmt: skip
+        train(config, resume=False, progress=False)
+        log = (config.out / "log.jsonl").read_text().splitlines()
+        losses[workers] = [json.loads(line)["loss"] for line in log if '"loss"' in line]
+    assert len(losses[2]) == 4
+    assert np.allclose(losses[2], losses[0], rtol=1e-5), losses
+
+
 def test_moving_average_of_weights():
     import torch
 

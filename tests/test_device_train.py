@@ -1,0 +1,85 @@
+"""scripts/device_train.py at toy scale on the CPU: calibration, the planned second run inside the
+budget, and the shipped checkpoint, log and config in the tar file."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "device_train.py"
+BUDGET = 60
+CALIBRATION = 75
+
+
+def _tub(rng: np.random.Generator, n: int = 400) -> np.ndarray:
+    """A noisy open-top box, long along x, z up (ModelNet's frame): the bathtubs' orientation
+    check (0 or 90 degrees about up) tells its turns apart."""
+    size = np.array([1.0, 0.45, 0.35]) * rng.uniform(0.9, 1.1, size=3)
+    face = rng.integers(5, size=n)  # -x, +x, -y, +y, bottom
+    points = rng.uniform(-1, 1, size=(n, 3))
+    points[np.arange(n), np.array([0, 0, 1, 1, 2])[face]] = np.array([-1, 1, -1, 1, -1])[face]
+    return points * size + rng.normal(0, 0.005, size=(n, 3))
+
+
+@pytest.mark.slow
+def test_run_calibrates_plans_trains_and_packs(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    data, work, out = tmp_path / "data", tmp_path / "work", tmp_path / "out"
+    for split, count in (("train", 12), ("test", 3)):
+        folder = data / "bathtub" / split
+        folder.mkdir(parents=True)
+        for i in range(count):
+            np.save(folder / f"bathtub_{i:04d}.npy", _tub(rng))
+    command = [sys.executable, str(SCRIPT), "run", "--device", "cpu", "--tiny"]
+    command += ["--data", str(data), "--work", str(work), "--out", str(out)]
+    command += ["--budget", str(BUDGET), "--jobs", "bathtub"]
+    command += ["--calibration-steps", str(CALIBRATION), "--data-workers", "1"]
+    # --margin: the default (30 s, for packing eight jobs) would leave a 40 s budget no time
+    # after the calibration for the planned run
+    command += ["--restart-s", "5", "--validation-s", "1", "--margin", "5"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=BUDGET + 60
+    )
+    output = (
+        done.stdout
+        + done.stderr
+        + ((work / "bathtub.out").read_text() if (work / "bathtub.out").exists() else "")
+    )
+    assert done.returncode == 0, output
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["device"] == "cpu" and summary["budget_s"] == BUDGET
+    assert summary["wall_s"] <= BUDGET + 10, summary  # stopped at the budget's end
+    job = summary["jobs"]["bathtub"]
+    assert job["rate_steps_per_s"] > 0, summary
+    assert job["steps"] > CALIBRATION, summary  # the second run was planned ...
+    assert job["exit"] in (0, 143), output  # ... and finished or was stopped at the deadline
+    assert CALIBRATION < job["steps_done"] <= job["steps"], summary
+    assert job["best_step"] is not None and job["val_curve"][0][0] == CALIBRATION
+
+    with tarfile.open(out / "runs-1.tar") as tar:
+        names = set(tar.getnames())
+        assert {"bathtub/best.pt", "bathtub/log.jsonl", "bathtub/config.json"} <= names, names
+        tar.extractall(tmp_path / "shipped", filter="data")
+    shipped = tmp_path / "shipped" / "bathtub"
+
+    from itnet.model.train import load_checkpoint
+
+    net, state = load_checkpoint(shipped / "best.pt")
+    assert "optimizer" not in state  # shipped without it
+    assert state["step"] == job["best_step"]
+    assert tuple(net.config.point_channels) == (16, 32, 64)  # the --tiny network
+    config = json.loads((shipped / "config.json").read_text())
+    assert config["category"] == "bathtub" and config["steps"] == job["steps"]
+    assert config["batch"] == 8 and config["data_workers"] == 1
+    log = [json.loads(line) for line in (shipped / "log.jsonl").read_text().splitlines()]
+    assert max(e.get("step", 0) for e in log) == job["steps_done"]
+    assert [e["step"] for e in log if e.get("event") == "start"] == [0, CALIBRATION]  # resumed
