@@ -8,8 +8,9 @@ has PyTorch but not this project installed, and nothing can be fetched there. On
 1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
    package-dir mapping of pyproject.toml);
 2. starts every job of ``JOBS`` at once (one process each, ``--data-workers`` more making its
-   scans) for ``CALIBRATION_STEPS`` steps: this checks the whole path (data, CUDA, validation,
-   checkpoints) and measures each job's steps per second with all of them sharing the GPU;
+   scans) for ``CALIBRATION_STEPS`` steps, every job stepping once all have loaded their data:
+   this checks the whole path (data, CUDA, validation, checkpoints) and measures each job's
+   steps per second with all of them sharing the GPU;
 3. resumes each job for as many steps as its measured rate fits in the rest of the budget, the
    learning rate decayed over exactly those steps (×0.7 seven times);
 4. stops what is still running at the budget's end and writes, under ``--out``, the jobs' shipped
@@ -17,6 +18,12 @@ has PyTorch but not this project installed, and nothing can be fetched there. On
    ``summary.json`` (the device, the rates, the steps, each job's best validation).
 
 Here (no GPU) ``--device cpu`` runs the same path at toy scale; a test does.
+
+First lease (session 15, one H200, 16 cores, eight jobs at batch 100): ten steps per second per
+job, the same for every job (the GPU's contexts take turns), against 35 for a job running alone;
+the calibration then timed jobs while others were still loading and planned twice the steps
+that fit (now it waits for all). ``--mps`` (CUDA's Multi-Process Service, not yet tried there)
+is the lever for running the contexts at once.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -189,6 +197,37 @@ def _tail(args: argparse.Namespace, name: str, lines: int = 25) -> str:
     return "\n".join(path.read_text().splitlines()[-lines:]) if path.exists() else "(no output)"
 
 
+def start_mps(work: Path) -> dict[str, str] | None:
+    """Start CUDA's Multi-Process Service so that the jobs' kernels share the GPU at once
+    instead of taking turns (one context at a time); returns the variables its clients need
+    (set here for the jobs), or None where it is missing or does not start. Not yet tried on a
+    leased machine: ``run`` falls back to plain contexts if every job fails under it."""
+    control = shutil.which("nvidia-cuda-mps-control")
+    if control is None:
+        return None
+    env = {"CUDA_MPS_PIPE_DIRECTORY": str(work / "mps-pipe"),
+           "CUDA_MPS_LOG_DIRECTORY": str(work / "mps-log")}  # fmt: skip
+    for folder in env.values():
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    try:
+        started = subprocess.run([control, "-d"], env={**os.environ, **env}, timeout=20)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if started.returncode != 0:
+        return None
+    os.environ.update(env)
+    return env
+
+
+def stop_mps(env: dict[str, str] | None) -> None:
+    control = shutil.which("nvidia-cuda-mps-control")
+    if env is None or control is None:
+        return
+    subprocess.run([control], input="quit\n", text=True, env={**os.environ, **env}, timeout=20)
+    for key in env:
+        os.environ.pop(key, None)
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.time()
     end = started + args.budget
@@ -200,7 +239,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"unpacked {unpack(args.pack, args.data)} shapes", flush=True)
     names = args.jobs or list(JOBS)
     summary: dict = {"device": args.device, "budget_s": args.budget, "jobs": {}}
-    if args.device == "cuda":
+    mps = start_mps(args.work) if args.mps and args.device == "cuda" else None
+    summary["mps"] = mps is not None
+    if args.device == "cuda":  # after MPS: this process's context is then one of its clients
         import torch
 
         summary["gpu"] = torch.cuda.get_device_name(0)
@@ -211,10 +252,21 @@ def run(args: argparse.Namespace) -> int:
     procs = {n: _start(n, args, first, NO_DECAY, wait_for=names) for n in names}
     _wait(procs, started + args.budget * 0.45)
     failed = [n for n, p in procs.items() if p.returncode != 0]
+    if mps is not None and len(failed) == len(names):  # MPS is the likelier cause: without it
+        print(f"every job failed under MPS:\n{_tail(args, names[0])}\nagain without", flush=True)
+        stop_mps(mps)
+        mps, summary["mps"] = None, False
+        (args.work / "ready").mkdir(exist_ok=True)
+        for n in names:
+            (args.work / "ready" / n).unlink(missing_ok=True)
+        procs = {n: _start(n, args, first, NO_DECAY, wait_for=names) for n in names}
+        _wait(procs, started + args.budget * 0.6)
+        failed = [n for n, p in procs.items() if p.returncode != 0]
     for n in failed:
         print(f"--- {n} failed (exit {procs[n].returncode}):\n{_tail(args, n)}", flush=True)
     alive = [n for n in names if n not in failed]
     if not alive:
+        stop_mps(mps)
         json.dump(summary, (args.out / "summary.json").open("w"), indent=1)
         return 1
     calibrated = time.time()
@@ -248,6 +300,7 @@ def run(args: argparse.Namespace) -> int:
         )
         if n in procs and procs[n].returncode not in (0, 143):
             print(f"--- {n} exit {procs[n].returncode}:\n{_tail(args, n)}", flush=True)
+    stop_mps(mps)
     summary["wall_s"] = round(time.time() - started, 1)
     _pack_results(args, list(plans), summary)
     print(json.dumps(summary["jobs"], indent=1), flush=True)
@@ -295,6 +348,7 @@ def main() -> int:
     run_p.add_argument("--restart-s", type=float, default=25.0)
     run_p.add_argument("--validation-s", type=float, default=4.0)
     run_p.add_argument("--safety", type=float, default=0.9)
+    run_p.add_argument("--mps", action="store_true", help="share the GPU through CUDA MPS")
     job_p = sub.choices["job"]
     job_p.add_argument("--name", required=True, choices=list(JOBS))
     job_p.add_argument("--steps", type=int, required=True)

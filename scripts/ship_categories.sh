@@ -3,7 +3,8 @@
 #   bash scripts/ship_categories.sh RUN [CATEGORY...]    (default: every ModelNet10 class)
 #   KEEP="chair" bash scripts/ship_categories.sh RUN ... # also re-measure shipped models kept as they are
 #   bash scripts/ship_categories.sh 'runs/gpu/{category}' bed sofa   # a network per category
-#   MODELS=runs/stage ...          # export there instead of itnet/models (check the bar first)
+#   MODELS=runs/stage ...          # export there instead of itnet/models (check the bar first);
+#                                  # the table and plot then go there too (REPORT= overrides)
 #   KEEP's reports already in EVALS are not measured again.
 # For each category: the test-split curve of the torch checkpoint (occluded views), an int8
 # ONNX model with the measured accuracy in its card (itnet/models/<category>.onnx), the same curves
@@ -18,6 +19,7 @@ shift
 categories=${*:-bathtub bed chair desk dresser monitor night_stand sofa table toilet}
 evals=${EVALS:-runs/eval_categories}
 models=${MODELS:-itnet/models}
+if [[ "$models" == itnet/models ]]; then report=${REPORT:-docs}; else report=${REPORT:-$models}; fi
 mkdir -p "$models"
 for cat in $categories; do
   if [[ " ${KEEP:-} " == *" $cat "* ]]; then continue; fi
@@ -34,4 +36,4 @@ for cat in $(printf "%s\n" $categories ${KEEP:-} | sort -u); do
       --out "$evals/$cat/$scanner" | tail -n 1
   done
 done
-.venv/bin/python -m itnet.model.category_report "$evals" docs
+.venv/bin/python -m itnet.model.category_report "$evals" "$report"
