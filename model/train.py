@@ -303,10 +303,17 @@ def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
     return net.eval(), state
 
 
-def ship_checkpoint(source: Path, target: Path) -> Path:
-    """Copy a checkpoint without its optimiser state (a third of the size): what the repo ships."""
+def ship_checkpoint(source: Path, target: Path, half: bool = False) -> Path:
+    """Copy a checkpoint without its optimiser state (a third of the size): what the repo ships.
+    ``half``: floating-point weights in float16 (half again; a checkpoint kept to train on from,
+    ``--init-from`` reads it back into float32)."""
     state = torch.load(source, map_location="cpu", weights_only=False)
     state.pop("optimizer", None)
+    state.pop("ema", None)
+    if half:
+        state["model"] = {
+            k: v.half() if v.is_floating_point() else v for k, v in state["model"].items()
+        }
     target.parent.mkdir(parents=True, exist_ok=True)
     torch.save(state, target)
     return target

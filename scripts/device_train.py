@@ -49,17 +49,16 @@ LR_DECAYS = 7  # the rate ends at 0.7^7 ≈ 8% of its start
 EVAL_EVERY = 500
 NO_DECAY = 10**9  # the calibration steps keep the starting rate and BatchNorm momentum
 
-# name -> TrainConfig fields. Categories the CPU runs taught from the chair's weights go on from
-# their best checkpoints; the five that never learned from the chair start from scratch.
+# name -> TrainConfig fields. Every category goes on from its checkpoint of the last lease (session
+# 15: stopped half-way down its schedule; float16 in `checkpoints/`), at 3e-4 decayed to the end
+# of the new budget this time; the chair from the shipped model.
+CONTINUE = {"lr": 3e-4, "bn_momentum": (0.1, 0.01)}
 JOBS: dict[str, dict] = {
-    "chair": {"init_from": "itnet/models/chair.pt", "lr": 3e-4, "bn_momentum": (0.1, 0.01)},
-    "bed": {"init_from": "checkpoints/bed.pt", "lr": 5e-4, "bn_momentum": (0.1, 0.01)},
-    "sofa": {"init_from": "checkpoints/sofa.pt", "lr": 5e-4, "bn_momentum": (0.1, 0.01)},
-    "desk": {"lr": 1e-3},
-    "dresser": {"lr": 1e-3},
-    "night_stand": {"lr": 1e-3},
-    "monitor": {"lr": 1e-3},
-    "bathtub": {"lr": 1e-3},
+    "chair": {"init_from": "itnet/models/chair.pt", **CONTINUE},
+    **{
+        name: {"init_from": f"checkpoints/{name}.pt", **CONTINUE}
+        for name in ("bed", "sofa", "desk", "dresser", "night_stand", "monitor", "bathtub")
+    },
 }
 COMMON = {"loss": "distance", "batch": 100, "ema": 0.999, "compile": False, "threads": 1}
 

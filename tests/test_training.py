@@ -305,3 +305,30 @@ def test_6d_and_wider_networks_train_save_and_refuse_a_mismatched_init(shape_fol
         train(quaternion, resume=False, progress=False)
     old = {"point_channels": [64, 128, 1024], "head_channels": [512, 256], "identity_init": True}
     assert network_config(old).rotation == "quaternion"
+
+
+def test_half_checkpoint_is_smaller_and_trains_on(shape_folder, tmp_path):
+    """A checkpoint kept to go on from (float16 weights, no optimiser) loads back close to the
+    float32 one and starts a fine-tune (--init-from reads it into float32)."""
+    import torch
+
+    from itnet.model.train import TrainConfig, load_checkpoint, ship_checkpoint, train
+
+    common = dict(
+        data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache", steps=2,
+        batch=8, points=64, iterations=2, eval_every=2, threads=1, bf16=False, compile=False,
+        point_channels=(16, 32, 64), head_channels=(32, 16),
+    )  # fmt: skip
+    first = TrainConfig(**common, out=tmp_path / "a")
+    train(first, resume=False, progress=False)
+    full = ship_checkpoint(first.out / "best.pt", tmp_path / "full.pt")
+    half = ship_checkpoint(first.out / "best.pt", tmp_path / "half.pt", half=True)
+    assert half.stat().st_size < 0.7 * full.stat().st_size
+    (net_full, _), (net_half, state) = load_checkpoint(full), load_checkpoint(half)
+    assert "optimizer" not in state
+    assert all(v.dtype == torch.float16 for v in state["model"].values() if v.is_floating_point())
+    for a, b in zip(net_full.state_dict().values(), net_half.state_dict().values()):
+        assert b.dtype == a.dtype and torch.allclose(a.float(), b.float(), rtol=1e-2, atol=1e-3)
+    again = TrainConfig(**common, out=tmp_path / "b", init_from=half)
+    best = train(again, resume=False, progress=False)
+    assert np.isfinite(best["val_accuracy"])
