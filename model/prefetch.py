@@ -14,12 +14,21 @@ shapes are not pickled across).
 from __future__ import annotations
 
 import multiprocessing
+import signal
 from collections import deque
 from collections.abc import Callable, Iterator
 from multiprocessing.pool import AsyncResult, Pool
 from typing import Any
 
 _MAKE: Callable[[int], Any] | None = None  # the batch function, inherited by forked workers
+
+
+def _worker_start() -> None:
+    """A worker dies on SIGTERM (``close`` terminates the pool) even where the parent had set a
+    handler of its own, which fork hands down (a server's graceful-shutdown flag, say: with it
+    the worker would wait on forever and ``close`` with it); Ctrl-C is the parent's to handle."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _make(step: int) -> Any:
@@ -42,7 +51,7 @@ class Prefetcher:
         self.pool: Pool | None = None
         if workers:
             _MAKE = make  # set before the fork: each worker inherits it
-            self.pool = multiprocessing.get_context("fork").Pool(workers)
+            self.pool = multiprocessing.get_context("fork").Pool(workers, _worker_start)
 
     def batches(self, start: int, stop: int) -> Iterator[Any]:
         if self.pool is None:

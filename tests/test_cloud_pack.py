@@ -148,3 +148,22 @@ def test_pack_of_nothing_is_an_error(tree, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="no shapes"):
         pack(root, ["bathtub"], tmp_path / "b.xz")  # a category the tree lacks
     assert not (tmp_path / "a.xz").exists() and not (tmp_path / "b.xz").exists()
+
+
+def test_a_coarser_grid_is_kept_in_the_pack_and_costs_its_step(tree, tmp_path: Path) -> None:
+    """``levels=4095`` packs smaller; ``unpack`` reads the grid from the pack, so the clouds come
+    back within that grid's half step (and not within the 16-bit grid's); bad levels refuse."""
+    root, clouds = tree
+    fine, coarse = tmp_path / "fine.xz", tmp_path / "coarse.xz"
+    pack(root, ["chair", "table"], fine)
+    pack(root, ["chair", "table"], coarse, levels=4095)
+    assert coarse.stat().st_size < fine.stat().st_size
+    assert unpack(coarse, tmp_path / "back") == 10
+    gaps = []
+    for name, points in clouds.items():
+        back = np.load(tmp_path / "back" / f"{name}.npy")
+        gaps.append(_gap(back, points) / _side(points))
+    assert max(gaps) <= np.sqrt(3) / (2 * 4095) + 1e-6
+    assert max(gaps) > TOLERANCE / 10  # coarser than the default grid: the level was used
+    with pytest.raises(ValueError, match="levels"):
+        encode(np.zeros((3, 3)), levels=70000)

@@ -127,3 +127,28 @@ def test_stopping_early_returns_promptly() -> None:
     p.close()
     assert time.perf_counter() - started < 3.0
     assert p.pool is None
+
+
+def _sigterm_is_default(step: int) -> bool:
+    import signal
+
+    return signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+
+
+def test_workers_die_on_sigterm_whatever_the_parent_set() -> None:
+    """A SIGTERM handler the parent set (a server's graceful-shutdown flag) is handed down by
+    fork; a worker that kept it would ignore ``close``'s terminate and hang it (seen in the full
+    suite). The workers put the default back, and ``close`` returns."""
+    import signal
+    import threading
+
+    previous = signal.signal(signal.SIGTERM, lambda *_: None)  # catch it, do not exit
+    try:
+        prefetch = Prefetcher(_sigterm_is_default, workers=2)
+        assert list(prefetch.batches(0, 4)) == [True] * 4
+        closer = threading.Thread(target=prefetch.close, daemon=True)
+        closer.start()
+        closer.join(10)
+        assert not closer.is_alive(), "close() hung: a worker ignored SIGTERM"
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -207,6 +207,11 @@ def classify_train(
         True, help="torch.compile the training step (~1.7x on a CPU; eager if it cannot compile)."
     ),
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes and fixed views."),
+    batch: int = typer.Option(32, min=1, help="Views per step."),
+    device: str = typer.Option("cpu", help="cpu | cuda"),
+    data_workers: int = typer.Option(
+        0, min=0, help="Processes making the views ahead of each step (for a GPU: ~2)."
+    ),
 ) -> None:
     """Train one classifier (resumable), e.g. the shipped one: a table row trained longer."""
     from itnet.model.classify.train import ClassifyConfig, train
@@ -225,6 +230,9 @@ def classify_train(
         threads=threads,
         cache=cache,
         compile=compile,
+        batch=batch,
+        device=device,
+        data_workers=data_workers,
     )
     result = train(config, log_progress=True)
     test = result["test"]

@@ -34,6 +34,7 @@ from itnet.model.optim import (
     prepare_cpu,
     set_schedule,
 )
+from itnet.model.prefetch import Prefetcher
 from itnet.model.scanner import scan_config
 
 
@@ -67,6 +68,8 @@ class ClassifyConfig(BaseModel):
     # mean class accuracy (the test split is nearly balanced, the training split is not)
     balanced: bool = False
     compile: bool = False  # torch.compile the network for the training steps
+    device: str = "cpu"  # cpu | cuda
+    data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
 
 
 def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
@@ -109,8 +112,9 @@ def run_views(
 def predict(net: Classifier, x: NDArray[np.float32], batch: int = 256) -> NDArray[np.float64]:
     """Class probabilities (V, C) of normalised views (V, N, 3), eval mode."""
     net.eval()
+    device = next(net.parameters()).device
     out = [
-        torch.softmax(net(torch.from_numpy(x[i : i + batch]))[0].float(), -1)
+        torch.softmax(net(torch.from_numpy(x[i : i + batch]).to(device))[0].float(), -1).cpu()
         for i in range(0, len(x), batch)
     ]
     return torch.cat(out).double().numpy()
@@ -164,26 +168,40 @@ def load_classifier(path: Path) -> tuple[Classifier, dict]:
 
 def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     """Train (or resume) one variant; returns ``result.json``'s content (val + test of best.pt)."""
-    config = config.model_copy(update={"bf16": prepare_cpu(config.threads, config.bf16)})
+    bf16 = prepare_cpu(config.threads, config.bf16, config.device)
+    config = config.model_copy(update={"bf16": bf16})
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     classes, splits = run_splits(config)
     scan_configs = [scan_config(o) for o in SCAN_MIX]
     val_x, val_y = run_views(config, splits, "val")
 
+    def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
+        return training_batch(
+            splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
+        )
+
+    with Prefetcher(make_batch, config.data_workers) as prefetch:  # forks before CUDA starts
+        return _train_loop(config, classes, splits, val_x, val_y, prefetch, log_progress)
+
+
+def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, LabelledShapes],
+                val_x: NDArray[np.float32], val_y: NDArray[np.int64], prefetch: Prefetcher,
+                log_progress: bool) -> dict:  # fmt: skip
     torch.manual_seed(config.seed)
-    net = Classifier(network_config(config, len(classes)))
+    net = Classifier(network_config(config, len(classes))).to(config.device)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step, best = 0, {"val_accuracy": -1.0, "val_mean_class": -1.0}
     chosen_on = "val_mean_class" if config.balanced else "val_accuracy"
     last = config.out / "last.pt"
     if last.exists():
-        state = torch.load(last, map_location="cpu", weights_only=False)
+        state = torch.load(last, map_location=config.device, weights_only=False)
         net.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step, best = state["step"], state["best"]
     elif config.init_from is not None:
-        state = torch.load(config.init_from, map_location="cpu", weights_only=False)
+        state = torch.load(config.init_from, map_location=config.device, weights_only=False)
         net.load_state_dict(state["model"])
     log = (config.out / "log.jsonl").open("a")
 
@@ -205,17 +223,14 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     losses: list[float] = []
     started = time.time()
     forward = CompiledForward(net, config.compile)
-    while step < config.steps:
-        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
-        x, y = training_batch(
-            splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
-        )
+    for x, y in prefetch.batches(step, config.steps):
         lr = learning_rate(config.lr, config.lr_decay, config.decay_every, step)
         set_schedule(net, opt, lr, bn_momentum(config.bn_momentum, config.decay_every, step))
         net.train()
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.bf16):
-            logits, penalty = forward(torch.from_numpy(x))
-        loss = torch.nn.functional.cross_entropy(logits.float(), torch.from_numpy(y)) + penalty
+        x_t, y_t = torch.from_numpy(x).to(config.device), torch.from_numpy(y).to(config.device)
+        with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
+            logits, penalty = forward(x_t)
+        loss = torch.nn.functional.cross_entropy(logits.float(), y_t) + penalty
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -67,6 +67,20 @@ def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path
     assert [s["step"] for s in starts] == [0, 60]
 
 
+def test_data_workers_give_the_same_run(three_classes: Path, tmp_path: Path) -> None:
+    """--data-workers makes the views in other processes: the same batches (seeded by the
+    step), so the same losses as making them in the training loop."""
+    losses = {}
+    for workers in (0, 2):
+        config = tiny_run(three_classes, tmp_path / str(workers), steps=20, eval_every=20,
+                          log_every=5, data_workers=workers)  # fmt: skip
+        train(config)
+        log = (config.out / "log.jsonl").read_text().splitlines()
+        losses[workers] = [json.loads(line)["loss"] for line in log if '"loss"' in line]
+    assert len(losses[2]) == 4
+    assert np.allclose(losses[2], losses[0], rtol=1e-5), losses
+
+
 @pytest.mark.parametrize("int8", [False, True])
 def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     three_classes: Path, tmp_path: Path, int8: bool
