@@ -143,11 +143,8 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         )
         return x, target, picked
 
-    prefetch = Prefetcher(make_batch, config.data_workers)  # forks before CUDA is touched
-    try:
+    with Prefetcher(make_batch, config.data_workers) as prefetch:  # forks before CUDA starts
         return _train_loop(config, data, prefetch, resume, progress)
-    finally:
-        prefetch.close()
 
 
 def _train_loop(
