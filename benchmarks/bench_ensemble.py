@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import platform
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import numpy as np
 
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path, split: str = "test") -> dict:  # fmt: skip
-    from itnet.metrics import is_correct
+    from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
@@ -45,20 +44,15 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
-        rep, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
+        _, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
         correct = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         first = correct if first is None else first
-        acc = rep.accuracy[-1]
         out[str(k)] = {
-            "accuracy": round(100 * acc, 1),
-            "stderr": round(100 * math.sqrt(acc * (1 - acc) / rep.scans), 1),
+            # gain: against the first setting on the same scans (paired), with its s.e.
+            **paired_accuracy(correct, first),
             "median_iterations": float(np.median(iterations)),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
             "p99_elapsed_ms": round(float(np.percentile(elapsed, 99)), 2),
-            "scans": rep.scans,
-            # against the first setting on the same scans: the paired difference and its s.e.
-            "gain": round(100 * float(np.mean(correct - first)), 1),
-            "gain_stderr": round(100 * float(np.std(correct - first) / math.sqrt(rep.scans)), 1),
         }
         print(scanner, f"K={k}", out[str(k)], flush=True)
     return out

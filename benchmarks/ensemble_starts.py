@@ -19,7 +19,6 @@ once (``benchmarks.bench_ensemble``).
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ from numpy.typing import NDArray
 
 from itnet.fusion import fuse_poses
 from itnet.geometry import viewing_axis_turns
-from itnet.metrics import is_correct
+from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.categories import category
 from itnet.model.category_set import validation_scans
 from itnet.model.evaluate import report
@@ -88,10 +87,10 @@ def main() -> None:
             _, rot, trans = report(poses[:, None], scans, cat.symmetry)
             correct[name] = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         single = correct["single"]
+        rows = {name: paired_accuracy(ok, single) for name, ok in correct.items()}
         cells = [
-            f"{name} {100 * ok.mean():.1f}% ({100 * (ok - single).mean():+.1f} ± "
-            f"{100 * (ok - single).std() / math.sqrt(len(ok)):.1f})"
-            for name, ok in correct.items()
+            f"{name} {r['accuracy']:.1f}% ({r['gain']:+.1f} ± {r['gain_stderr']:.1f})"
+            for name, r in rows.items()
         ]
         print(f"{model.card.name} {scanner}, {len(single)} scans, K={args.ensemble}: "
               + "   ".join(cells), flush=True)  # fmt: skip

@@ -13,15 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 
 def correct_at_last(path: Path, category: str, scanner: str, views: int, iterations: int,
-                    data: Path, cache: Path) -> tuple[np.ndarray, int]:  # fmt: skip
-    """(S,) 0/1 per validation scan at the last iteration, and the scan count."""
+                    data: Path, cache: Path) -> np.ndarray:  # fmt: skip
+    """(S,) 0/1 per validation scan at the last iteration."""
     from itnet.metrics import is_correct
     from itnet.model.categories import category as category_of
     from itnet.model.category_set import validation_scans
@@ -37,7 +36,7 @@ def correct_at_last(path: Path, category: str, scanner: str, views: int, iterati
     points = state.get("config", {}).get("points", 256)
     poses = anytime_poses(torch_step(net), scans, iterations, points)
     _, rot, trans = report(poses, scans, cat.symmetry)
-    return is_correct(rot[:, -1], trans[:, -1]).astype(float), len(scans.clouds)
+    return is_correct(rot[:, -1], trans[:, -1]).astype(float)
 
 
 def main() -> None:
@@ -53,29 +52,21 @@ def main() -> None:
     args = parser.parse_args()
     import torch
 
+    from itnet.metrics import paired_accuracy
+
     torch.set_num_threads(2)
     table: dict = {"category": args.category, "views": args.views, "rows": {}}
     for scanner in args.scanners:
         first = None
         for path in args.checkpoints:
-            correct, scans = correct_at_last(path, args.category, scanner, args.views,
+            correct = correct_at_last(path, args.category, scanner, args.views,
                                              args.iterations, args.data, args.cache)  # fmt: skip
             first = correct if first is None else first
-            acc = float(correct.mean())
-            diff = correct - first
-            row = {
-                "accuracy": round(100 * acc, 1),
-                "stderr": round(100 * math.sqrt(acc * (1 - acc) / scans), 1),
-                "gain": round(100 * float(diff.mean()), 1),
-                "gain_stderr": round(100 * float(diff.std(ddof=1) / math.sqrt(scans)), 1)
-                if scans > 1
-                else 0.0,
-                "scans": scans,
-            }
+            row = paired_accuracy(correct, first)
             table["rows"].setdefault(str(path), {})[scanner] = row
             print(f"{args.category} {scanner:9s} {path!s:45s} {row['accuracy']:5.1f}% "
                   f"± {row['stderr']:.1f}  gain {row['gain']:+.1f} ± {row['gain_stderr']:.1f} "
-                  f"({scans} scans)", flush=True)  # fmt: skip
+                  f"({row['scans']} scans)", flush=True)  # fmt: skip
     if args.json is not None:
         args.json.write_text(json.dumps(table, indent=1))
 

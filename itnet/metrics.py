@@ -53,3 +53,18 @@ def is_correct(
     return (np.asarray(rotation_error_deg) < max_rotation_deg) & (
         np.asarray(translation_error) < max_translation
     )
+
+
+def paired_accuracy(correct: ArrayLike, baseline: ArrayLike) -> dict[str, float]:
+    """Right or wrong per scan (S,) of a method and of a baseline on the same scans -> its
+    accuracy with the binomial standard error, and its paired gain over the baseline with the
+    standard error of the per-scan differences; in percent, to 0.1, and the scan count."""
+    ok, base = np.asarray(correct, np.float64), np.asarray(baseline, np.float64)
+    acc, diff = float(ok.mean()), ok - base
+    return {
+        "accuracy": round(100 * acc, 1),
+        "stderr": round(100 * float(np.sqrt(acc * (1 - acc) / len(ok))), 1),
+        "gain": round(100 * float(diff.mean()), 1),
+        "gain_stderr": round(100 * float(diff.std() / np.sqrt(len(ok))), 1),
+        "scans": len(ok),
+    }

@@ -113,13 +113,9 @@ def _save(
     tmp.replace(path)
 
 
-def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> dict:
-    """Train (or resume) a run; returns the best validation metrics."""
-    bf16 = prepare_cpu(config.threads, config.bf16, config.device)
-    config = config.model_copy(update={"bf16": bf16})
-    config.out.mkdir(parents=True, exist_ok=True)
-    (config.out / "config.json").write_text(config.model_dump_json(indent=2))
-    data = load_category_set(
+def training_data(config: TrainConfig) -> CategorySet:
+    """A run's training shapes and fixed validation scans (cached: a second call is quick)."""
+    return load_category_set(
         config.data,
         category_names(config.category, config.data),
         config.frame,
@@ -131,6 +127,15 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         scan_config(config.val_scan),
         config.symmetry,
     )
+
+
+def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> dict:
+    """Train (or resume) a run; returns the best validation metrics."""
+    bf16 = prepare_cpu(config.threads, config.bf16, config.device)
+    config = config.model_copy(update={"bf16": bf16})
+    config.out.mkdir(parents=True, exist_ok=True)
+    (config.out / "config.json").write_text(config.model_dump_json(indent=2))
+    data = training_data(config)
     quiet = {"depth_noise": (0.0, 0.0), "jitter": (0.0, 0.0), "outlier_fraction": (0.0, 0.0)}
     noise = {} if config.sensor_noise else quiet
     train_scan_configs = [scan_config(noise, overrides) for overrides in config.scan_mix]

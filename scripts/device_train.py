@@ -117,7 +117,7 @@ def job_config(name: str, args: argparse.Namespace, steps: int, decay_every: int
         steps=steps,
         decay_every=decay_every,
         bn_decay_every=decay_every,
-        eval_every=min(EVAL_EVERY, steps) if steps > CALIBRATION_STEPS else CALIBRATION_STEPS,
+        eval_every=min(EVAL_EVERY, steps),  # the calibration validates once, at its end
         device=args.device,
         data_workers=args.data_workers,
         **fields,
@@ -140,13 +140,9 @@ def _barrier(config: TrainConfig, name: str, names: list[str], folder: Path) -> 
     calibration then times the jobs stepping together. Eight processes sharing one GPU
     time-slice it (10 steps/s each on an H200, where one alone made 35), so a job timed while
     the others still load runs 2-3x faster than it will."""
-    from itnet.model.category_set import category_names, load_category_set
-    from itnet.model.scanner import scan_config
+    from itnet.model.train import training_data
 
-    load_category_set(config.data, category_names(config.category, config.data), config.frame,
-                      config.cache, config.check_orientation, config.validation_fraction,
-                      config.seed, config.val_views, scan_config(config.val_scan),
-                      config.symmetry)  # fmt: skip
+    training_data(config)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / name).touch()
     deadline = time.time() + 300
@@ -236,6 +232,17 @@ def stop_mps(env: dict[str, str] | None) -> None:
         os.environ.pop(key, None)
 
 
+def _calibrate(args: argparse.Namespace, names: list[str],
+               deadline: float) -> tuple[dict[str, subprocess.Popen], list[str]]:  # fmt: skip
+    """Every job for ``--calibration-steps`` at its starting rate, all stepping together (a
+    fresh barrier); -> the processes and the names of those that failed."""
+    for n in names:
+        (args.work / "ready" / n).unlink(missing_ok=True)
+    procs = {n: _start(n, args, args.calibration_steps, NO_DECAY, wait_for=names) for n in names}
+    _wait(procs, deadline)
+    return procs, [n for n, p in procs.items() if p.returncode != 0]
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.time()
     end = started + args.budget
@@ -257,19 +264,12 @@ def run(args: argparse.Namespace) -> int:
     summary["cpus"] = os.cpu_count()
 
     first = args.calibration_steps
-    procs = {n: _start(n, args, first, NO_DECAY, wait_for=names) for n in names}
-    _wait(procs, started + args.budget * 0.45)
-    failed = [n for n, p in procs.items() if p.returncode != 0]
+    procs, failed = _calibrate(args, names, started + args.budget * 0.45)
     if mps is not None and len(failed) == len(names):  # MPS is the likelier cause: without it
         print(f"every job failed under MPS:\n{_tail(args, names[0])}\nagain without", flush=True)
         stop_mps(mps)
         mps, summary["mps"] = None, False
-        (args.work / "ready").mkdir(exist_ok=True)
-        for n in names:
-            (args.work / "ready" / n).unlink(missing_ok=True)
-        procs = {n: _start(n, args, first, NO_DECAY, wait_for=names) for n in names}
-        _wait(procs, started + args.budget * 0.6)
-        failed = [n for n, p in procs.items() if p.returncode != 0]
+        procs, failed = _calibrate(args, names, started + args.budget * 0.6)
     for n in failed:
         print(f"--- {n} failed (exit {procs[n].returncode}):\n{_tail(args, n)}", flush=True)
     alive = [n for n in names if n not in failed]
