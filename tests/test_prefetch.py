@@ -3,8 +3,11 @@ made in this process; errors reach the parent; closing stops the workers at once
 
 from __future__ import annotations
 
-import multiprocessing
+import gc
 import os
+import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -37,7 +40,7 @@ def test_batches_are_made_in_worker_processes_only_when_asked() -> None:
         return step, os.getpid()
 
     with Prefetcher(whose, workers=0) as here:
-        assert here.pool is None
+        assert here.processes is None
         assert list(here.batches(0, 4)) == [(s, os.getpid()) for s in range(4)]
     with Prefetcher(whose, workers=2) as ahead:
         got = list(ahead.batches(0, 6))
@@ -48,7 +51,7 @@ def test_batches_are_made_in_worker_processes_only_when_asked() -> None:
 def test_empty_range_and_a_range_in_pieces() -> None:
     with Prefetcher(_batch, workers=2) as p:
         assert list(p.batches(5, 5)) == []
-        first, second = list(p.batches(0, 3)), list(p.batches(3, 6))  # the pool is reused
+        first, second = list(p.batches(0, 3)), list(p.batches(3, 6))  # the workers are reused
     for step, batch in enumerate(first + second):
         np.testing.assert_array_equal(batch, _batch(step))
 
@@ -81,24 +84,92 @@ def test_workers_stay_at_most_ahead_steps_ahead(tmp_path: Path) -> None:
 
 
 def test_close_stops_the_workers() -> None:
-    before = set(multiprocessing.active_children())
     p = Prefetcher(_batch, workers=2)
-    assert p.pool is not None
-    assert len(set(multiprocessing.active_children()) - before) == 2
-    p.close()
-    assert p.pool is None
-    assert set(multiprocessing.active_children()) <= before
-    p.close()  # a second close does nothing
-    assert p.pool is None
+    try:
+        assert p.processes is not None
+        workers = list(p.processes)
+        assert len(workers) == 2 and all(w.is_alive() for w in workers)
+        p.close()
+        assert p.processes is None
+        assert not any(w.is_alive() for w in workers)
+        p.close()  # a second close does nothing
+        assert p.processes is None
+        with pytest.raises(RuntimeError, match="closed"):
+            next(p.batches(0, 1))
+    finally:
+        p.close()
 
 
 def test_leaving_the_context_closes_it() -> None:
-    before = set(multiprocessing.active_children())
     with Prefetcher(_batch, workers=2) as p:
-        assert p.pool is not None
+        assert p.processes is not None
+        workers = list(p.processes)
         next(p.batches(0, 10))
-    assert p.pool is None
-    assert set(multiprocessing.active_children()) <= before
+    assert p.processes is None
+    assert not any(w.is_alive() for w in workers)
+
+
+def test_a_prefetcher_never_closed_stops_its_workers_when_collected() -> None:
+    p = Prefetcher(_batch, workers=2)
+    assert p.processes is not None
+    workers = list(p.processes)
+    del p
+    gc.collect()
+    assert not any(w.is_alive() for w in workers)
+
+
+def test_a_range_left_early_does_not_leak_into_the_next() -> None:
+    """Replies already asked for when a range is abandoned are read and dropped, not handed
+    out as the next range's batches."""
+    with Prefetcher(_batch, workers=2, ahead=4) as p:
+        first = p.batches(0, 20)
+        assert next(first) is not None
+        first.close()
+        again = list(p.batches(30, 34))
+    for step, batch in zip(range(30, 34), again):
+        np.testing.assert_array_equal(batch, _batch(step))
+
+
+def test_a_worker_killed_from_outside_is_an_error_not_a_hang() -> None:
+    def slow(step: int) -> int:
+        time.sleep(0.05)
+        return step
+
+    with Prefetcher(slow, workers=2) as p:
+        assert p.processes is not None
+        batches = p.batches(0, 100)
+        assert next(batches) == 0
+        os.kill(p.processes[1].pid or 0, signal.SIGKILL)
+        with pytest.raises(RuntimeError, match="worker died"):
+            list(batches)
+
+
+def test_workers_exit_when_their_parent_dies(tmp_path: Path) -> None:
+    """A parent killed outright (no close, no finaliser) leaves no workers behind."""
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import os, sys\n"
+        "from itnet.model.prefetch import Prefetcher\n"
+        "p = Prefetcher(abs, workers=2)\n"
+        "print(*[w.pid for w in p.processes], flush=True)\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    pids = [int(pid) for pid in run.stdout.split()]
+    assert len(pids) == 2, run.stderr
+    deadline = time.monotonic() + 10
+    while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in pids)
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (orphans are reaped by init; a zombie counts as gone)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
 
 
 def test_an_error_in_a_worker_reaches_the_parent_at_its_batch() -> None:
@@ -112,7 +183,7 @@ def test_an_error_in_a_worker_reaches_the_parent_at_its_batch() -> None:
         for batch in p.batches(0, 10):
             got.append(batch)
     assert got == [0, 1, 2]  # the batches before it were handed over first
-    assert p.pool is None
+    assert p.processes is None
 
 
 def test_stopping_early_returns_promptly() -> None:
@@ -126,29 +197,33 @@ def test_stopping_early_returns_promptly() -> None:
     assert [next(batches), next(batches)] == [0, 1]
     p.close()
     assert time.perf_counter() - started < 3.0
-    assert p.pool is None
+    assert p.processes is None
 
 
 def _sigterm_is_default(step: int) -> bool:
-    import signal
-
     return signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
 
 
-def test_workers_die_on_sigterm_whatever_the_parent_set() -> None:
+def test_workers_die_on_sigterm_whatever_the_parent_set_however_early() -> None:
     """A SIGTERM handler the parent set (a server's graceful-shutdown flag) is handed down by
-    fork; a worker that kept it would ignore ``close``'s terminate and hang it (seen in the full
-    suite). The workers put the default back, and ``close`` returns."""
-    import signal
-    import threading
-
+    fork; a worker that ran it would live on. The workers put the default back, with the signal
+    blocked across the fork, so even a SIGTERM sent the moment they start ends them; the
+    parent's own mask is as it was."""
     previous = signal.signal(signal.SIGTERM, lambda *_: None)  # catch it, do not exit
     try:
-        prefetch = Prefetcher(_sigterm_is_default, workers=2)
-        assert list(prefetch.batches(0, 4)) == [True] * 4
-        closer = threading.Thread(target=prefetch.close, daemon=True)
-        closer.start()
-        closer.join(10)
-        assert not closer.is_alive(), "close() hung: a worker ignored SIGTERM"
+        for _ in range(5):
+            p = Prefetcher(_sigterm_is_default, workers=2)
+            try:
+                assert p.processes is not None
+                for worker in p.processes:
+                    worker.terminate()
+                for worker in p.processes:
+                    worker.join(10)
+                assert [w.exitcode for w in p.processes] == [-signal.SIGTERM] * 2
+            finally:
+                p.close()
+        with Prefetcher(_sigterm_is_default, workers=2) as p:
+            assert list(p.batches(0, 4)) == [True] * 4
+        assert signal.SIGTERM not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
     finally:
         signal.signal(signal.SIGTERM, previous)
