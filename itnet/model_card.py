@@ -29,6 +29,13 @@ class ModelCard(BaseModel):
     trained_points: int = 256
     trained_iterations: int = 5
     recommended_iterations: int = 10
+    recommended_ensemble: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="runs fused per estimate when a request does not say (the ensemble mode): "
+        "more than 1 where a single run falls short and K runs, measured within 20 ms, do not",
+    )
     normalization: str = NORMALIZATION
     canonical_frame: str = "+y up, front toward -z, origin at the bounding-box centre"
     symmetry: Literal["none", "yaw180", "yaw90", "yaw"] = Field(
@@ -50,6 +57,9 @@ class ModelCard(BaseModel):
         description="measured accuracy at (10 deg, 0.1 radius) by iteration count, e.g. {'10': 0.7}",
     )
     evaluation: str = ""
+    ensemble_evaluation: str = Field(
+        "", description="the recommended ensemble against one run, where it is more than 1"
+    )
     training: dict[str, object] = Field(default_factory=dict)
 
 
@@ -111,3 +121,25 @@ def parse_card(text: str) -> ModelCard | ClassifierCard:
     if kind == "classifier":
         return ClassifierCard.model_validate_json(text)
     return ModelCard.model_validate_json(text)
+
+
+def describe_ensemble(report: dict, k: int) -> str:
+    """The card's ``ensemble_evaluation`` line from ``benchmarks.bench_ensemble``'s JSON: K runs
+    against one on each kind of view it measured. Raises KeyError/ValueError where the report
+    lacks K or a single run."""
+    if k < 2:
+        raise ValueError(f"an ensemble is more than one run, got {k}")
+    kinds = [name for name, rows in report.items() if isinstance(rows, dict) and str(k) in rows]
+    if not kinds:
+        raise ValueError(f"the report does not measure {k} runs")
+    parts = []
+    for kind in kinds:
+        one, many = report[kind]["1"], report[kind][str(k)]
+        parts.append(
+            f"{kind} {many['accuracy']:.1f}% (one run {one['accuracy']:.1f}%, "
+            f"{many['gain']:+.1f} ± {many['gain_stderr']:.1f}; {many['scans']} scans)"
+        )
+    return (
+        f"{k} runs fused, within {report['budget_ms']:g} ms, on the {report['split']} views, at "
+        f"(10 deg, 0.1 radius): " + ", ".join(parts) + f" [{report['machine']}]"
+    )

@@ -158,7 +158,7 @@ class AnytimeRun(Iterator[Estimate]):
         reserve_ms: float = 0.0,
         starts: ArrayLike | None = None,
         points_per_step: int | None = None,
-        ensemble: int = 1,
+        ensemble: int | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -177,6 +177,9 @@ class AnytimeRun(Iterator[Estimate]):
         cloud = validate_cloud(points, limits)
         if points_per_step is not None and points_per_step < limits.min_points:
             raise BadCloudError(f"points_per_step must be at least {limits.min_points}")
+        if ensemble is None:  # the card's, unless the caller chose its own starts or subsets
+            own = starts is not None or points_per_step is not None
+            ensemble = 1 if own else model.card.recommended_ensemble
         if not (1 <= ensemble <= MAX_ENSEMBLE):
             raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {ensemble}")
         if ensemble > 1 and (starts is not None or points_per_step is not None):

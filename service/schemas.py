@@ -45,14 +45,15 @@ class EstimateParams(BaseModel):
         description="model name, see GET /v1/models (default: 'chair' or the only model); "
         "'auto': classify the cloud, then run its category's model",
     )
-    ensemble: int = Field(
-        default=1,
+    ensemble: int | None = Field(
+        default=None,
         ge=1,
         le=16,
         description="accuracy mode: K runs from starts turned 360/K degrees about the cloud's z "
         "axis, each on its own random subset of the cloud, fused robustly after every iteration "
         "(each estimate is the fused pose); a step costs about K times as much, and the run "
-        "still stops within budget_ms",
+        "still stops within budget_ms (default: the model's recommended_ensemble, see GET "
+        "/v1/models; 1 for most)",
     )
     units: Unit | None = Field(
         default=None,
@@ -128,6 +129,9 @@ class ModelInfo(BaseModel):
     points: int = Field(description="points a larger cloud is subsampled to (a smaller: whole)")
     trained_iterations: int
     recommended_iterations: int
+    recommended_ensemble: int = Field(
+        1, description="runs fused per estimate when a request does not give 'ensemble'"
+    )
     accuracy: dict[str, float] = Field(
         description="fraction correct (< 10 deg and < 0.1 radius) by iteration count"
     )

@@ -180,6 +180,34 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
         pose = np.array(json.loads(line)["T_canonical_from_input"])
         assert np.allclose(pose, eval_poses[i, 3], atol=1e-4 * max(1.0, np.abs(pose).max()))
 
+    # A recommended ensemble goes into the card only with its measurement (bench_ensemble's JSON).
+    fused_path = tmp_path / "models" / "x3.onnx"
+    fused = ["export", str(run / "best.pt"), "--out", str(fused_path), "--name", "x3",
+             "--recommended-ensemble", "3"]  # fmt: skip
+    refused = runner.invoke(app, fused)
+    assert refused.exit_code == 2 and "--ensemble-report" in refused.output
+    bench = {
+        "machine": "test",
+        "budget_ms": 20.0,
+        "split": "test",
+        "occluded": {
+            "1": {"accuracy": 40.0, "gain": 0.0, "gain_stderr": 0.0, "scans": 9},
+            "3": {"accuracy": 50.0, "gain": 10.0, "gain_stderr": 2.0, "scans": 9},
+        },
+    }
+    (tmp_path / "bench.json").write_text(json.dumps(bench))  # fmt: skip
+    wrong_k = runner.invoke(
+        app, [*fused[:-1], "4", "--ensemble-report", str(tmp_path / "bench.json")]
+    )
+    assert wrong_k.exit_code == 2 and "does not measure 4 runs" in wrong_k.output
+    done = runner.invoke(app, [*fused, "--ensemble-report", str(tmp_path / "bench.json")])
+    assert done.exit_code == 0, done.output
+    from itnet.service.runtime import load_model
+
+    card = load_model(fused_path, warm_up=False).card
+    assert card.recommended_ensemble == 3
+    assert "occluded 50.0% (one run 40.0%, +10.0 ± 2.0; 9 scans)" in card.ensemble_evaluation
+
 
 def test_compiled_training_matches_eager(shape_folder, tmp_path):
     """torch.compile changes the speed of a training step, not its numbers."""

@@ -27,7 +27,17 @@ def export(
         "trained on: the density it knows, and the cheapest step).",
     ),
     recommended_iterations: int = typer.Option(10, help="Default iteration cap of the runtime."),
+    recommended_ensemble: int = typer.Option(
+        1,
+        min=1,
+        max=16,
+        help="Runs fused per estimate when a request does not say (needs "
+        "--ensemble-report above 1).",
+    ),
     report: Path | None = typer.Option(None, help="report.json of `itnet eval` to record."),
+    ensemble_report: Path | None = typer.Option(
+        None, help="JSON of `python -m benchmarks.bench_ensemble` measuring that ensemble."
+    ),
     version: str = typer.Option("1"),
     int8: bool = typer.Option(
         False, "--int8", help="Quantise the per-point layers to int8 (1.3x faster on 2 cores)."
@@ -43,7 +53,7 @@ def export(
     from itnet.export.quantize import quantize_point_layers
     from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
-    from itnet.model_card import ModelCard
+    from itnet.model_card import ModelCard, describe_ensemble
     from itnet.service.runtime import load_model
 
     net, state = load_checkpoint(checkpoint)
@@ -63,6 +73,16 @@ def export(
             f"views, full SO(3), random units) of the {rep['category']} test split, "
             f"{rep['points']} points"
         )
+    if recommended_ensemble > 1 and ensemble_report is None:
+        raise typer.BadParameter("a recommended ensemble needs its measurement: --ensemble-report")
+    ensemble_evaluation = ""
+    if ensemble_report is not None:
+        try:
+            ensemble_evaluation = describe_ensemble(
+                json.loads(ensemble_report.read_text()), recommended_ensemble
+            )
+        except (KeyError, ValueError) as err:
+            raise typer.BadParameter(f"--ensemble-report: {err}") from None
     name = name or cat.name  # a mug model is served as 'mug', not 'chair'
     out = out or Path("itnet/models") / f"{name}.onnx"
     card = ModelCard(
@@ -74,8 +94,10 @@ def export(
         trained_points=config["points"],
         trained_iterations=config["iterations"],
         recommended_iterations=recommended_iterations,
+        recommended_ensemble=recommended_ensemble,
         accuracy=accuracy,
         evaluation=evaluation,
+        ensemble_evaluation=ensemble_evaluation,
         training={
             "steps": state["step"],
             "batch": config["batch"],

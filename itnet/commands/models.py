@@ -39,7 +39,7 @@ def models(
     if as_json:
         typer.echo(json.dumps(reply.model_dump()))
         return
-    rows = [("name", "category", "symmetry", "precision", "points", "accuracy", "step", "")]
+    rows = [("name", "category", "symmetry", "precision", "points", "runs", "accuracy", "step", "")]
     for info in reply.models:
         rows.append(
             (
@@ -48,6 +48,7 @@ def models(
                 info.symmetry,
                 info.precision,
                 str(info.points),
+                str(info.recommended_ensemble),
                 _accuracy(info.accuracy, info.recommended_iterations),
                 f"{info.step_ms:.2f} ms",
                 "default" if info.default else "",
@@ -62,7 +63,8 @@ def models(
             f"({', '.join(reply.auto.classes)}) picks the pose model (--model auto)"
         )
     typer.echo(
-        f"({len(reply.models)} model(s) in {folder}; accuracy: (10 deg, 0.1 radius), see --json)"
+        f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default; "
+        "accuracy: one run's, at (10 deg, 0.1 radius), see --json)"
     )
 
 

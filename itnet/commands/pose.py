@@ -28,13 +28,14 @@ def pose(
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="Time budget per file, in milliseconds."),
     max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
-    ensemble: int = typer.Option(
-        1,
+    ensemble: int | None = typer.Option(
+        None,
         min=1,
         max=16,
         help="Accuracy mode: K runs from starts turned 360/K degrees about the cloud's z axis, "
         "each on its own random subset, fused robustly after every iteration; a step costs about "
-        "K times as much (still within --budget-ms).",
+        "K times as much (still within --budget-ms). Default: the model's recommended count "
+        "(`itnet models`; 1 for most).",
     ),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),

@@ -35,7 +35,7 @@ function saveUrl(extra = {}) {
     ...(tab === 'pose'
       ? {
           example: state.clouds.main?.example ?? null,
-          ensemble: $('ensemble').value === '1' ? null : $('ensemble').value,
+          ensemble: $('ensemble').value || null,
           units: $('units').value || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
@@ -74,14 +74,17 @@ const modelInfo = (name) => state.models.find((m) => m.name === name);
 function showModel() {
   const info = modelInfo($('model').value);
   view.setSymmetry(info ? info.symmetry : 'none');
+  $('ensemble').options[0].textContent = info ? `the model's: ${info.recommended_ensemble ?? 1}` : "the model's";
   if (!info) {
     $('model-info').textContent = 'auto: the server classifies the cloud, then runs that category\'s model.';
     return;
   }
   const accuracy = info.accuracy[String(info.recommended_iterations)];
+  const runs = info.recommended_ensemble ?? 1;
   $('model-info').textContent = `${info.name}: category ${info.category}, symmetry ${info.symmetry}, `
     + `${info.precision}, ${info.points} points, trained with ${info.trained_iterations} iterations; `
-    + (accuracy === undefined ? '' : `${(100 * accuracy).toFixed(1)}% correct at ${info.recommended_iterations} iterations; `)
+    + (accuracy === undefined ? '' : `${(100 * accuracy).toFixed(1)}% correct at ${info.recommended_iterations} iterations (one run); `)
+    + (runs > 1 ? `${runs} runs fused by default; ` : '')
     + `one step ${info.step_ms.toFixed(2)} ms here.`;
 }
 
@@ -108,11 +111,11 @@ function request() {
   return body;
 }
 
-/** The pose tab's request: the shared fields, plus the ensemble when more than one run and
- * the cloud's unit when known. */
+/** The pose tab's request: the shared fields, plus the ensemble when chosen (else the model's
+ * recommended count) and the cloud's unit when known. */
 function poseRequest() {
   const body = request();
-  if (Number($('ensemble').value) > 1) body.ensemble = Number($('ensemble').value);
+  if ($('ensemble').value) body.ensemble = Number($('ensemble').value);
   if ($('units').value) body.units = $('units').value;
   return body;
 }
@@ -253,7 +256,7 @@ async function main() {
   options($('example-b'), clouds, params.get('b') ?? examples.pairs[0]?.b ?? clouds[1]);
   if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
-  if (['4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
+  if (['1', '4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
   if (['m', 'cm', 'mm', 'in', 'ft'].includes(params.get('units'))) $('units').value = params.get('units');
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;

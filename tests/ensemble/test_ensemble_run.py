@@ -96,3 +96,62 @@ def test_http_and_cli_accept_ensemble(tiny_model_dir, tmp_path, cloud):
     out = CliRunner().invoke(app, [*args, "--ensemble", "3", "--max-iterations", "2"])
     assert out.exit_code == 0, out.output
     assert json.loads(out.output.strip().splitlines()[-1])["ensemble"] == 3
+
+
+@pytest.fixture(scope="module")
+def fused_model_dir(tmp_path_factory):
+    """A folder with 'tiny4', whose card recommends 4 runs fused, and plain 'tiny'."""
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+    from tests.conftest import make_tiny_net
+
+    folder = tmp_path_factory.mktemp("fused")
+    net = make_tiny_net()
+    export_step(net, ModelCard(name="tiny", category="chair", points=256), folder / "tiny.onnx")
+    card = ModelCard(name="tiny4", category="bed", points=256, recommended_ensemble=4)
+    export_step(net, card, folder / "tiny4.onnx")
+    return folder
+
+
+def test_a_card_recommending_an_ensemble_runs_it_unless_the_request_says(fused_model_dir, cloud):
+    """The card's recommended_ensemble is the default of the engine, the HTTP API, the stream
+    and the CLI; a request's own ensemble (1 included) wins; starts of the caller's own (the
+    alignment client's) run as given."""
+    from fastapi.testclient import TestClient
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
+    assert AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2).ensemble == 4
+    assert AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2, ensemble=1).ensemble == 1
+    own = AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2, starts=np.eye(3)[None])
+    assert own.ensemble == 1 and own.points.shape[0] == 1
+
+    with TestClient(create_app(Settings(model_dir=fused_model_dir))) as client:
+        listed = {m["name"]: m for m in client.get("/v1/models").json()["models"]}
+        assert listed["tiny4"]["recommended_ensemble"] == 4
+        assert listed["tiny"]["recommended_ensemble"] == 1
+        body = {"points": cloud.tolist(), "max_iterations": 2, "budget_ms": 5000}
+        assert client.post("/v1/estimate", json={**body, "model": "tiny4"}).json()["ensemble"] == 4
+        one = client.post("/v1/estimate", json={**body, "model": "tiny4", "ensemble": 1}).json()
+        assert one.get("ensemble") is None and one["iterations"] == 2
+        assert (
+            client.post("/v1/estimate", json={**body, "model": "tiny"}).json().get("ensemble")
+            is None
+        )
+        with client.websocket_connect("/v1/estimate/stream") as ws:
+            ws.send_json({**body, "model": "tiny4"})
+            messages = [ws.receive_json() for _ in range(3)]
+        assert [m["type"] for m in messages] == ["estimate", "estimate", "result"]
+        assert messages[-1]["ensemble"] == 4
+    path = fused_model_dir / "cloud.npy"
+    np.save(path, cloud.astype(np.float32))
+    args = ["pose", str(path), "--model", "tiny4", "--model-dir", str(fused_model_dir), "--json"]
+    out = CliRunner().invoke(app, [*args, "--max-iterations", "2"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["ensemble"] == 4
+    out = CliRunner().invoke(app, [*args, "--max-iterations", "2", "--ensemble", "1"])
+    assert "ensemble" not in json.loads(out.output.strip().splitlines()[-1])

@@ -38,14 +38,18 @@ def test_models_table_shows_the_shipped_cards():
     table = runner.invoke(app, ["models"])
     assert table.exit_code == 0, table.output
     header, *rows = table.stdout.splitlines()
-    assert header.split() == ["name", "category", "symmetry", "precision", "points", "accuracy",
-                              "step"]  # fmt: skip
-    chair = next(r for r in rows if r.startswith("chair "))
-    card = load_model(SHIPPED / "chair.onnx", warm_up=False).card
-    accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
-    assert chair.split()[:5] == ["chair", card.category, card.symmetry, card.precision,
-                                 str(card.points)]  # fmt: skip
-    assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in chair and "default" in chair
+    assert header.split() == ["name", "category", "symmetry", "precision", "points", "runs",
+                              "accuracy", "step"]  # fmt: skip
+    for name in ("chair", "bed"):  # the bed's card recommends 4 runs fused
+        row = next(r for r in rows if r.startswith(f"{name} "))
+        card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
+        accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
+        assert row.split()[:6] == [name, card.category, card.symmetry, card.precision,
+                                   str(card.points), str(card.recommended_ensemble)]  # fmt: skip
+        assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
+        assert ("default" in row) == (name == "chair")
+    bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
+    assert bed.recommended_ensemble == 4 and "4 runs fused" in bed.ensemble_evaluation
 
 
 def test_models_in_a_folder_without_models_is_an_error(tmp_path):

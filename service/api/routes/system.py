@@ -25,6 +25,7 @@ async def models(state: StateDep) -> ModelsResponse:
             points=m.card.points,
             trained_iterations=m.card.trained_iterations,
             recommended_iterations=m.card.recommended_iterations,
+            recommended_ensemble=m.card.recommended_ensemble,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,
