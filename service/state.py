@@ -178,8 +178,9 @@ class ServiceState:
             if not self.ready:
                 raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
             recognition, model = recognise(
-                self.classifier, self.models, points, limits.engine_limits(), params.units
-            )
+                self.classifier, self.models, points, limits.engine_limits(), params.units,
+                looks=params.ensemble or 1,
+            )  # fmt: skip
         model.relax_step_ms()  # a step-time estimate inflated by a past burst must not stick
         iterations = params.max_iterations or min(
             model.card.recommended_iterations, limits.max_iterations

@@ -17,6 +17,13 @@ def classify(
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     top: int = typer.Option(3, help="Candidates to print (most probable first)."),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
+    looks: int = typer.Option(
+        1,
+        min=1,
+        max=16,
+        help="Classify K turned random subsets of each cloud and average them "
+        "(more accurate, about K times the time).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
@@ -29,7 +36,7 @@ def classify(
     failed = False
     for path in files:
         try:
-            result = recognise(classifier, read_cloud(path), top=top, units=units)
+            result = recognise(classifier, read_cloud(path), top=top, units=units, looks=looks)
         except (CloudReadError, BadCloudError) as err:
             message = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
             typer.echo(f"error: {message}", err=True)

@@ -163,3 +163,69 @@ def test_handed_in_pose_models_still_get_the_classifier(chair_dir: Path, box_clo
     with TestClient(create_app(settings, models=models)) as client:
         assert client.get("/v1/models").json()["auto"]["classes"] == ["chair", "table", "sofa"]
         assert _post(client, box_cloud, model="auto", max_iterations=1)["category"] == "chair"
+
+
+class _LooksRecorder:
+    """A stand-in classifier: its answer leans with the first point's x, so turned looks give
+    different probabilities; it keeps every batch it was given."""
+
+    def __init__(self) -> None:
+        from itnet.model_card import ClassifierCard
+
+        self.card = ClassifierCard(classes=["chair", "table"], accuracy=0.9, threshold=0.5,
+                                   points=64)  # fmt: skip
+        self.batches: list[np.ndarray] = []
+
+    def probabilities(self, x: np.ndarray) -> np.ndarray:
+        self.batches.append(x)
+        logits = np.stack([x[:, :, 0].mean(1), -x[:, :, 0].mean(1)], axis=1) * 5
+        e = np.exp(logits - logits.max(1, keepdims=True))
+        return e / e.sum(1, keepdims=True)
+
+
+def test_several_looks_are_turned_subsets_averaged_in_the_log_domain(box_cloud) -> None:
+    from itnet.geometry import viewing_axis_turns
+    from itnet.preprocess import estimate_normalization
+    from itnet.service.engine import BadCloudError
+    from itnet.service.recognition import classify
+
+    stand_in = _LooksRecorder()
+    one = classify(stand_in, box_cloud)
+    assert stand_in.batches[-1].shape == (1, 64, 3) and "classify_looks" not in one.as_dict()
+    four = classify(stand_in, box_cloud, looks=4)
+    looks = stand_in.batches[-1]
+    assert looks.shape == (4, 64, 3) and four.as_dict()["classify_looks"] == 4
+    normalized = estimate_normalization(box_cloud).apply(box_cloud)
+    for turn, look in zip(viewing_axis_turns(4), looks, strict=True):
+        back = look @ turn  # each look is a subset of the cloud, turned about z
+        nearest = np.abs(back[:, None, :] - normalized[None]).max(-1).min(1)
+        assert nearest.max() < 1e-5
+    p = stand_in.probabilities(looks)
+    mean_log = np.log(p).mean(0)
+    expected = np.exp(mean_log - mean_log.max()) / np.exp(mean_log - mean_log.max()).sum()
+    got = {c.category: c.probability for c in four.candidates}
+    np.testing.assert_allclose([got["chair"], got["table"]], expected, rtol=1e-6)
+    with pytest.raises(BadCloudError, match="looks"):
+        classify(stand_in, box_cloud, looks=17)
+
+
+def test_the_ensemble_also_classifies_with_as_many_looks(
+    chair_client, chair_dir: Path, box_cloud, tmp_path
+) -> None:
+    reply = _post(chair_client, box_cloud, model="auto", budget_ms=2000, max_iterations=2,
+                  ensemble=4)  # fmt: skip
+    assert reply["status"] == 200, reply
+    assert reply["classify_looks"] == 4 and reply["ensemble"] == 4 and reply["category"] == "chair"
+    plain = _post(chair_client, box_cloud, model="auto", budget_ms=2000, max_iterations=2)
+    assert "classify_looks" not in plain
+    path = tmp_path / "box.npy"
+    np.save(path, box_cloud)
+    common = ["--model-dir", str(chair_dir), "--json"]
+    out = CliRunner().invoke(cli, ["classify", str(path), "--looks", "3", *common])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.stdout.splitlines()[-1])["classify_looks"] == 3
+    posed = CliRunner().invoke(cli, ["pose", str(path), "--model", "auto", "--ensemble", "2",
+                                     "--max-iterations", "2", *common])  # fmt: skip
+    assert posed.exit_code == 0, posed.output
+    row = json.loads(posed.stdout.splitlines()[-1])
+    assert row["classify_looks"] == 2 and row["ensemble"] == 2

@@ -1,0 +1,119 @@
+"""Does the classifier gain from several looks at one cloud? K inputs per view, their class
+probabilities averaged (as log-probabilities): own random 256-point subsets of the cloud, and
+optionally each turned 360/K degrees about the cloud's z axis (the canonicaliser then starts from
+K different poses, as the pose ensemble's runs do). Top-1 and mean class accuracy against one
+look, paired, and the time of one request's batch of K through the shipped graph; with the size
+prior too where the card has one (each view's size in metres, ModelNet's units read as inches,
+as ``itnet classify-size-prior`` measures it).
+
+    python -m benchmarks.classify_tta --split val              # where the choice is made
+    python -m benchmarks.classify_tta --split test --only 4:turns   # then the choice, once
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
+from itnet.model.classify.size_prior import INCH_M, source_radii
+from itnet.model.scanner import scan_config, scan_of
+from itnet.preprocess import cap_points, estimate_normalization
+from itnet.service.recognition import turned_looks
+from itnet.service.runtime import LoadedClassifier, load_any
+from itnet.size_prior import with_size
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", choices=["val", "test"], default="val")
+    parser.add_argument("--views", type=int, default=4, help="per shape, alternately occluded")
+    parser.add_argument("--only", nargs="*", default=None, help="variants as K:mode")
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared/data/modelnet10")
+    parser.add_argument("--cache", type=Path, default=ROOT / "cache")
+    parser.add_argument("--model", type=Path, default=ROOT / "itnet/models/classifier.onnx")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+
+    classifier = load_any(args.model, threads=2)
+    if not isinstance(classifier, LoadedClassifier):
+        raise SystemExit(f"{args.model} is not a classifier")
+    classifier.warm_up()
+    points = classifier.card.points
+    classes = class_names(args.data)
+    shapes = load_splits(args.data, classes, 0.1, 0, args.cache)[args.split]
+    rng = np.random.default_rng(2024 if args.split == "test" else 7)
+    configs = [scan_config(overrides) for overrides in SCAN_MIX]
+    clouds, labels, metres = [], [], []
+    radii = source_radii(args.data, classes, args.split)  # ModelNet's units, read as inches
+    for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
+        for v in range(args.views):
+            cloud, _ = scan_of(shape, rng, configs[v % len(configs)])
+            norm = estimate_normalization(cloud)
+            clouds.append(norm.apply(cloud))
+            labels.append(int(label))
+            metres.append(norm.scale * radius * INCH_M)
+    prior = classifier.card.size_prior
+    y = np.array(labels)
+    sizes = [len(c) for c in clouds]
+    print(f"{len(clouds)} {args.split} views; points a view: median {int(np.median(sizes))}, "
+          f"10th percentile {int(np.percentile(sizes, 10))}", flush=True)  # fmt: skip
+
+    variants = [(1, "subsets"), (2, "subsets"), (4, "subsets"), (8, "subsets"),
+                (2, "turns"), (4, "turns"), (8, "turns")]  # fmt: skip
+    if args.only:
+        variants = [(int(k), mode) for k, mode in (v.split(":") for v in args.only)]
+    if (1, "subsets") not in variants:
+        variants.insert(0, (1, "subsets"))
+    results, correct = {}, {}
+    for k, mode in variants:
+        hits, sized, ms = [], [], []
+        for i, cloud in enumerate(clouds):
+            rng = np.random.default_rng(i)
+            if mode == "turns":
+                x = turned_looks(cloud, k, points, rng)
+            else:
+                x = np.stack([cap_points(cloud, points, rng) for _ in range(k)]).astype(np.float32)
+            start = time.perf_counter()
+            probs = classifier.probabilities(x)
+            ms.append((time.perf_counter() - start) * 1e3)
+            score = np.log(np.maximum(probs, 1e-12)).mean(0)
+            hits.append(int(score.argmax()) == y[i])
+            if prior is not None:  # the cloud's unit known: its size counts too
+                sized.append(int(with_size(score, prior, metres[i]).argmax()) == y[i])
+        hit = np.array(hits, float)
+        correct[(k, mode)] = hit
+        gain = hit - correct[(1, "subsets")]
+        if sized:
+            hit_sized = np.array(sized, float)
+            correct[(k, mode, "size")] = hit_sized
+            gain_sized = hit_sized - correct[(1, "subsets", "size")]
+        row = {
+            "top1": round(100 * hit.mean(), 1),
+            "mean_class": round(100 * float(np.mean([hit[y == c].mean() for c in np.unique(y)])), 1),
+            "gain": round(100 * gain.mean(), 1),
+            "gain_stderr": round(100 * gain.std() / math.sqrt(len(gain)), 1),
+            "median_ms": round(float(np.median(ms)), 2),
+            "p90_ms": round(float(np.percentile(ms, 90)), 2),
+        }  # fmt: skip
+        if sized:
+            row |= {"top1_with_size": round(100 * hit_sized.mean(), 1),
+                    "gain_with_size": round(100 * gain_sized.mean(), 1),
+                    "gain_with_size_stderr": round(100 * gain_sized.std() / math.sqrt(len(gain)), 1)}  # fmt: skip
+        results[f"{k}:{mode}"] = row
+        print(f"K={k} {mode:8s} {row}", flush=True)
+    if args.out is not None:
+        meta = {"split": args.split, "views": len(clouds), "model": str(args.model)}
+        args.out.write_text(json.dumps({**meta, "results": results}, indent=1))
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
