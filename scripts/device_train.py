@@ -6,13 +6,14 @@ has PyTorch but not this project installed, and nothing can be fetched there. On
     python3 scripts/device_train.py run --pack .pack/modelnet10-8.xz --out "$OUT" --budget 540
 
 with ``.pack`` and ``.whl`` (pydantic's wheels for the machine's Python 3.12) carried. What
-travels is at most 64 MiB: the tracked files take 46.9 MiB (session 15) and the wheels 2.7, so
-the eight categories' pack goes on a grid of 2,047 steps (13.2 MiB; 1/4,094 of each shape's
-box, ~0.1 mm on a chair, under the training scans' depth noise)::
+travels is at most 64 MiB: the tracked files take 48.1 MiB (session 16) and the wheels 2.7, so
+the eight categories' pack goes on a grid of 1,023 steps (11.9 MiB, 62.7 MiB in all; 1/2,046 of
+each shape's box, ~0.2 mm on a chair, under the training scans' depth noise; 2,047 steps made
+13.2 MiB, which no longer fits)::
 
     from itnet.model.cloud_pack import pack
     pack(Path("../shared/data/modelnet10"), [...eight names...], Path(".pack/modelnet10-8.xz"),
-         levels=2047)
+         levels=1023)
 
 1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
    package-dir mapping of pyproject.toml);
