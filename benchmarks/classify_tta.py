@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from itnet.metrics import paired_accuracy
 from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
 from itnet.model.classify.size_prior import INCH_M, source_radii
 from itnet.model.scanner import scan_config, scan_of
@@ -70,9 +70,10 @@ def main() -> None:
                 (2, "turns"), (4, "turns"), (8, "turns")]  # fmt: skip
     if args.only:
         variants = [(int(k), mode) for k, mode in (v.split(":") for v in args.only)]
-    if (1, "subsets") not in variants:
-        variants.insert(0, (1, "subsets"))
-    results, correct = {}, {}
+    variants = [(1, "subsets")] + [v for v in variants if v != (1, "subsets")]  # the baseline first
+    results: dict[str, dict] = {}
+    first: np.ndarray | None = None  # one look's hits, the baseline of every paired gain
+    first_sized: np.ndarray | None = None
     for k, mode in variants:
         hits, sized, ms = [], [], []
         for i, cloud in enumerate(clouds):
@@ -89,24 +90,22 @@ def main() -> None:
             if prior is not None:  # the cloud's unit known: its size counts too
                 sized.append(int(with_size(score, prior, metres[i]).argmax()) == y[i])
         hit = np.array(hits, float)
-        correct[(k, mode)] = hit
-        gain = hit - correct[(1, "subsets")]
-        if sized:
-            hit_sized = np.array(sized, float)
-            correct[(k, mode, "size")] = hit_sized
-            gain_sized = hit_sized - correct[(1, "subsets", "size")]
+        first = hit if first is None else first
+        alone = paired_accuracy(hit, first)
         row = {
-            "top1": round(100 * hit.mean(), 1),
+            "top1": alone["accuracy"],
             "mean_class": round(100 * float(np.mean([hit[y == c].mean() for c in np.unique(y)])), 1),
-            "gain": round(100 * gain.mean(), 1),
-            "gain_stderr": round(100 * gain.std() / math.sqrt(len(gain)), 1),
+            "gain": alone["gain"],
+            "gain_stderr": alone["gain_stderr"],
             "median_ms": round(float(np.median(ms)), 2),
             "p90_ms": round(float(np.percentile(ms, 90)), 2),
         }  # fmt: skip
         if sized:
-            row |= {"top1_with_size": round(100 * hit_sized.mean(), 1),
-                    "gain_with_size": round(100 * gain_sized.mean(), 1),
-                    "gain_with_size_stderr": round(100 * gain_sized.std() / math.sqrt(len(gain)), 1)}  # fmt: skip
+            hit_sized = np.array(sized, float)
+            first_sized = hit_sized if first_sized is None else first_sized
+            both = paired_accuracy(hit_sized, first_sized)
+            row |= {"top1_with_size": both["accuracy"], "gain_with_size": both["gain"],
+                    "gain_with_size_stderr": both["gain_stderr"]}  # fmt: skip
         results[f"{k}:{mode}"] = row
         print(f"K={k} {mode:8s} {row}", flush=True)
     if args.out is not None:
