@@ -32,7 +32,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     cat = category(model.card.category, model.card.symmetry)
     config = scan_config(VIEW_RULES[scanner])
     if split == "val":  # where a choice is made; the test split measures it once
-        scans = validation_scans(data, cat, scan=config, cache=cache)
+        scans = validation_scans(data, cat, views, scan=config, cache=cache)
     else:
         scans, _ = test_scans(data, cat, views, 2024, config, cache)
     out, first = {}, None
@@ -63,30 +63,34 @@ def main() -> None:
     parser.add_argument("--model", type=Path, default=Path("itnet/models/chair.onnx"))
     parser.add_argument("--budget-ms", type=float, default=20.0)
     parser.add_argument("--ensembles", type=int, nargs="+", default=[1, 4, 8])
-    parser.add_argument("--views", type=int, default=5, help="views per test shape")
+    parser.add_argument(
+        "--views", type=int, default=None, help="views per shape (default: 5 test, 4 val)"
+    )
     parser.add_argument(
         "--split",
         choices=["test", "val"],
         default="test",
-        help="val: itnet train's validation views (4 per held-out shape)",
+        help="val: itnet train's validation views (held-out training shapes)",
     )
     parser.add_argument("--scanners", nargs="+", default=["occluded", "surface", "paper"])
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
     args = parser.parse_args()
+    views = args.views or (4 if args.split == "val" else 5)
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
         "model": str(args.model),
         "budget_ms": args.budget_ms,
         "split": args.split,
+        "views": views,
         **{
             s: measure(
                 args.model,
                 s,
                 args.ensembles,
                 args.budget_ms,
-                args.views,
+                views,
                 args.cache,
                 args.data,
                 args.split,

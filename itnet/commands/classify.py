@@ -208,6 +208,12 @@ def classify_train(
         help="Classes weigh alike: drawn uniformly into batches, best.pt chosen on the "
         "validation's mean class accuracy.",
     ),
+    up_weight: float = typer.Option(
+        0.0,
+        min=0.0,
+        help="Also teach IT-Net to stand views up (weight of the up-axis term; 0: the paper's "
+        "class loss alone).",
+    ),
     eval_every: int = typer.Option(200, help="Validate and checkpoint every N steps."),
     threads: int = typer.Option(1, help="torch threads."),
     compile: bool = typer.Option(
@@ -233,6 +239,7 @@ def classify_train(
         bn_momentum=(bn_momentum, 0.01),
         init_from=init_from,
         balanced=balanced,
+        up_weight=up_weight,
         eval_every=eval_every,
         threads=threads,
         cache=cache,

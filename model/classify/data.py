@@ -70,11 +70,14 @@ def training_batch(
     rng: np.random.Generator,
     configs: list[ScanConfig],
     balanced: bool = False,
-) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
-    """Fresh random views -> (points (B, points, 3), labels (B,)). Shapes are drawn uniformly,
-    so classes come in proportion to their share of the split; ``balanced``: each view's class
-    is drawn uniformly, then one of its shapes (ModelNet10's training split has 106 bathtubs and
-    889 chairs, its test split 50-100 shapes of every class)."""
+) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray[np.float32]]:
+    """Fresh random views -> (points (B, points, 3), labels (B,), up (B, 3)): ``up`` is the
+    shape's up axis (the canonical +y; ModelNet10's shapes all stand upright in their files) as
+    a unit vector in the view's frame, for a loss that teaches the transformer to stand views
+    up. Shapes are drawn uniformly, so classes come in proportion to their share of the split;
+    ``balanced``: each view's class is drawn uniformly, then one of its shapes (ModelNet10's
+    training split has 106 bathtubs and 889 chairs, its test split 50-100 shapes of every
+    class)."""
     if balanced:
         classes = np.unique(data.labels)
         index = np.array(
@@ -83,12 +86,14 @@ def training_batch(
     else:
         index = rng.integers(len(data.shapes), size=batch)
     x = np.empty((batch, points, 3), np.float32)
+    up = np.empty((batch, 3), np.float32)
     for b, i in enumerate(index):
         shape = data.shapes[i]
         config = configs[int(rng.integers(len(configs)))]
-        cloud, _ = scan_of(shape, rng, config)
-        x[b] = normalised_view(cloud, points, rng)
-    return x, data.labels[index]
+        cloud, canonical_from_view = scan_of(shape, rng, config)
+        x[b] = normalised_view(cloud, points, rng)  # a shift and a scale: directions keep
+        up[b] = canonical_from_view[1, :3]  # R^T e_y: the canonical +y in the view's frame
+    return x, data.labels[index], up
 
 
 def fixed_views(

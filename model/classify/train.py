@@ -67,6 +67,9 @@ class ClassifyConfig(BaseModel):
     # classes weigh alike: drawn uniformly into the batches, best.pt chosen on the validation's
     # mean class accuracy (the test split is nearly balanced, the training split is not)
     balanced: bool = False
+    # > 0: teach IT-Net to stand views up (``network.py``: the up-axis term; 0 = the paper's
+    # class loss alone, as every row of the table)
+    up_weight: float = 0.0
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -77,7 +80,8 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
     widths = {}
     if config.widths is not None:
         widths = {"point_channels": config.widths[0], "head_channels": config.widths[1]}
-    return ClassifierConfig(**{**vars(base), "classes": classes, **widths})
+    up = {"up_weight": config.up_weight} if config.up_weight else {}
+    return ClassifierConfig(**{**vars(base), "classes": classes, **widths, **up})
 
 
 def run_splits(config: ClassifyConfig) -> tuple[list[str], dict[str, LabelledShapes]]:
@@ -176,7 +180,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     scan_configs = [scan_config(o) for o in SCAN_MIX]
     val_x, val_y = run_views(config, splits, "val")
 
-    def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
         return training_batch(
             splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
@@ -221,16 +225,19 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
         }
     )
     losses: list[float] = []
+    penalties: list[float] = []  # the transformer's extra terms (regulariser, up axis)
     started = time.time()
     forward = CompiledForward(net, config.compile)
-    for x, y in prefetch.batches(step, config.steps):
+    for x, y, up in prefetch.batches(step, config.steps):
         lr = learning_rate(config.lr, config.lr_decay, config.decay_every, step)
         set_schedule(net, opt, lr, bn_momentum(config.bn_momentum, config.decay_every, step))
         net.train()
         x_t, y_t = torch.from_numpy(x).to(config.device), torch.from_numpy(y).to(config.device)
+        up_t = torch.from_numpy(up).to(config.device) if config.up_weight else None
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
-            logits, penalty = forward(x_t)
+            logits, penalty = forward(x_t, up_t)
         loss = torch.nn.functional.cross_entropy(logits.float(), y_t) + penalty
+        penalties.append(float(penalty.detach()))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -240,8 +247,15 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
             raise FloatingPointError(f"loss is not finite at step {step}")
         if step % config.log_every == 0:
             mean = float(np.mean(losses[-config.log_every :]))
+            penalty_mean = float(np.mean(penalties[-config.log_every :]))
             write(
-                {"step": step, "loss": mean, "lr": lr, "seconds": round(time.time() - started, 1)}
+                {
+                    "step": step,
+                    "loss": mean,
+                    "penalty": penalty_mean,
+                    "lr": lr,
+                    "seconds": round(time.time() - started, 1),
+                }
             )
         if step % config.eval_every == 0 or step == config.steps:
             val = metrics(predict(net, val_x), val_y, classes)
