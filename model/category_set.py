@@ -64,6 +64,8 @@ def test_scans(
     """A category's fixed, seeded test scans (cached), its shapes in the category's frame and
     orientation-checked as training does. Returns (scans, orientation-check counts)."""
     files = split_files(data, cat.name, 0.1, 0)["test"]
+    if not files:
+        raise ValueError(f"{data}: no test shapes of {cat.name}")
     shapes, orientation = load_shapes(
         files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry
     )

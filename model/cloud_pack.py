@@ -9,7 +9,10 @@ shrinks them to about half of the raw 16-bit size. Point order carries no meanin
 
 ``pack(root, categories)`` reads ``root/CATEGORY/{train,test}/*`` (any cloud format
 ``itnet.cloud_io`` reads); ``unpack(path, root)`` writes the same layout back as ``.npy`` files,
-which the trainers read like the originals.
+which the trainers read like the originals. ``pack(..., splits=("train",))`` leaves the test
+split out (a machine that only trains never reads it; ModelNet10's is a fifth of the shapes):
+its folders come back empty, so the trainers still see ModelNet's layout and the same
+train/validation split.
 """
 
 from __future__ import annotations
@@ -61,14 +64,18 @@ def decode(box: NDArray, deltas: NDArray[np.int16], levels: int = LEVELS) -> NDA
     return (low + q / levels * side).astype(np.float32)
 
 
-def pack(root: Path, categories: list[str], out: Path, levels: int = LEVELS) -> dict[str, int]:
-    """Every shape of ``categories`` under ``root`` -> one LZMA-compressed file at ``out``, on a
-    grid of ``levels`` steps per box side. Returns the number of shapes per category."""
+def pack(root: Path, categories: list[str], out: Path, levels: int = LEVELS,
+         splits: tuple[str, ...] = SPLITS) -> dict[str, int]:  # fmt: skip
+    """Every shape of ``splits`` of ``categories`` under ``root`` -> one LZMA-compressed file at
+    ``out``, on a grid of ``levels`` steps per box side. Returns the number of shapes per
+    category."""
+    if not splits or set(splits) - set(SPLITS):
+        raise ValueError(f"splits must be some of {SPLITS}, got {splits}")
     names, boxes, counts, deltas, per_category = [], [], [], [], {}
     seen: set[str] = set()
     for category in categories:
         per_category[category] = 0
-        for split in SPLITS:
+        for split in splits:
             folder = root / category / split
             for path in list_shape_files(folder):
                 name = f"{category}/{split}/{path.relative_to(folder).with_suffix('').as_posix()}"
@@ -91,6 +98,7 @@ def pack(root: Path, categories: list[str], out: Path, levels: int = LEVELS) -> 
         counts=np.array(counts, np.int64),
         deltas=np.concatenate(deltas, axis=1),
         levels=np.array(levels),
+        categories=np.array(categories),
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(lzma.compress(buffer.getvalue(), preset=9))
@@ -98,10 +106,15 @@ def pack(root: Path, categories: list[str], out: Path, levels: int = LEVELS) -> 
 
 
 def unpack(path: Path, root: Path) -> int:
-    """A pack -> ``root/CATEGORY/SPLIT/NAME.npy`` (float32 points); returns the shape count."""
+    """A pack -> ``root/CATEGORY/SPLIT/NAME.npy`` (float32 points), every split's folder made
+    even where the pack holds none of it; returns the shape count."""
     with np.load(io.BytesIO(lzma.decompress(path.read_bytes()))) as stored:
         names, boxes, counts, deltas = (stored[k] for k in ("names", "boxes", "counts", "deltas"))
         levels = int(stored["levels"]) if "levels" in stored else LEVELS
+        categories = list(stored["categories"]) if "categories" in stored else []
+    for category in {*categories, *(str(n).split("/")[0] for n in names)}:
+        for split in SPLITS:
+            (root / category / split).mkdir(parents=True, exist_ok=True)
     for name, box, end, count in zip(names, boxes, np.cumsum(counts), counts):
         target = root / f"{name}.npy"
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -59,17 +59,20 @@ def split_files(
 ) -> dict[str, list[Path]]:
     """Files for train / val / test. Uses DATA/CATEGORY/{train,test} or DATA/{train,test} when
     present (ModelNet's layout), otherwise splits DATA's files 80/20 by a seeded permutation.
-    Validation is carved out of train, never out of test."""
+    Validation is carved out of train, never out of test. ModelNet's layout may have an empty
+    ``test`` folder (a training-only copy, e.g. ``cloud_pack``'s ``splits=("train",)``)."""
     root = data / category if (data / category).is_dir() else data
     if (root / "train").is_dir() and (root / "test").is_dir():
         train, test = list_shape_files(root / "train"), list_shape_files(root / "test")
+        if not train:
+            raise ValueError(f"{root}: no training shapes in {root / 'train'}")
     else:
         files = list_shape_files(root)
         order = np.random.default_rng(seed).permutation(len(files))
         cut = int(round(0.8 * len(files)))
         train, test = [files[i] for i in order[:cut]], [files[i] for i in sorted(order[cut:])]
-    if not train or not test:
-        raise ValueError(f"{root}: found {len(train)} training and {len(test)} test shapes")
+        if not train or not test:
+            raise ValueError(f"{root}: found {len(train)} training and {len(test)} test shapes")
     order = np.random.default_rng(seed + 1).permutation(len(train))
     n_val = max(1, int(round(validation_fraction * len(train))))
     val = [train[i] for i in sorted(order[:n_val])]

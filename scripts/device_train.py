@@ -1,19 +1,24 @@
-"""Train several pose models at once on a leased GPU machine, inside a fixed time budget.
+"""Train several pose models (and the category classifier) at once on a leased GPU machine,
+inside a fixed time budget.
 
 The machine gets the repository and a pack of the training clouds (``model/cloud_pack.py``); it
 has PyTorch but not this project installed, and nothing can be fetched there. One command:
 
-    python3 scripts/device_train.py run --pack .pack/modelnet10-8.xz --out "$OUT" --budget 540
+    python3 scripts/device_train.py run --pack .pack/modelnet10-train.xz --out "$OUT" --budget 520
 
 with ``.pack`` and ``.whl`` (pydantic's wheels for the machine's Python 3.12) carried. What
-travels is at most 64 MiB: the tracked files take 48.1 MiB (session 16) and the wheels 2.7, so
-the eight categories' pack goes on a grid of 1,023 steps (11.9 MiB, 62.7 MiB in all; 1/2,046 of
-each shape's box, ~0.2 mm on a chair, under the training scans' depth noise; 2,047 steps made
-13.2 MiB, which no longer fits)::
+travels is at most 64 MiB: the tracked files take ~48 MiB (session 17) and the wheels 2.7. The
+pack holds the training split of all ten classes (the machine never reads the test split; the
+classifier needs every class) on a grid of 1,023 steps: 11.9 MiB (1/2,046 of each shape's box,
+~0.2 mm on a chair, under the training scans' depth noise)::
 
     from itnet.model.cloud_pack import pack
-    pack(Path("../shared/data/modelnet10"), [...eight names...], Path(".pack/modelnet10-8.xz"),
-         levels=1023)
+    pack(Path("../shared/data/modelnet10"), [...all ten names...],
+         Path(".pack/modelnet10-train.xz"), levels=1023, splits=("train",))
+
+The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
+(``CLASSIFIER_JOB``: the shipped classifier fine-tuned, class-balanced, batch 100), a ninth
+process sharing the GPU.
 
 1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
    package-dir mapping of pyproject.toml);
@@ -51,6 +56,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from itnet.model.classify.train import ClassifyConfig
     from itnet.model.train import TrainConfig
 
 REPO = Path(__file__).resolve().parent.parent
@@ -72,6 +78,21 @@ JOBS: dict[str, dict] = {
     },
 }
 COMMON = {"loss": "distance", "batch": 100, "ema": 0.999, "compile": False, "threads": 1}
+# The category classifier (``model/classify/train.py``: every class folder of --data, so the
+# pack must hold all ten): the shipped classifier fine-tuned class-balanced at the paper's batch.
+CLASSIFIER = "classifier"
+CLASSIFIER_JOB = {
+    "variant": "itnet-2",
+    "init_from": "itnet/models/classifier.pt",
+    "balanced": True,
+    "lr": 3e-4,
+    "bn_momentum": (0.1, 0.01),
+    "batch": 100,
+    "compile": False,
+    "threads": 1,
+    "log_every": 10,  # the calibration's rate needs a few timed entries
+}
+JOB_NAMES = [*JOBS, CLASSIFIER]
 
 
 def package_links(root: Path) -> Path:
@@ -98,7 +119,11 @@ def package_links(root: Path) -> Path:
     return root
 
 
-def job_config(name: str, args: argparse.Namespace, steps: int, decay_every: int) -> TrainConfig:
+def job_config(
+    name: str, args: argparse.Namespace, steps: int, decay_every: int
+) -> TrainConfig | ClassifyConfig:
+    if name == CLASSIFIER:
+        return classifier_config(args, steps, decay_every)
     from itnet.model.train import TrainConfig
 
     fields = {**COMMON, **JOBS[name]}
@@ -126,25 +151,62 @@ def job_config(name: str, args: argparse.Namespace, steps: int, decay_every: int
     )
 
 
-def run_job(args: argparse.Namespace) -> None:
-    from itnet.model.train import train
+def classifier_config(args: argparse.Namespace, steps: int, decay_every: int) -> ClassifyConfig:
+    from itnet.model.classify.train import ClassifyConfig
 
+    fields = dict(CLASSIFIER_JOB)
+    if args.init_dir is not None and (args.init_dir / f"{CLASSIFIER}.pt").exists():
+        fields["init_from"] = (args.init_dir / f"{CLASSIFIER}.pt").resolve()
+    if args.lr is not None:
+        fields["lr"] = args.lr
+    fields["init_from"] = REPO / fields["init_from"]
+    if args.tiny:  # the CPU check: a small network and batch, few shapes and views
+        fields.update(batch=8, widths=((16, 32, 64), (32, 16)), init_from=None, points=64)
+        fields.update(max_shapes_per_class=6, val_views=1, bf16=False)
+    return ClassifyConfig(
+        data=args.data,
+        cache=args.work / "cache",
+        out=args.work / "runs" / CLASSIFIER,
+        steps=steps,
+        decay_every=decay_every,
+        eval_every=min(EVAL_EVERY, steps),
+        device=args.device,
+        data_workers=args.data_workers,
+        **fields,
+    )
+
+
+def run_job(args: argparse.Namespace) -> None:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # unwind: the data workers stop
     config = job_config(args.name, args, args.steps, args.decay_every)
     if args.wait_for:
         _barrier(config, args.name, args.wait_for.split(","), args.work / "ready")
+    if args.name == CLASSIFIER:
+        from itnet.model.classify.train import train as train_classifier
+
+        result = train_classifier(config)
+        print(json.dumps({"job": args.name, "best": result["val"]["accuracy"]}), flush=True)
+        return
+    from itnet.model.train import train
+
     best = train(config, resume=True, progress=False)
     print(json.dumps({"job": args.name, "best": best.get("val_accuracy")}), flush=True)
 
 
-def _barrier(config: TrainConfig, name: str, names: list[str], folder: Path) -> None:
+def _barrier(config: TrainConfig | ClassifyConfig, name: str, names: list[str],
+             folder: Path) -> None:  # fmt: skip
     """Load (and cache) this job's data, then wait until every job of ``names`` has: the
     calibration then times the jobs stepping together. Eight processes sharing one GPU
     time-slice it (10 steps/s each on an H200, where one alone made 35), so a job timed while
     the others still load runs 2-3x faster than it will."""
-    from itnet.model.train import training_data
+    if name == CLASSIFIER:
+        from itnet.model.classify.train import run_splits, run_views
 
-    training_data(config)
+        run_views(config, run_splits(config)[1], "val")
+    else:
+        from itnet.model.train import training_data
+
+        training_data(config)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / name).touch()
     deadline = time.time() + 300
@@ -300,13 +362,15 @@ def run(args: argparse.Namespace) -> int:
     for n in plans:
         entries = _log(args, n)
         vals = [e for e in entries if e.get("event") == "val"]
-        best = max(vals, key=lambda e: e["val_accuracy"], default={})
+        score = "val_mean_class" if n == CLASSIFIER else "val_accuracy"  # what best.pt is chosen on
+        best = max(vals, key=lambda e: e[score], default={})
         summary["jobs"][n].update(
             exit=procs[n].returncode if n in procs else 0,
             steps_done=max((e.get("step", 0) for e in entries), default=0),
             best_step=best.get("step"),
             best_val_accuracy=best.get("val_accuracy"),
             val_curve=[(e["step"], e["val_accuracy"]) for e in vals],
+            **({"best_val_mean_class": best.get("val_mean_class")} if n == CLASSIFIER else {}),
         )
         if n in procs and procs[n].returncode not in (0, 143):
             print(f"--- {n} exit {procs[n].returncode}:\n{_tail(args, n)}", flush=True)
@@ -352,7 +416,9 @@ def main() -> int:
     run_p.add_argument("--pack", type=Path, default=None, help="cloud pack to unpack into --data")
     run_p.add_argument("--out", type=Path, required=True)
     run_p.add_argument("--budget", type=float, default=540.0, help="seconds for everything")
-    run_p.add_argument("--jobs", nargs="*", choices=list(JOBS), help="default: every job")
+    run_p.add_argument(
+        "--jobs", nargs="*", choices=JOB_NAMES, help="default: every job but the classifier"
+    )
     run_p.add_argument("--calibration-steps", type=int, default=CALIBRATION_STEPS)
     run_p.add_argument("--margin", type=float, default=30.0, help="seconds kept for packing")
     run_p.add_argument("--restart-s", type=float, default=25.0)
@@ -360,7 +426,7 @@ def main() -> int:
     run_p.add_argument("--safety", type=float, default=0.9)
     run_p.add_argument("--mps", action="store_true", help="share the GPU through CUDA MPS")
     job_p = sub.choices["job"]
-    job_p.add_argument("--name", required=True, choices=list(JOBS))
+    job_p.add_argument("--name", required=True, choices=JOB_NAMES)
     job_p.add_argument("--steps", type=int, required=True)
     job_p.add_argument("--decay-every", type=int, required=True)
     job_p.add_argument("--wait-for", default="", help="comma list: start stepping with these")

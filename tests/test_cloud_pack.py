@@ -167,3 +167,37 @@ def test_a_coarser_grid_is_kept_in_the_pack_and_costs_its_step(tree, tmp_path: P
     assert max(gaps) > TOLERANCE / 10  # coarser than the default grid: the level was used
     with pytest.raises(ValueError, match="levels"):
         encode(np.zeros((3, 3)), levels=70000)
+
+
+def test_a_training_only_pack_keeps_the_layout_and_the_split(tree, tmp_path: Path) -> None:
+    """splits=("train",): no test shapes travel, the test folders come back empty, and the
+    trainers' train/validation split is the original's."""
+    root, clouds = tree
+    packed = tmp_path / "train.xz"
+    assert pack(root, ["chair", "table"], packed, splits=("train",)) == {"chair": 3, "table": 3}
+    assert unpack(packed, tmp_path / "unpacked") == 6
+    for category in ("chair", "table"):
+        assert (tmp_path / "unpacked" / category / "test").is_dir()
+        before = split_files(root, category, 0.3, 0)
+        after = split_files(tmp_path / "unpacked", category, 0.3, 0)
+        assert after["test"] == []
+        for split in ("train", "val"):
+            assert [p.stem for p in after[split]] == [p.stem for p in before[split]]
+    with pytest.raises(ValueError, match="splits"):
+        pack(root, ["chair"], tmp_path / "bad.xz", splits=("validation",))
+
+
+def test_evaluation_of_a_training_only_copy_says_there_is_no_test_split(tree, tmp_path) -> None:
+    from itnet.model.categories import category
+    from itnet.model.category_set import test_scans
+    from itnet.model.scanner import ScanConfig
+
+    root, _ = tree
+    pack(root, ["chair"], tmp_path / "train.xz", splits=("train",))
+    unpack(tmp_path / "train.xz", tmp_path / "unpacked")
+    with pytest.raises(ValueError, match="no test shapes of chair"):
+        test_scans(tmp_path / "unpacked", category("chair"), 2, 0, ScanConfig(), tmp_path / "c")
+    (tmp_path / "unpacked" / "chair" / "train").rename(tmp_path / "elsewhere")
+    (tmp_path / "unpacked" / "chair" / "train").mkdir()
+    with pytest.raises(ValueError, match="no training shapes"):
+        split_files(tmp_path / "unpacked", "chair", 0.3, 0)

@@ -83,3 +83,46 @@ def test_run_calibrates_plans_trains_and_packs(tmp_path: Path) -> None:
     log = [json.loads(line) for line in (shipped / "log.jsonl").read_text().splitlines()]
     assert max(e.get("step", 0) for e in log) == job["steps_done"]
     assert [e["step"] for e in log if e.get("event") == "start"] == [0, CALIBRATION]  # resumed
+
+
+def _ball(rng: np.random.Generator, n: int = 300) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@pytest.mark.slow
+def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> None:
+    """--jobs classifier: a pack without the test split (what travels to the machine) unpacks,
+    the classifier trains on every class folder, and its shipped checkpoint comes back."""
+    from itnet.model.classify.train import load_classifier
+    from itnet.model.cloud_pack import pack
+
+    rng = np.random.default_rng(1)
+    source, work, out = tmp_path / "source", tmp_path / "work", tmp_path / "out"
+    for name, make in (("bathtub", _tub), ("ball", _ball)):
+        for split, count in (("train", 10), ("test", 2)):
+            folder = source / name / split
+            folder.mkdir(parents=True)
+            for i in range(count):
+                np.save(folder / f"{name}_{i:04d}.npy", make(rng))
+    pack(source, ["bathtub", "ball"], tmp_path / "train.xz", splits=("train",))
+    budget = 45
+    command = [sys.executable, str(SCRIPT), "run", "--device", "cpu", "--tiny"]
+    command += ["--pack", str(tmp_path / "train.xz"), "--data", str(tmp_path / "data")]
+    command += ["--work", str(work), "--out", str(out), "--budget", str(budget)]
+    command += ["--jobs", "classifier", "--calibration-steps", "40", "--data-workers", "0"]
+    command += ["--restart-s", "5", "--validation-s", "1", "--margin", "5"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=budget + 60
+    )
+    log = work / "classifier.out"
+    assert done.returncode == 0, done.stdout + done.stderr + (log.read_text() if log.exists() else "")
+    job = json.loads((out / "summary.json").read_text())["jobs"]["classifier"]
+    assert job["rate_steps_per_s"] > 0 and job["steps"] > 40, job  # a second run was planned
+    assert job["steps_done"] > 40 and job["best_val_mean_class"] is not None, job
+    with tarfile.open(out / "runs-1.tar") as tar:
+        tar.extractall(tmp_path / "shipped", filter="data")
+    net, state = load_classifier(tmp_path / "shipped" / "classifier" / "best.pt")
+    assert "optimizer" not in state and state["classes"] == ["ball", "bathtub"]
+    assert state["step"] == job["best_step"] and net.config.point_channels == (16, 32, 64)

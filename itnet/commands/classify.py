@@ -250,10 +250,12 @@ def classify_train(
     )
     result = train(config, log_progress=True)
     test = result["test"]
-    typer.echo(
-        f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test "
+    measured = (
         f"{100 * test['accuracy']:.1f}% ± {100 * test['standard_error']:.1f} ({test['scans']} views)"
+        if test
+        else "not measured (no test shapes)"
     )
+    typer.echo(f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test {measured}")
 
 
 def classify_size_prior(

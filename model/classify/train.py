@@ -277,25 +277,30 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
             _save(last, net, opt, step, config, {"best": best, "classes": classes})
             write({"event": "val", **entry})
     result = evaluate_run(config, classes, splits, val_x, val_y)
-    write({"event": "done", "test_accuracy": result["test"]["accuracy"]})
+    test = result["test"]
+    write({"event": "done", "test_accuracy": test["accuracy"] if test else None})
     log.close()
     return result
 
 
 def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x, val_y) -> dict:
-    """Validation and test metrics of the run's best.pt -> result.json (cached)."""
+    """Validation and test metrics of the run's best.pt -> result.json (cached); ``test`` is
+    None where the data has no test split (a training-only copy on a GPU machine)."""
     path = config.out / "result.json"
     if path.exists():
         return json.loads(path.read_text())
     net, state = load_classifier(config.out / "best.pt")
-    test_x, test_y = run_views(config, splits, "test")
+    test = None
+    if splits["test"].shapes:
+        test_x, test_y = run_views(config, splits, "test")
+        test = metrics(predict(net, test_x), test_y, classes)
     result = {
         "variant": config.variant,
         "classes": classes,
         "best_step": state["step"],
         "steps": config.steps,
         "val": metrics(predict(net, val_x), val_y, classes),
-        "test": metrics(predict(net, test_x), test_y, classes),
+        "test": test,
     }
     path.write_text(json.dumps(result))
     return result
