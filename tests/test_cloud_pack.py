@@ -172,7 +172,7 @@ def test_a_coarser_grid_is_kept_in_the_pack_and_costs_its_step(tree, tmp_path: P
 def test_a_training_only_pack_keeps_the_layout_and_the_split(tree, tmp_path: Path) -> None:
     """splits=("train",): no test shapes travel, the test folders come back empty, and the
     trainers' train/validation split is the original's."""
-    root, clouds = tree
+    root, _ = tree
     packed = tmp_path / "train.xz"
     assert pack(root, ["chair", "table"], packed, splits=("train",)) == {"chair": 3, "table": 3}
     assert unpack(packed, tmp_path / "unpacked") == 6

@@ -117,7 +117,9 @@ def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> 
         command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=budget + 60
     )
     log = work / "classifier.out"
-    assert done.returncode == 0, done.stdout + done.stderr + (log.read_text() if log.exists() else "")
+    assert done.returncode == 0, (
+        done.stdout + done.stderr + (log.read_text() if log.exists() else "")
+    )
     job = json.loads((out / "summary.json").read_text())["jobs"]["classifier"]
     assert job["rate_steps_per_s"] > 0 and job["steps"] > 40, job  # a second run was planned
     assert job["steps_done"] > 40 and job["best_val_mean_class"] is not None, job
