@@ -103,9 +103,20 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     out_at = train.index("--out") + 1
     tune = [*train[:out_at], str(tmp_path / "tune"), *train[out_at + 1 :], "--steps", "10"]
     init = ["--init-from", str(run / "best.pt")]
-    tuned = runner.invoke(app, [*tune, *init, "--val-scanner", "surface", "--surface-views"])
+    tuned = runner.invoke(
+        app, [*tune, *init, "--val-scanner", "surface", "--surface-views", "--val-views", "3"]
+    )
     assert tuned.exit_code == 0, tuned.output
     config = json.loads((tmp_path / "tune" / "config.json").read_text())
+    # --val-views: 3 views of each held-out shape instead of 4
+    starts = [
+        json.loads(line)["val_scans"]
+        for folder in (run, tmp_path / "tune")
+        for line in (folder / "log.jsonl").read_text().splitlines()
+        if '"start"' in line
+    ]
+    assert config["val_views"] == 3
+    assert {k: v // 4 * 3 for k, v in starts[0].items()} == starts[-1], starts
     assert config["init_from"] == str(run / "best.pt")
     assert config["val_scan"] == {"splat": 1.0, "tolerance": 0.03}
     assert config["scan_mix"][1]["tolerance"] == 0.0 and config["scan_mix"][2]["splat"] == 1.0

@@ -87,6 +87,9 @@ def train(
         "occluded",
         help="Validation views (model selection): 'occluded', 'paper' or 'surface'.",
     ),
+    val_views: int = typer.Option(
+        4, min=1, help="Validation views per held-out shape (more for a category of few shapes)."
+    ),
     paper_views: bool = typer.Option(
         True, help="Train on the paper's z-buffer views too, half of the scans (view variety)."
     ),
@@ -154,6 +157,7 @@ def train(
         bn_momentum=(bn_momentum, 0.01),
         scan_mix=[{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)],
         val_scan=VIEW_RULES[val_scanner],
+        val_views=val_views,
     )
     best = run_training(config, resume=resume)
     typer.echo(
