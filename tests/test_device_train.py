@@ -94,17 +94,14 @@ def _ball(rng: np.random.Generator, n: int = 300) -> np.ndarray:
 def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> None:
     """--jobs classifier: a pack without the test split (what travels to the machine) unpacks,
     the classifier trains on every class folder, and its shipped checkpoint comes back."""
+    from modelnet_tree import write_modelnet_tree
+
     from itnet.model.classify.train import load_classifier
     from itnet.model.cloud_pack import pack
 
     rng = np.random.default_rng(1)
     source, work, out = tmp_path / "source", tmp_path / "work", tmp_path / "out"
-    for name, make in (("bathtub", _tub), ("ball", _ball)):
-        for split, count in (("train", 10), ("test", 2)):
-            folder = source / name / split
-            folder.mkdir(parents=True)
-            for i in range(count):
-                np.save(folder / f"{name}_{i:04d}.npy", make(rng))
+    write_modelnet_tree(source, {"bathtub": _tub, "ball": _ball}, rng, train=10, test=2)
     pack(source, ["bathtub", "ball"], tmp_path / "train.xz", splits=("train",))
     budget = 45
     command = [sys.executable, str(SCRIPT), "run", "--device", "cpu", "--tiny"]

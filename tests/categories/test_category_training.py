@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from modelnet_tree import write_modelnet_tree
 from typer.testing import CliRunner
 
 from itnet.cli import app
@@ -24,13 +25,7 @@ def _bench_like(rng, n=300):  # long along x, front and back alike
 def two_categories(tmp_path_factory):
     rng = np.random.default_rng(0)
     root = tmp_path_factory.mktemp("categories")
-    for name, make in (("seat", _chair_like), ("bench", _bench_like)):
-        for split, count in (("train", 10), ("test", 3)):
-            folder = root / name / split
-            folder.mkdir(parents=True)
-            for i in range(count):
-                np.save(folder / f"{name}_{i:02d}.npy", make(rng))
-    return root
+    return write_modelnet_tree(root, {"seat": _chair_like, "bench": _bench_like}, rng, 10, 3)
 
 
 def test_one_network_for_two_categories_with_their_symmetries(two_categories, tmp_path):
