@@ -19,7 +19,8 @@ import numpy as np
 
 
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
-            views: int, cache: Path, data: Path, split: str = "test") -> dict:  # fmt: skip
+            views: int, cache: Path, data: Path, split: str = "test",
+            points_per_step: int | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -39,7 +40,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     for k in ensembles:
         poses, iterations, elapsed = [], [], []
         for cloud in scans.clouds:
-            run = AnytimeRun(model, cloud, budget_ms=budget_ms, ensemble=k)
+            per_step = {"points_per_step": points_per_step} if points_per_step else {}
+            run = AnytimeRun(model, cloud, budget_ms=budget_ms, ensemble=k, **per_step)
             last = run.run_to_end()
             poses.append(last.pose)
             iterations.append(run.iteration)
@@ -73,6 +75,9 @@ def main() -> None:
         help="val: itnet train's validation views (held-out training shapes)",
     )
     parser.add_argument("--scanners", nargs="+", default=["occluded", "surface", "paper"])
+    parser.add_argument(
+        "--points-per-step", type=int, default=None, help="one run's subset (K = 1 only)"
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
@@ -84,6 +89,7 @@ def main() -> None:
         "budget_ms": args.budget_ms,
         "split": args.split,
         "views": views,
+        "points_per_step": args.points_per_step,
         **{
             s: measure(
                 args.model,
@@ -94,6 +100,7 @@ def main() -> None:
                 args.cache,
                 args.data,
                 args.split,
+                args.points_per_step,
             )
             for s in args.scanners
         },
