@@ -214,6 +214,11 @@ def classify_train(
         help="Also teach IT-Net to stand views up (weight of the up-axis term; 0: the paper's "
         "class loss alone).",
     ),
+    init_seed: int | None = typer.Option(
+        None,
+        help="Seed of the initialisation and the batches (default: the split's, 0): another "
+        "network on the same training and validation split.",
+    ),
     eval_every: int = typer.Option(200, help="Validate and checkpoint every N steps."),
     threads: int = typer.Option(1, help="torch threads."),
     compile: bool = typer.Option(
@@ -240,6 +245,7 @@ def classify_train(
         init_from=init_from,
         balanced=balanced,
         up_weight=up_weight,
+        init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,
         cache=cache,

@@ -57,7 +57,10 @@ class ClassifyConfig(BaseModel):
     test_views: int = 4
     eval_every: int = 200
     log_every: int = 25
-    seed: int = 0
+    seed: int = 0  # the validation split, the fixed views, and (unless init_seed) the run's
+    # the network's initialisation and the training batches; None: ``seed``. Another value trains
+    # another network on the same split (a second member of an ensemble, validated alike)
+    init_seed: int | None = None
     threads: int = 1
     # autocast matmuls to bfloat16, the transforms' math in fp32; None: where it pays (fast_bf16)
     bf16: bool | None = None
@@ -181,7 +184,8 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     val_x, val_y = run_views(config, splits, "val")
 
     def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:
-        rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
+        run_seed = config.seed if config.init_seed is None else config.init_seed
+        rng = np.random.default_rng([run_seed, step])  # per-step stream: resume-exact data
         return training_batch(
             splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
         )
@@ -193,7 +197,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
 def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, LabelledShapes],
                 val_x: NDArray[np.float32], val_y: NDArray[np.int64], prefetch: Prefetcher,
                 log_progress: bool) -> dict:  # fmt: skip
-    torch.manual_seed(config.seed)
+    torch.manual_seed(config.seed if config.init_seed is None else config.init_seed)
     net = Classifier(network_config(config, len(classes))).to(config.device)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step, best = 0, {"val_accuracy": -1.0, "val_mean_class": -1.0}

@@ -257,3 +257,23 @@ def test_without_up_weight_the_loss_is_the_class_loss_alone(
     train(config)
     log = (config.out / "log.jsonl").read_text().splitlines()
     assert [json.loads(line)["penalty"] for line in log if '"penalty"' in line] == [0.0, 0.0]
+
+
+def test_init_seed_trains_another_network_on_the_same_split(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """--init-seed: another initialisation and other batches (other losses), the same
+    validation shapes and views (so two members of an ensemble are validated alike)."""
+    from itnet.model.classify.train import run_splits, run_views
+
+    losses, views = {}, {}
+    for seed in (None, 1):
+        config = tiny_run(three_classes, tmp_path / str(seed), steps=10, eval_every=10,
+                          log_every=5, init_seed=seed)  # fmt: skip
+        train(config)
+        log = (config.out / "log.jsonl").read_text().splitlines()
+        losses[seed] = [json.loads(line)["loss"] for line in log if '"loss"' in line]
+        views[seed] = run_views(config, run_splits(config)[1], "val")
+    assert not np.allclose(losses[None], losses[1])
+    np.testing.assert_array_equal(views[None][0], views[1][0])
+    np.testing.assert_array_equal(views[None][1], views[1][1])
