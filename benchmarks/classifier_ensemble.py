@@ -1,0 +1,86 @@
+"""Do two (or more) classifiers trained apart recognise more together? Each checkpoint's class
+probabilities on the same fixed views (the trainer's: ``itnet classify-train``'s validation
+views, or its test views), fused by averaging the log-probabilities; top-1 and mean class
+accuracy of each member and of the fusion, the fusion's paired gain over the first member, and
+how often the members agree. Torch checkpoints, so that a candidate is compared on validation
+before anything is exported (export scores the test split).
+
+    python -m benchmarks.classifier_ensemble itnet/models/classifier.pt runs/cls-seed1/itnet-2/best.pt
+    python -m benchmarks.classifier_ensemble A.pt B.pt --split test   # once, after the choice
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.metrics import paired_accuracy
+
+
+def fuse(probabilities: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Members' class probabilities, each (V, C) -> the fused scores (V, C): the average of the
+    log-probabilities, as the service fuses several looks (``service/recognition.py``)."""
+    return np.log(np.maximum(np.stack(probabilities), 1e-12)).mean(axis=0)
+
+
+def summary(scores: NDArray, labels: NDArray, baseline: NDArray) -> dict:
+    """Scores (V, C) -> top-1 (+ paired gain over ``baseline``'s right/wrong per view) and mean
+    class accuracy."""
+    right = scores.argmax(1) == labels
+    per_class = [right[labels == k].mean() for k in np.unique(labels)]
+    return {
+        **paired_accuracy(right, baseline),
+        "mean_class": round(100 * float(np.mean(per_class)), 1),
+    }
+
+
+def main() -> None:
+    import torch
+
+    from itnet.model.classify.train import (
+        ClassifyConfig,
+        load_classifier,
+        predict,
+        run_splits,
+        run_views,
+    )
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", type=Path, nargs="+")
+    parser.add_argument("--split", choices=["val", "test"], default="val")
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache"))
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    if len(args.checkpoints) < 2:
+        parser.error("give at least two checkpoints")
+
+    torch.set_num_threads(args.threads)
+    config = ClassifyConfig(data=args.data, cache=args.cache)  # the trainer's split and views
+    _, splits = run_splits(config)
+    views, labels = run_views(config, splits, args.split)
+    members = [predict(load_classifier(path)[0], views) for path in args.checkpoints]
+    first = members[0].argmax(1) == labels
+    result = {
+        "split": args.split,
+        "views": len(labels),
+        "members": {
+            str(path): summary(p, labels, first) for path, p in zip(args.checkpoints, members)
+        },
+        "fused": summary(fuse(members), labels, first),
+        "agreement": round(
+            100 * float(np.mean([(p.argmax(1) == members[0].argmax(1)).mean() for p in members])), 1
+        ),
+    }
+    print(json.dumps(result, indent=1))
+    if args.out is not None:
+        args.out.write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
