@@ -65,7 +65,8 @@ def main() -> None:
     _, splits = run_splits(config)
     views, labels = run_views(config, splits, args.split)
     members = [predict(load_classifier(path)[0], views) for path in args.checkpoints]
-    first = members[0].argmax(1) == labels
+    first_class = members[0].argmax(1)
+    first = first_class == labels
     result = {
         "split": args.split,
         "views": len(labels),
@@ -73,8 +74,9 @@ def main() -> None:
             str(path): summary(p, labels, first) for path, p in zip(args.checkpoints, members)
         },
         "fused": summary(fuse(members), labels, first),
+        # how often each other member names the first one's class, averaged
         "agreement": round(
-            100 * float(np.mean([(p.argmax(1) == members[0].argmax(1)).mean() for p in members])), 1
+            100 * float(np.mean([(p.argmax(1) == first_class).mean() for p in members[1:]])), 1
         ),
     }
     print(json.dumps(result, indent=1))

@@ -50,3 +50,8 @@ def test_two_tiny_classifiers_are_scored_alone_and_fused(tmp_path: Path, monkeyp
     first = result["members"][checkpoints[0]]
     assert first["gain"] == 0.0 and 0 <= first["accuracy"] <= 100
     assert result["fused"]["scans"] == result["views"] and 0 <= result["agreement"] <= 100
+    # the same checkpoint twice: full agreement, and the fusion is that member
+    argv[1:3] = [checkpoints[0], checkpoints[0]]
+    main()
+    same = json.loads(report.read_text())
+    assert same["agreement"] == 100.0 and same["fused"]["gain"] == 0.0
