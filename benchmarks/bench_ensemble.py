@@ -40,8 +40,9 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     for k in ensembles:
         poses, iterations, elapsed = [], [], []
         for cloud in scans.clouds:
-            per_step = {"points_per_step": points_per_step} if points_per_step else {}
-            run = AnytimeRun(model, cloud, budget_ms=budget_ms, ensemble=k, **per_step)
+            run = AnytimeRun(
+                model, cloud, budget_ms=budget_ms, ensemble=k, points_per_step=points_per_step
+            )
             last = run.run_to_end()
             poses.append(last.pose)
             iterations.append(run.iteration)

@@ -1,6 +1,7 @@
 """Do two (or more) classifiers trained apart recognise more together? Each checkpoint's class
 probabilities on the same fixed views (the trainer's: ``itnet classify-train``'s validation
-views, or its test views), fused by averaging the log-probabilities; top-1 and mean class
+views, or its test views), fused by averaging the log-probabilities as the service fuses
+several looks (``service/recognition.py``); top-1 and mean class
 accuracy of each member and of the fusion, the fusion's paired gain over the first member, and
 how often the members agree. Torch checkpoints, so that a candidate is compared on validation
 before anything is exported (export scores the test split).
@@ -19,12 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.metrics import paired_accuracy
-
-
-def fuse(probabilities: list[NDArray[np.float64]]) -> NDArray[np.float64]:
-    """Members' class probabilities, each (V, C) -> the fused scores (V, C): the average of the
-    log-probabilities, as the service fuses several looks (``service/recognition.py``)."""
-    return np.log(np.maximum(np.stack(probabilities), 1e-12)).mean(axis=0)
+from itnet.service.recognition import mean_log_probability
 
 
 def summary(scores: NDArray, labels: NDArray, baseline: NDArray) -> dict:
@@ -73,7 +69,7 @@ def main() -> None:
         "members": {
             str(path): summary(p, labels, first) for path, p in zip(args.checkpoints, members)
         },
-        "fused": summary(fuse(members), labels, first),
+        "fused": summary(mean_log_probability(members), labels, first),
         # how often each other member names the first one's class, averaged
         "agreement": round(
             100 * float(np.mean([(p.argmax(1) == first_class).mean() for p in members[1:]])), 1

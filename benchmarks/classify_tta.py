@@ -24,7 +24,7 @@ from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
 from itnet.model.classify.size_prior import INCH_M, source_radii
 from itnet.model.scanner import scan_config, scan_of
 from itnet.preprocess import cap_points, estimate_normalization
-from itnet.service.recognition import turned_looks
+from itnet.service.recognition import mean_log_probability, turned_looks
 from itnet.service.runtime import LoadedClassifier, load_any
 from itnet.size_prior import with_size
 
@@ -85,7 +85,7 @@ def main() -> None:
             start = time.perf_counter()
             probs = classifier.probabilities(x)
             ms.append((time.perf_counter() - start) * 1e3)
-            score = np.log(np.maximum(probs, 1e-12)).mean(0)
+            score = mean_log_probability(probs)
             hits.append(int(score.argmax()) == y[i])
             if prior is not None:  # the cloud's unit known: its size counts too
                 sized.append(int(with_size(score, prior, metres[i]).argmax()) == y[i])

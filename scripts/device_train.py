@@ -119,6 +119,18 @@ def package_links(root: Path) -> Path:
     return root
 
 
+def _start_fields(name: str, fields: dict, args: argparse.Namespace) -> dict:
+    """A job's config fields with the command line's start: ``--init-dir``'s NAME.pt if there
+    (a second lease goes on from the first's), ``--lr``; ``init_from`` made absolute."""
+    if args.init_dir is not None and (args.init_dir / f"{name}.pt").exists():
+        fields["init_from"] = (args.init_dir / f"{name}.pt").resolve()
+    if args.lr is not None:
+        fields["lr"] = args.lr
+    if "init_from" in fields:
+        fields["init_from"] = REPO / fields["init_from"]
+    return fields
+
+
 def job_config(
     name: str, args: argparse.Namespace, steps: int, decay_every: int
 ) -> TrainConfig | ClassifyConfig:
@@ -126,13 +138,7 @@ def job_config(
         return classifier_config(args, steps, decay_every)
     from itnet.model.train import TrainConfig
 
-    fields = {**COMMON, **JOBS[name]}
-    if args.init_dir is not None and (args.init_dir / f"{name}.pt").exists():
-        fields["init_from"] = (args.init_dir / f"{name}.pt").resolve()  # a second lease goes on
-    if args.lr is not None:
-        fields["lr"] = args.lr
-    if "init_from" in fields:
-        fields["init_from"] = REPO / fields["init_from"]
+    fields = _start_fields(name, {**COMMON, **JOBS[name]}, args)
     if args.tiny:  # the CPU check: a small network and batch, a few validation scans
         fields.update(batch=8, point_channels=(16, 32, 64), head_channels=(32, 16), init_from=None)
         fields.update(validation_fraction=0.05, val_views=1)
@@ -154,12 +160,7 @@ def job_config(
 def classifier_config(args: argparse.Namespace, steps: int, decay_every: int) -> ClassifyConfig:
     from itnet.model.classify.train import ClassifyConfig
 
-    fields = dict(CLASSIFIER_JOB)
-    if args.init_dir is not None and (args.init_dir / f"{CLASSIFIER}.pt").exists():
-        fields["init_from"] = (args.init_dir / f"{CLASSIFIER}.pt").resolve()
-    if args.lr is not None:
-        fields["lr"] = args.lr
-    fields["init_from"] = REPO / fields["init_from"]
+    fields = _start_fields(CLASSIFIER, dict(CLASSIFIER_JOB), args)
     if args.tiny:  # the CPU check: a small network and batch, few shapes and views
         fields.update(batch=8, widths=((16, 32, 64), (32, 16)), init_from=None, points=64)
         fields.update(max_shapes_per_class=6, val_views=1, bf16=False)

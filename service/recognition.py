@@ -101,6 +101,12 @@ def turned_looks(
     return x
 
 
+def mean_log_probability(probabilities: ArrayLike) -> NDArray[np.float64]:
+    """Class probabilities of several looks (or classifiers) at the same input, (K, ..., C) ->
+    their mean log-probability (..., C): the fused score, whose argmax is the fused class."""
+    return np.log(np.maximum(np.asarray(probabilities, np.float64), 1e-12)).mean(axis=0)
+
+
 def classify(
     classifier: LoadedClassifier,
     points: ArrayLike,
@@ -147,7 +153,7 @@ def classify_together(
             raise BadCloudError(str(err)) from None
         rng = np.random.default_rng(seed)
         x = turned_looks(norm.apply(cloud), looks, classifier.card.points, rng)
-        own = np.log(np.maximum(classifier.probabilities(x), 1e-12)).mean(axis=0)
+        own = mean_log_probability(classifier.probabilities(x))
         if to_metres is not None:
             sizes.append(norm.scale * to_metres)
             own = own if prior is None else with_size(own, prior, sizes[-1])

@@ -61,6 +61,12 @@ class ClassifyConfig(BaseModel):
     # the network's initialisation and the training batches; None: ``seed``. Another value trains
     # another network on the same split (a second member of an ensemble, validated alike)
     init_seed: int | None = None
+
+    @property
+    def run_seed(self) -> int:
+        """The seed of the initialisation and the training batches."""
+        return self.seed if self.init_seed is None else self.init_seed
+
     threads: int = 1
     # autocast matmuls to bfloat16, the transforms' math in fp32; None: where it pays (fast_bf16)
     bf16: bool | None = None
@@ -83,8 +89,9 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
     widths = {}
     if config.widths is not None:
         widths = {"point_channels": config.widths[0], "head_channels": config.widths[1]}
-    up = {"up_weight": config.up_weight} if config.up_weight else {}
-    return ClassifierConfig(**{**vars(base), "classes": classes, **widths, **up})
+    return ClassifierConfig(
+        **{**vars(base), "classes": classes, **widths, "up_weight": config.up_weight}
+    )
 
 
 def run_splits(config: ClassifyConfig) -> tuple[list[str], dict[str, LabelledShapes]]:
@@ -184,8 +191,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     val_x, val_y = run_views(config, splits, "val")
 
     def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:
-        run_seed = config.seed if config.init_seed is None else config.init_seed
-        rng = np.random.default_rng([run_seed, step])  # per-step stream: resume-exact data
+        rng = np.random.default_rng([config.run_seed, step])  # per-step stream: resume-exact data
         return training_batch(
             splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
         )
@@ -197,7 +203,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
 def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, LabelledShapes],
                 val_x: NDArray[np.float32], val_y: NDArray[np.int64], prefetch: Prefetcher,
                 log_progress: bool) -> dict:  # fmt: skip
-    torch.manual_seed(config.seed if config.init_seed is None else config.init_seed)
+    torch.manual_seed(config.run_seed)
     net = Classifier(network_config(config, len(classes))).to(config.device)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)
     step, best = 0, {"val_accuracy": -1.0, "val_mean_class": -1.0}

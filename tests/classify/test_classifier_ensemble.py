@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 from modelnet_tree import write_modelnet_tree
 
-from benchmarks.classifier_ensemble import fuse, main
+from benchmarks.classifier_ensemble import main
 from itnet.model.classify.train import ClassifyConfig, train
+from itnet.service.recognition import mean_log_probability as fuse
 
 
 def test_fusion_is_the_geometric_mean_of_the_members() -> None:
