@@ -18,7 +18,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.model.scanner import ScanConfig, scan_of
-from itnet.model.shapes import Shape, check_yaw, list_shape_files, load_shape
+from itnet.model.shapes import (
+    Shape,
+    check_yaw,
+    list_shape_files,
+    load_shape,
+    random_stretch,
+    stretched,
+)
 from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
 
 
@@ -184,15 +191,23 @@ def training_batch(
     rng: np.random.Generator,
     config: ScanConfig | list[ScanConfig],
     indices: NDArray[np.int64] | None = None,
+    stretch: float = 1.0,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4)). A list
     of configs: each scan uses one, drawn uniformly. ``indices`` (B,): the shapes to scan (by
-    default drawn uniformly)."""
+    default drawn uniformly). ``stretch`` > 1: each shape is first stretched along its canonical
+    axes by factors drawn log-uniformly in [1/stretch, stretch] (``shapes.stretched``; the pose
+    is unchanged)."""
     configs = config if isinstance(config, list) else [config]
     xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
     if indices is None:
         indices = rng.integers(len(shapes), size=batch)
     for b, i in enumerate(indices):
-        cloud, pose = scan_of(shapes[i], rng, _pick(configs, rng))
+        shape, config = shapes[i], _pick(configs, rng)
+        if stretch > 1:
+            if config.splat > 0 and shape.triangles is None:
+                shape.discs()  # computed once on the original, carried over to every stretch
+            shape = stretched(shape, random_stretch(rng, stretch))
+        cloud, pose = scan_of(shape, rng, config)
         xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
     return xs, targets

@@ -88,6 +88,38 @@ def _load_shape(path: Path, frame: str) -> Shape:
     return Shape(path.stem, canonical)
 
 
+def random_stretch(rng: np.random.Generator, spread: float) -> NDArray[np.float64]:
+    """Factors (3,) for ``stretched``, each log-uniform in [1/spread, spread] (1: none)."""
+    return np.asarray(spread, dtype=np.float64) ** rng.uniform(-1.0, 1.0, size=3)
+
+
+def stretched(shape: Shape, factors: NDArray) -> Shape:
+    """The shape scaled by ``factors`` (3,) along its canonical axes, then back to the unit
+    bounding sphere: another plausible member of its class (a wider sofa, a taller night stand)
+    in the same frame, for training on more shapes than the dataset has. The bounding box stays
+    centred on the origin, so the pose of a view of it is the pose of a view of the original.
+
+    Triangles keep their indices. Surface discs already computed for ``shape`` are carried over
+    exactly: under ``A = diag(factors) / r`` a normal becomes ``A⁻ᵀn`` (normalised) and a disc's
+    area scales by ``det(A) |A⁻ᵀn|``, so its spacing by the square root of that; otherwise they
+    are computed on first use, as for any shape."""
+    f = np.asarray(factors, dtype=np.float64)
+    if f.shape != (3,) or not np.all(f > 0):
+        raise ValueError(f"stretch factors must be 3 positive numbers, got {factors!r}")
+    points = shape.points * f
+    radius = float(np.linalg.norm(points, axis=1).max())
+    if radius <= 0:
+        raise ValueError("the shape has no extent")
+    out = Shape(shape.name, points / radius, shape.triangles, list(shape.notes))
+    if shape._discs is not None:
+        a = f / radius
+        normals, spacing = shape._discs
+        moved = normals / a
+        length = np.linalg.norm(moved, axis=1)
+        out._discs = (moved / length[:, None], spacing * np.sqrt(np.prod(a) * length))
+    return out
+
+
 def _is_mesh_ply(path: Path) -> bool:
     if path.suffix.lower() != ".ply":
         return False

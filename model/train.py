@@ -80,6 +80,8 @@ class TrainConfig(BaseModel):
     # ScanConfig overrides, drawn uniformly ({}: occluded views; PAPER_VIEWS: the paper's rule)
     init_from: Path | None = None  # start from these weights (fine-tuning) instead of scratch
     val_scan: dict[str, Any] = {}  # ScanConfig overrides for the validation scans ({}: occluded)
+    # > 1: each training shape stretched along its axes by up to this factor (data.training_batch)
+    stretch: float = 1.0
     threads: int = 0  # 0: torch's default
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
     compile: bool = False  # torch.compile the unrolled network for the training steps
@@ -144,7 +146,13 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
         picked = data.draw(rng, config.batch)
         x, target = training_batch(
-            data.shapes, config.batch, config.points, rng, train_scan_configs, picked
+            data.shapes,
+            config.batch,
+            config.points,
+            rng,
+            train_scan_configs,
+            picked,
+            config.stretch,
         )
         return x, target, picked
 

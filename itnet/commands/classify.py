@@ -214,6 +214,12 @@ def classify_train(
         help="Also teach IT-Net to stand views up (weight of the up-axis term; 0: the paper's "
         "class loss alone).",
     ),
+    stretch: float = typer.Option(
+        1.0,
+        min=1.0,
+        help="Stretch each training shape along its axes by factors drawn log-uniformly in "
+        "[1/S, S] before it is scanned (1: off): more shapes than the dataset has.",
+    ),
     init_seed: int | None = typer.Option(
         None,
         help="Seed of the initialisation and the batches (default: the split's, 0): another "
@@ -245,6 +251,7 @@ def classify_train(
         init_from=init_from,
         balanced=balanced,
         up_weight=up_weight,
+        stretch=stretch,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,

@@ -98,6 +98,13 @@ def train(
         help="Train on surface views too (each point a disc, as a camera sees a mesh; "
         "model/surface.py): the scans are split evenly between the kinds of views.",
     ),
+    stretch: float = typer.Option(
+        1.0,
+        min=1.0,
+        help="Stretch each training shape along its canonical axes by factors drawn "
+        "log-uniformly in [1/S, S] before it is scanned (1: off): more shapes than the "
+        "category has; the pose is unchanged.",
+    ),
     cache: Path = typer.Option(Path("cache"), help="Cache of canonical shapes and fixed scans."),
 ) -> None:
     """Train with fresh random partial scans every step; keeps the best validation checkpoint.
@@ -158,6 +165,7 @@ def train(
         scan_mix=[{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)],
         val_scan=VIEW_RULES[val_scanner],
         val_views=val_views,
+        stretch=stretch,
     )
     best = run_training(config, resume=resume)
     typer.echo(

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from itnet.model.data import cached_scan_set, load_shapes, split_files
 from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_of
-from itnet.model.shapes import Shape
+from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
 
 SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
@@ -70,6 +70,7 @@ def training_batch(
     rng: np.random.Generator,
     configs: list[ScanConfig],
     balanced: bool = False,
+    stretch: float = 1.0,
 ) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray[np.float32]]:
     """Fresh random views -> (points (B, points, 3), labels (B,), up (B, 3)): ``up`` is the
     shape's up axis (the canonical +y; ModelNet10's shapes all stand upright in their files) as
@@ -77,7 +78,8 @@ def training_batch(
     up. Shapes are drawn uniformly, so classes come in proportion to their share of the split;
     ``balanced``: each view's class is drawn uniformly, then one of its shapes (ModelNet10's
     training split has 106 bathtubs and 889 chairs, its test split 50-100 shapes of every
-    class)."""
+    class). ``stretch`` > 1: each shape is first stretched along its axes by factors drawn
+    log-uniformly in [1/stretch, stretch] (``shapes.stretched``)."""
     if balanced:
         classes = np.unique(data.labels)
         index = np.array(
@@ -89,6 +91,8 @@ def training_batch(
     up = np.empty((batch, 3), np.float32)
     for b, i in enumerate(index):
         shape = data.shapes[i]
+        if stretch > 1:
+            shape = stretched(shape, random_stretch(rng, stretch))
         config = configs[int(rng.integers(len(configs)))]
         cloud, canonical_from_view = scan_of(shape, rng, config)
         x[b] = normalised_view(cloud, points, rng)  # a shift and a scale: directions keep

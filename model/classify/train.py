@@ -79,6 +79,8 @@ class ClassifyConfig(BaseModel):
     # > 0: teach IT-Net to stand views up (``network.py``: the up-axis term; 0 = the paper's
     # class loss alone, as every row of the table)
     up_weight: float = 0.0
+    # > 1: each training shape stretched along its axes by up to this factor (``data.py``)
+    stretch: float = 1.0
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -193,7 +195,13 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:
         rng = np.random.default_rng([config.run_seed, step])  # per-step stream: resume-exact data
         return training_batch(
-            splits["train"], config.batch, config.points, rng, scan_configs, config.balanced
+            splits["train"],
+            config.batch,
+            config.points,
+            rng,
+            scan_configs,
+            config.balanced,
+            config.stretch,
         )
 
     with Prefetcher(make_batch, config.data_workers) as prefetch:  # forks before CUDA starts
