@@ -15,8 +15,9 @@ onnxruntime graph, so use a float32 model: an int8 graph quantises a batch with 
 Prints accuracy at (10°, 0.1 r) with its standard error, the rotation (< 10°) and centre
 (< 0.1 r) accuracies, the median rotation error, and where the misses are: the share of scans
 wrong in rotation only, in the centre only, or both; for the mirror refinement, its paired
-gain and its median time per cloud. Validation views by default (the shapes held out of training, seeded as
-``itnet train`` seeds them): a choice made here can then be measured once on the test split.
+gain and its median time per cloud. Validation views by default (the shapes held out of
+training, seeded as ``itnet train`` seeds them): a choice made here can then be measured once on
+the test split (``--split test``).
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ from numpy.typing import NDArray
 
 from itnet.fusion import fuse_poses
 from itnet.geometry import apply_rigid, axis_angle_to_matrix, random_rotation, rotation_error_deg
+from itnet.metrics import paired_accuracy
 from itnet.model.categories import category
 from itnet.model.category_set import test_scans, validation_scans
-from itnet.metrics import paired_accuracy
 from itnet.model.evaluate import report
 from itnet.model.scanner import VIEW_RULES, scan_config
 from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
@@ -194,8 +195,9 @@ def main() -> None:
             f"   rotation < 10°: {100 * rep.rotation_accuracy[-1]:5.1f} %"
             f"   centre < 0.1 r: {100 * rep.translation_accuracy[-1]:5.1f} %"
             f"   median rotation error {rep.median_rotation_deg[-1]:.1f}°"
-            f"   missed in rotation only / centre only / both: {100 * np.mean(turned & ~shifted):.1f}"
-            f" / {100 * np.mean(shifted & ~turned):.1f} / {100 * np.mean(turned & shifted):.1f} %",
+            f"   missed in rotation only / centre only / both: "
+            f"{100 * np.mean(turned & ~shifted):.1f} / {100 * np.mean(shifted & ~turned):.1f}"
+            f" / {100 * np.mean(turned & shifted):.1f} %",
             flush=True,
         )
 
