@@ -6,7 +6,7 @@ onnxruntime graph, so use a float32 model: an int8 graph quantises a batch with 
 * a single run on 256 / 512 / 1,024 points of the cloud (the runtime uses the card's count);
 * K fused runs (``itnet.fusion``, as the ensemble mode fuses them) on K random subsets, from K
   random starting rotations on one subset, and from K starts on K subsets;
-* a single run, then refined by the object's mirror symmetry (``mirror_refined``: every
+* a single run, then refined by the object's mirror symmetry (``itnet.mirror``: every
   ModelNet10 class is left-right symmetric about its canonical x = 0 plane).
 
     python -m benchmarks.test_time_options --model itnet/models/chair-fp32.onnx --scanner surface
@@ -31,8 +31,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.fusion import fuse_poses
-from itnet.geometry import apply_rigid, axis_angle_to_matrix, random_rotation, rotation_error_deg
+from itnet.geometry import random_rotation
 from itnet.metrics import paired_accuracy
+from itnet.mirror import mirror_refined
 from itnet.model.categories import category
 from itnet.model.category_set import test_scans, validation_scans
 from itnet.model.evaluate import report
@@ -54,67 +55,6 @@ def run_batch(model: LoadedModel, inputs: NDArray, starts: NDArray, chunk: int =
         for _ in range(ITERATIONS):
             pose[b : b + chunk], _ = model.step(x[b : b + chunk], pose[b : b + chunk])
     return pose.reshape(s, k, 4, 4)
-
-
-def mirror_refined(
-    cloud: NDArray,
-    pose: NDArray,
-    iterations: int = 20,
-    keep: float = 0.6,
-    max_turn_deg: float = 30.0,
-    max_shift: float = 0.3,
-) -> NDArray:
-    """A pose (4, 4) of a normalised cloud (N, 3) (RMS radius 1) corrected so that the cloud,
-    moved into the canonical frame, is as mirror-symmetric about x = 0 as it can be.
-
-    The moved cloud's reflection in x = 0 is aligned back onto the cloud by point-to-point ICP
-    (the closest ``keep`` of the pairs each round: the parts whose mirror image is not in view
-    pair badly and drop out). If the object's plane of symmetry is ``n·x = d``, that alignment
-    composed with the reflection is the reflection in it, ``x -> (I - 2nnᵀ)x + 2dn``: ``n`` is
-    the eigenvector of its linear part with eigenvalue -1, ``d`` half its shift along ``n``. The
-    pose is then turned by the smallest rotation taking ``n`` to +x and shifted by ``-d`` along
-    x. This fixes the two rotations the plane constrains (about y and z) and the centre's x, not
-    the turn about x. A correction beyond ``max_turn_deg`` or ``max_shift`` (another plane than
-    the estimate's) returns the pose unchanged.
-    """
-    from scipy.spatial import cKDTree
-
-    if len(cloud) < 3:
-        raise ValueError(f"mirror refinement needs at least 3 points, got {len(cloud)}")
-    moved = apply_rigid(pose, cloud)
-    reflected = moved * [-1.0, 1.0, 1.0]
-    tree = cKDTree(moved)
-    align = np.eye(4)  # reflected -> moved
-    for _ in range(iterations):
-        source = apply_rigid(align, reflected)
-        distance, partner = tree.query(source)
-        paired = distance <= np.quantile(distance, keep)
-        align = rigid_fit(source[paired], moved[partner[paired]]) @ align
-    linear = align[:3, :3] * [-1.0, 1.0, 1.0]  # the reflection's linear part, A_R diag(-1, 1, 1)
-    values, vectors = np.linalg.eigh((linear + linear.T) / 2)
-    normal = vectors[:, 0] * np.sign(vectors[0, 0] + 1e-12)
-    offset = float(normal @ align[:3, 3]) / 2
-    axis = np.cross(normal, [1.0, 0.0, 0.0])
-    correction = np.eye(4)
-    if np.linalg.norm(axis) > 1e-12:
-        angle = np.arctan2(np.linalg.norm(axis), normal[0])
-        correction[:3, :3] = axis_angle_to_matrix(axis / np.linalg.norm(axis), angle)
-    correction[0, 3] = -offset
-    turn = rotation_error_deg(correction[:3, :3], np.eye(3))
-    if values[0] > -0.5 or turn > max_turn_deg or abs(offset) > max_shift:
-        return pose  # no reflection found, or one far from the estimate's plane
-    return correction @ pose
-
-
-def rigid_fit(source: NDArray, target: NDArray) -> NDArray:
-    """The rigid transform (4, 4) taking points (M, 3) closest to their partners (M, 3) (Kabsch)."""
-    cs, ct = source.mean(0), target.mean(0)
-    u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
-    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    out = np.eye(4)
-    out[:3, :3] = vt.T @ flip @ u.T
-    out[:3, 3] = ct - out[:3, :3] @ cs
-    return out
 
 
 def options(clouds: list[NDArray], rng: np.random.Generator) -> dict[str, tuple]:
@@ -149,6 +89,11 @@ def main() -> None:
         "--only", default="", help="Measure only the options whose name contains this text."
     )
     parser.add_argument(
+        "--mirror-whole",
+        action="store_true",
+        help="refine by the mirror on the whole cloud, not on the run's subset (the engine's)",
+    )
+    parser.add_argument(
         "--split",
         choices=["val", "test"],
         default="val",
@@ -176,7 +121,9 @@ def main() -> None:
         fused = np.stack([fuse_poses(p, symmetry) for p in poses])
         if name.endswith(MIRRORED):
             seconds = []
-            for i, (cloud, pose) in enumerate(zip(clouds, fused)):
+            # on the run's own subset, as the engine does (``--mirror-whole``: the whole cloud)
+            mirror_on = clouds if args.mirror_whole else list(inputs[:, 0].astype(np.float64))
+            for i, (cloud, pose) in enumerate(zip(mirror_on, fused)):
                 start = time.perf_counter()
                 fused[i] = mirror_refined(cloud, pose)
                 seconds.append(time.perf_counter() - start)

@@ -18,7 +18,11 @@ split (``python -m itnet.model.categories``):
 Symmetry is measured per shape: the Chamfer distance between two random 400-point samples of a
 shape (disjoint halves of its points), one turned by 90, by 180 and by a random other angle about
 up, over the distance between the two unturned halves (the sampling floor). A class whose median ratio for a turn is below
-``SYMMETRY_RATIO`` looks alike under that turn.
+``SYMMETRY_RATIO`` looks alike under that turn. The mirror (``Category.mirror``: left-right
+symmetric about the canonical x = 0 plane, which ``itnet.mirror`` uses to finish a pose) is
+measured alike, with one half reflected in x = 0 instead of turned: 0.80-1.01 for every
+ModelNet10 class (40 training shapes each; a reflected half lies as near as the other half), so
+all ten are mirror-symmetric.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ class Category:
     name: str
     quarter_turns: int = 0  # turns of +90 degrees about +y after the source frame's mapping
     symmetry: str = "none"
+    mirror: bool = False  # left-right symmetric about the canonical x = 0 plane
 
     def __post_init__(self) -> None:
         if self.symmetry not in SYMMETRY_NAMES:
@@ -51,16 +56,16 @@ class Category:
 MODELNET10: dict[str, Category] = {
     c.name: c
     for c in (
-        Category("bathtub", 1, "yaw180"),
-        Category("bed", 0, "none"),
-        Category("chair", 0, "none"),
-        Category("desk", 1, "none"),
-        Category("dresser", 1, "yaw180"),
-        Category("monitor", 1, "none"),
-        Category("night_stand", 1, "yaw180"),
-        Category("sofa", 1, "none"),
-        Category("table", 1, "yaw180"),
-        Category("toilet", 0, "none"),
+        Category("bathtub", 1, "yaw180", mirror=True),
+        Category("bed", 0, "none", mirror=True),
+        Category("chair", 0, "none", mirror=True),
+        Category("desk", 1, "none", mirror=True),
+        Category("dresser", 1, "yaw180", mirror=True),
+        Category("monitor", 1, "none", mirror=True),
+        Category("night_stand", 1, "yaw180", mirror=True),
+        Category("sofa", 1, "none", mirror=True),
+        Category("table", 1, "yaw180", mirror=True),
+        Category("toilet", 0, "none", mirror=True),
     )
 }
 
@@ -70,7 +75,7 @@ def category(name: str, symmetry: str | None = None) -> Category:
     known = MODELNET10.get(name, Category(name))
     if symmetry is None or symmetry == "auto":
         return known
-    return Category(name, known.quarter_turns, symmetry)
+    return Category(name, known.quarter_turns, symmetry, known.mirror)
 
 
 def model_category(requested: str | None, trained_on: str, symmetry: str | None) -> Category:
@@ -85,8 +90,9 @@ def self_match_ratios(
     shapes: list[Shape], rng: np.random.Generator, sample: int = 400
 ) -> dict[str, float]:
     """Median over shapes of Chamfer(half, turned other half) / Chamfer(half, other half)
-    for turns of 90 and 180 degrees and a random angle in (17, 70) degrees."""
-    ratios: dict[str, list[float]] = {"yaw90": [], "yaw180": [], "yaw": []}
+    for turns of 90 and 180 degrees and a random angle in (17, 70) degrees, and with the other
+    half reflected in x = 0 ('mirror')."""
+    ratios: dict[str, list[float]] = {"yaw90": [], "yaw180": [], "yaw": [], "mirror": []}
     for shape in shapes:
         order = rng.permutation(len(shape.points))  # two disjoint halves: independent samples
         n = min(sample, len(order) // 2)
@@ -95,6 +101,7 @@ def self_match_ratios(
         for key, angle in (("yaw90", 90.0), ("yaw180", 180.0), ("yaw", rng.uniform(17, 70))):
             turn = axis_angle_to_matrix([0.0, 1.0, 0.0], np.radians(angle))
             ratios[key].append(chamfer(a, b @ turn.T) / floor)
+        ratios["mirror"].append(chamfer(a, b * [-1.0, 1.0, 1.0]) / floor)
     return {k: round(float(np.median(v)), 3) for k, v in ratios.items()}
 
 
@@ -142,9 +149,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--shapes", type=int, default=80, help="training shapes per category")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
-    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | turn | long axis "
-          "along x | upper part toward +z |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | mirror ratio | "
+          "mirror measured | declared | turn | long axis along x | upper part toward +z |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.category:
         cat = category(name)
         files = split_files(args.data, name, 0.1, 0)["train"]
@@ -153,7 +160,8 @@ def main(argv: list[str] | None = None) -> None:
         shapes = [load_shape(f, args.frame, cat.quarter_turns) for f in picked]
         ratios, frame = self_match_ratios(shapes, rng), frame_statistics(shapes)
         print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
-              f"{decide_symmetry(ratios)} | {cat.symmetry} | {90 * cat.quarter_turns}° | "
+              f"{decide_symmetry(ratios)} | {cat.symmetry} | {ratios['mirror']} | "
+              f"{ratios['mirror'] < SYMMETRY_RATIO} | {cat.mirror} | {90 * cat.quarter_turns}° | "
               f"{frame['long_axis_x']:.0%} | {frame['leans_+z']:.0%} |")  # fmt: skip
 
 

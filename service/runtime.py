@@ -63,6 +63,9 @@ class LoadedModel:
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
     concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
+    # running estimate of the mirror refinement's time (itnet.mirror; EWMA), from a conservative
+    # start: 4-11 ms on 2 cores for 256-630 points (docs/recipe.md)
+    mirror_ms: float = 10.0
 
     def __post_init__(self) -> None:
         self._slots = StepSlots(self.concurrent_steps)
@@ -93,6 +96,16 @@ class LoadedModel:
         """points (B, N, 3), pose (B, 4, 4) float32 -> (pose_next, delta), each (B, 4, 4)."""
         pose_next, delta = self.session.run(None, {"points": points, "pose": pose})
         return pose_next, delta
+
+    def record_mirror_ms(self, ms: float, weight: float = 0.3) -> None:
+        """Fold a measured mirror refinement's time into its estimate."""
+        with self._lock:
+            self.mirror_ms = (1 - weight) * self.mirror_ms + weight * ms
+
+    def predicted_mirror_ms(self) -> float:
+        """What the next mirror refinement may take: its running estimate with a margin (its
+        time scatters with the cloud's shape)."""
+        return 1.5 * self.mirror_ms
 
     def record_step_ms(self, ms: float, weight: float = 0.2, at: float | None = None) -> None:
         """Fold a measured step time into the estimates (``at``: its perf_counter, now)."""

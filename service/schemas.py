@@ -55,6 +55,13 @@ class EstimateParams(BaseModel):
         "still stops within budget_ms (default: the model's recommended_ensemble, see GET "
         "/v1/models; 1 for most)",
     )
+    mirror: bool | None = Field(
+        default=None,
+        description="finish the final pose by the category's left-right mirror symmetry "
+        "(itnet.mirror; a few milliseconds, taken only if budget_ms still holds them); default: "
+        "for a single run (not an ensemble) where the model's card declares the symmetry (GET "
+        "/v1/models: 'mirror'); true for a model without it is refused",
+    )
     units: Unit | None = Field(
         default=None,
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
@@ -116,6 +123,11 @@ class EstimateResponse(Pose):
     )
     classify_ms: float | None = Field(None, description='"auto": time the classification took')
     ensemble: int | None = Field(None, description="runs fused per estimate, when more than 1")
+    mirror: bool | None = Field(
+        None,
+        description="where the mirror refinement was on: true if the final pose was finished by "
+        "it, false if the budget could not hold it (the final pose is then the last estimate)",
+    )
 
 
 class ModelInfo(BaseModel):
@@ -141,6 +153,12 @@ class ModelInfo(BaseModel):
     symmetry: str = Field(
         description="'none', 'yaw180', 'yaw90' or 'yaw': turns about +y (up) under which the "
         "category's shapes look alike; the reply gives one representative of the equivalent poses"
+    )
+    mirror: bool = Field(
+        False,
+        description="the category is left-right mirror-symmetric about its canonical x = 0 "
+        "plane: a single run's final pose is finished by that symmetry unless a request says "
+        "'mirror': false",
     )
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")

@@ -196,6 +196,7 @@ class ServiceState:
                 started=arrived,
                 reserve_ms=reserve_ms,
                 ensemble=params.ensemble,
+                mirror=params.mirror,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

@@ -34,6 +34,13 @@ def export(
         help="Runs fused per estimate when a request does not say (needs "
         "--ensemble-report above 1).",
     ),
+    mirror: bool | None = typer.Option(
+        None,
+        "--mirror/--no-mirror",
+        help="The category is left-right mirror-symmetric about its canonical x = 0 plane: the "
+        "runtime finishes poses by it (itnet.mirror). Default: measured for ModelNet10's classes "
+        "(`python -m itnet.model.categories`), off for your own category.",
+    ),
     report: Path | None = typer.Option(None, help="report.json of `itnet eval` to record."),
     ensemble_report: Path | None = typer.Option(
         None, help="JSON of `python -m benchmarks.bench_ensemble` measuring that ensemble."
@@ -89,6 +96,7 @@ def export(
         name=name,
         category=cat.name,
         symmetry=cat.symmetry,
+        mirror=cat.mirror if mirror is None else mirror,
         version=version,
         points=points,
         trained_points=config["points"],

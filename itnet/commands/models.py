@@ -39,13 +39,17 @@ def models(
     if as_json:
         typer.echo(json.dumps(reply.model_dump()))
         return
-    rows = [("name", "category", "symmetry", "precision", "points", "runs", "accuracy", "step", "")]
+    rows = [
+        ("name", "category", "symmetry", "mirror", "precision", "points", "runs", "accuracy",
+         "step", ""),
+    ]  # fmt: skip
     for info in reply.models:
         rows.append(
             (
                 info.name,
                 info.category,
                 info.symmetry,
+                "x = 0" if info.mirror else "-",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -64,7 +68,8 @@ def models(
         )
     typer.echo(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default; "
-        "accuracy: one run's, at (10 deg, 0.1 radius), see --json)"
+        "mirror: final poses finished by that mirror symmetry; accuracy: one run's, at "
+        "(10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
 

@@ -37,6 +37,13 @@ def pose(
         "K times as much (still within --budget-ms). Default: the model's recommended count "
         "(`itnet models`; 1 for most).",
     ),
+    mirror: bool | None = typer.Option(
+        None,
+        "--mirror/--no-mirror",
+        help="Finish the final pose by the category's left-right mirror symmetry (a few ms, "
+        "within --budget-ms). Default: for a single run, where the model's card declares it "
+        "(`itnet models`).",
+    ),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
@@ -58,11 +65,12 @@ def pose(
         if loaded is None:  # the classification counts against the budget
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
-                ensemble=ensemble, units=units,
+                ensemble=ensemble, units=units, mirror=mirror,
             )  # fmt: skip
         return AnytimeRun(
-            loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble
-        )
+            loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
+            mirror=mirror,
+        )  # fmt: skip
 
     failed = False
     for path in files:
@@ -92,7 +100,8 @@ def pose(
             typer.echo(
                 f"{path}: {seen}rotation {float(rotation_angle_deg(t[:3, :3])):.1f} deg, translation "
                 f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}], {result['iterations']} iterations "
-                f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']})"
+                f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']}"
+                f"{', mirror-finished' if result.get('mirror') else ''})"
             )
     if failed:
         raise typer.Exit(2)

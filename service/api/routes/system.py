@@ -26,6 +26,7 @@ async def models(state: StateDep) -> ModelsResponse:
             trained_iterations=m.card.trained_iterations,
             recommended_iterations=m.card.recommended_iterations,
             recommended_ensemble=m.card.recommended_ensemble,
+            mirror=m.card.mirror,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,

@@ -1,10 +1,10 @@
-"""The mirror-symmetry refinement measured by ``benchmarks.test_time_options``."""
+"""Finishing a pose by the object's mirror symmetry (itnet.mirror)."""
 
 import numpy as np
 import pytest
 
-from benchmarks.test_time_options import mirror_refined
 from itnet.geometry import apply_rigid, axis_angle_to_matrix, invert_rigid, rotation_error_deg
+from itnet.mirror import mirror_refined
 
 
 def symmetric_cloud(rng: np.random.Generator) -> np.ndarray:

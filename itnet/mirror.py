@@ -1,0 +1,77 @@
+"""Finishing a pose by the object's mirror symmetry (pure numpy + scipy's k-d tree).
+
+Every ModelNet10 class is left-right symmetric about the canonical x = 0 plane (SPEC.md's frame:
++y up, front toward -z). A pose that is nearly right moves the cloud to where that plane is
+nearly x = 0; ``mirror_refined`` finds the plane the moved cloud is actually symmetric about and
+turns and shifts the pose so that it is exactly x = 0. Measured (docs/recipe.md, *Mirror symmetry
+at test time*): on the shipped models' test views, +0.4 to +4.1 points at (10°, 0.1 r) and a
+median rotation error 25-40% lower. The runtime applies it after a run's last step where the
+model's card declares the symmetry (``ModelCard.mirror``; ``service/engine.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree  # imported here: a first request must not pay for it
+
+from itnet.geometry import apply_rigid, axis_angle_to_matrix, rotation_error_deg
+
+
+def mirror_refined(
+    cloud: NDArray,
+    pose: NDArray,
+    iterations: int = 20,
+    keep: float = 0.6,
+    max_turn_deg: float = 30.0,
+    max_shift: float = 0.3,
+) -> NDArray:
+    """A pose (4, 4) of a normalised cloud (N, 3) (RMS radius 1) corrected so that the cloud,
+    moved into the canonical frame, is as mirror-symmetric about x = 0 as it can be.
+
+    The moved cloud's reflection in x = 0 is aligned back onto the cloud by point-to-point ICP
+    (the closest ``keep`` of the pairs each round: the parts whose mirror image is not in view
+    pair badly and drop out). If the object's plane of symmetry is ``n·x = d``, that alignment
+    composed with the reflection is the reflection in it, ``x -> (I - 2nnᵀ)x + 2dn``: ``n`` is
+    the eigenvector of its linear part with eigenvalue -1, ``d`` half its shift along ``n``. The
+    pose is then turned by the smallest rotation taking ``n`` to +x and shifted by ``-d`` along
+    x. This fixes the two rotations the plane constrains (about y and z) and the centre's x, not
+    the turn about x. A correction beyond ``max_turn_deg`` or ``max_shift`` (another plane than
+    the estimate's) returns the pose unchanged.
+    """
+    if len(cloud) < 3:
+        raise ValueError(f"mirror refinement needs at least 3 points, got {len(cloud)}")
+    moved = apply_rigid(pose, cloud)
+    reflected = moved * [-1.0, 1.0, 1.0]
+    tree = cKDTree(moved)
+    align = np.eye(4)  # reflected -> moved
+    for _ in range(iterations):
+        source = apply_rigid(align, reflected)
+        distance, partner = tree.query(source)
+        paired = distance <= np.quantile(distance, keep)
+        align = rigid_fit(source[paired], moved[partner[paired]]) @ align
+    linear = align[:3, :3] * [-1.0, 1.0, 1.0]  # the reflection's linear part, A_R diag(-1, 1, 1)
+    values, vectors = np.linalg.eigh((linear + linear.T) / 2)
+    normal = vectors[:, 0] * np.sign(vectors[0, 0] + 1e-12)
+    offset = float(normal @ align[:3, 3]) / 2
+    axis = np.cross(normal, [1.0, 0.0, 0.0])
+    correction = np.eye(4)
+    if np.linalg.norm(axis) > 1e-12:
+        angle = np.arctan2(np.linalg.norm(axis), normal[0])
+        correction[:3, :3] = axis_angle_to_matrix(axis / np.linalg.norm(axis), angle)
+    correction[0, 3] = -offset
+    turn = rotation_error_deg(correction[:3, :3], np.eye(3))
+    if values[0] > -0.5 or turn > max_turn_deg or abs(offset) > max_shift:
+        return pose  # no reflection found, or one far from the estimate's plane
+    return correction @ pose
+
+
+def rigid_fit(source: NDArray, target: NDArray) -> NDArray:
+    """The rigid transform (4, 4) taking points (M, 3) closest to their partners (M, 3) (Kabsch)."""
+    cs, ct = source.mean(0), target.mean(0)
+    u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
+    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    out = np.eye(4)
+    out[:3, :3] = vt.T @ flip @ u.T
+    out[:3, 3] = ct - out[:3, :3] @ cs
+    return out
