@@ -111,9 +111,10 @@ class AsyncItnetClient:
         model: str = "chair",
         binary: bool = False,
         units: str | None = None,
+        mirror: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model, units)
+        fields = request_fields(budget_ms, max_iterations, model, units, mirror)
         try:
             if binary:
                 reply = await self._http.post(
@@ -132,9 +133,12 @@ class AsyncItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         units: str | None = None,
+        mirror: bool | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
-        request = json_request(points, request_fields(budget_ms, max_iterations, model, units))
+        request = json_request(
+            points, request_fields(budget_ms, max_iterations, model, units, mirror)
+        )
         try:
             url = websocket_url(self.base_url)
             connection = await connect(url, open_timeout=self.timeout, max_size=None)

@@ -109,11 +109,13 @@ class ItnetClient:
         model: str = "chair",
         binary: bool = False,
         units: str | None = None,
+        mirror: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
         point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
-        cloud's size. Raises ItnetRequestError (refused), ItnetConnectionError."""
-        fields = request_fields(budget_ms, max_iterations, model, units)
+        cloud's size; ``mirror`` (default: the model's) finishes the pose by the category's mirror
+        symmetry or not. Raises ItnetRequestError (refused), ItnetConnectionError."""
+        fields = request_fields(budget_ms, max_iterations, model, units, mirror)
         try:
             if binary:
                 reply = self._http.post(
@@ -132,9 +134,12 @@ class ItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         units: str | None = None,
+        mirror: bool | None = None,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
-        request = json_request(points, request_fields(budget_ms, max_iterations, model, units))
+        request = json_request(
+            points, request_fields(budget_ms, max_iterations, model, units, mirror)
+        )
         try:
             url = websocket_url(self.base_url)
             connection = connect(url, open_timeout=self.timeout, max_size=None)

@@ -111,14 +111,20 @@ def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
 
 
 def request_fields(
-    budget_ms: float, max_iterations: int | None, model: str, units: str | None = None
+    budget_ms: float,
+    max_iterations: int | None,
+    model: str,
+    units: str | None = None,
+    mirror: bool | None = None,
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations and units only when given)."""
+    """The request's non-point fields (max_iterations, units and mirror only when given)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
     if units is not None:
         out["units"] = units
+    if mirror is not None:
+        out["mirror"] = mirror
     return out
 
 

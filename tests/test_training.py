@@ -218,6 +218,13 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     card = load_model(fused_path, warm_up=False).card
     assert card.recommended_ensemble == 3
     assert "occluded 50.0% (one run 40.0%, +10.0 ± 2.0; 9 scans)" in card.ensemble_evaluation
+    assert card.mirror is False  # a user's category declares no mirror symmetry unless told
+    mirror_path = tmp_path / "models" / "xm.onnx"
+    told = runner.invoke(
+        app, ["export", str(run / "best.pt"), "--out", str(mirror_path), "--name", "xm", "--mirror"]
+    )
+    assert told.exit_code == 0, told.output
+    assert load_model(mirror_path, warm_up=False).card.mirror is True
 
 
 def test_compiled_training_matches_eager(shape_folder, tmp_path):

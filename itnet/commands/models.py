@@ -49,7 +49,7 @@ def models(
                 info.name,
                 info.category,
                 info.symmetry,
-                "x = 0" if info.mirror else "-",
+                "yes" if info.mirror else "no",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -68,8 +68,8 @@ def models(
         )
     typer.echo(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default; "
-        "mirror: final poses finished by that mirror symmetry; accuracy: one run's, at "
-        "(10 deg, 0.1 radius), before the mirror, see --json)"
+        "mirror: a single run's final pose is finished by the category's left-right symmetry; "
+        "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
 

@@ -80,6 +80,11 @@ def test_refusals_raise_with_the_service_message(server, cloud):
             list(client.stream(cloud[:5], model="tiny"))
         capped = client.estimate(cloud, model="tiny", max_iterations=1, budget_ms=5_000)
         assert capped.iterations == 1  # the cap, not the clock (a loaded machine is slow)
+        for binary in (False, True):  # the field reaches the service either way
+            with pytest.raises(ItnetRequestError, match="declares no mirror symmetry"):
+                client.estimate(cloud, model="tiny", mirror=True, binary=binary)
+        plain = client.estimate(cloud, model="tiny", mirror=False, binary=True, budget_ms=5_000)
+        assert "mirror" not in plain.raw
 
 
 def test_async_client(server, cloud):

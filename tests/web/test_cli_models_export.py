@@ -38,13 +38,14 @@ def test_models_table_shows_the_shipped_cards():
     table = runner.invoke(app, ["models"])
     assert table.exit_code == 0, table.output
     header, *rows = table.stdout.splitlines()
-    assert header.split() == ["name", "category", "symmetry", "precision", "points", "runs",
-                              "accuracy", "step"]  # fmt: skip
+    assert header.split() == ["name", "category", "symmetry", "mirror", "precision", "points",
+                              "runs", "accuracy", "step"]  # fmt: skip
     for name in ("chair", "bed"):  # the bed's card recommends 4 runs fused
         row = next(r for r in rows if r.startswith(f"{name} "))
         card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
         accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
-        assert row.split()[:6] == [name, card.category, card.symmetry, card.precision,
+        assert card.mirror  # every shipped category is left-right symmetric
+        assert row.split()[:7] == [name, card.category, card.symmetry, "yes", card.precision,
                                    str(card.points), str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
