@@ -7,7 +7,7 @@ onnxruntime graph, so use a float32 model: an int8 graph quantises a batch with 
 * K fused runs (``itnet.fusion``, as the ensemble mode fuses them) on K random subsets, from K
   random starting rotations on one subset, and from K starts on K subsets;
 * a single run, then refined by the object's mirror symmetry (``itnet.mirror``: every
-  ModelNet10 class is left-right symmetric about its canonical x = 0 plane).
+  ModelNet10 class but the desk is left-right symmetric about its canonical x = 0 plane).
 
     python -m benchmarks.test_time_options --model itnet/models/chair-fp32.onnx --scanner surface
     python -m benchmarks.test_time_options --model runs/x.onnx --only "single run, 256"  # as served

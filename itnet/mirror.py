@@ -1,6 +1,6 @@
 """Finishing a pose by the object's mirror symmetry (pure numpy + scipy's k-d tree).
 
-Every ModelNet10 class is left-right symmetric about the canonical x = 0 plane (SPEC.md's frame:
+Nine ModelNet10 classes are left-right symmetric about the canonical x = 0 plane (SPEC.md's frame:
 +y up, front toward -z). A pose that is nearly right moves the cloud to where that plane is
 nearly x = 0; ``mirror_refined`` finds the plane the moved cloud is actually symmetric about and
 turns and shifts the pose so that it is exactly x = 0. Measured (docs/recipe.md, *Mirror symmetry
