@@ -25,13 +25,15 @@ def mirror_refined(
     keep: float = 0.6,
     max_turn_deg: float = 30.0,
     max_shift: float = 0.3,
+    settled: float = 1e-4,
 ) -> NDArray:
     """A pose (4, 4) of a normalised cloud (N, 3) (RMS radius 1) corrected so that the cloud,
     moved into the canonical frame, is as mirror-symmetric about x = 0 as it can be.
 
     The moved cloud's reflection in x = 0 is aligned back onto the cloud by point-to-point ICP
     (the closest ``keep`` of the pairs each round: the parts whose mirror image is not in view
-    pair badly and drop out). If the object's plane of symmetry is ``n·x = d``, that alignment
+    pair badly and drop out; at most ``iterations`` rounds, fewer once a round moves no entry of
+    the transform by ``settled``). If the object's plane of symmetry is ``n·x = d``, that alignment
     composed with the reflection is the reflection in it, ``x -> (I - 2nnᵀ)x + 2dn``: ``n`` is
     the eigenvector of its linear part with eigenvalue -1, ``d`` half its shift along ``n``. The
     pose is then turned by the smallest rotation taking ``n`` to +x and shifted by ``-d`` along
@@ -49,7 +51,10 @@ def mirror_refined(
         source = apply_rigid(align, reflected)
         distance, partner = tree.query(source)
         paired = distance <= np.quantile(distance, keep)
-        align = rigid_fit(source[paired], moved[partner[paired]]) @ align
+        step = rigid_fit(source[paired], moved[partner[paired]])
+        align = step @ align
+        if np.abs(step - np.eye(4)).max() < settled:  # ICP has settled: the rest would not move
+            break
     linear = align[:3, :3] * [-1.0, 1.0, 1.0]  # the reflection's linear part, A_R diag(-1, 1, 1)
     values, vectors = np.linalg.eigh((linear + linear.T) / 2)
     normal = vectors[:, 0] * np.sign(vectors[0, 0] + 1e-12)

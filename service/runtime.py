@@ -64,7 +64,7 @@ class LoadedModel:
     concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
     # running estimate of the mirror refinement's time (itnet.mirror; EWMA), from a conservative
-    # start: 4-11 ms on 2 cores for 256-630 points (docs/recipe.md)
+    # start: 3-5 ms on 2 cores for a 256-point subset (docs/recipe.md)
     mirror_ms: float = 10.0
 
     def __post_init__(self) -> None:

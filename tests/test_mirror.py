@@ -58,3 +58,13 @@ def test_a_plane_far_from_the_estimates_is_refused():
     assert np.array_equal(mirror_refined(line, pose), pose)
     with pytest.raises(ValueError):
         mirror_refined(np.zeros((0, 3)), pose)
+
+
+def test_stopping_once_settled_gives_the_pose_of_all_rounds():
+    canonical = symmetric_cloud(np.random.default_rng(2))
+    cloud = apply_rigid(invert_rigid(off_pose(5.0, 3.0, -0.04)), canonical)
+    settled = mirror_refined(cloud, np.eye(4))
+    every_round = mirror_refined(cloud, np.eye(4), settled=0.0)
+    assert rotation_error_deg(settled[:3, :3], every_round[:3, :3]) < 0.05
+    assert np.abs(settled[:3, 3] - every_round[:3, 3]).max() < 1e-3
+    assert not np.allclose(settled, np.eye(4))  # and both did move it
