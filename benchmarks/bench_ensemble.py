@@ -38,7 +38,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         scans, _ = test_scans(data, cat, views, 2024, config, cache)
     out, first = {}, None
     for k in ensembles:
-        poses, iterations, elapsed = [], [], []
+        poses, iterations, elapsed, mirrored = [], [], [], []
         for cloud in scans.clouds:
             run = AnytimeRun(
                 model, cloud, budget_ms=budget_ms, ensemble=k, points_per_step=points_per_step
@@ -47,6 +47,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
+            mirrored.append(run.mirrored)
         _, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
         correct = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         first = correct if first is None else first
@@ -56,6 +57,12 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             "median_iterations": float(np.median(iterations)),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
             "p99_elapsed_ms": round(float(np.percentile(elapsed, 99)), 2),
+            # where the model's mirror planes were on: the share of runs they finished in time
+            **(
+                {"mirror_finished": round(float(np.mean([m is True for m in mirrored])), 3)}
+                if any(m is not None for m in mirrored)
+                else {}
+            ),
         }
         print(scanner, f"K={k}", out[str(k)], flush=True)
     return out

@@ -1,12 +1,14 @@
-"""Finishing a pose by the object's mirror symmetry (pure numpy + scipy's k-d tree).
+"""Finishing a pose by the object's mirror symmetries (pure numpy + scipy's k-d tree).
 
 Nine ModelNet10 classes are left-right symmetric about the canonical x = 0 plane (SPEC.md's frame:
-+y up, front toward -z). A pose that is nearly right moves the cloud to where that plane is
-nearly x = 0; ``mirror_refined`` finds the plane the moved cloud is actually symmetric about and
-turns and shifts the pose so that it is exactly x = 0. Measured (docs/recipe.md, *Mirror symmetry
-at test time*): on the shipped models' test views, +0.4 to +4.1 points at (10°, 0.1 r) and a
-median rotation error 25-40% lower. The runtime applies it after a run's last step where the
-model's card declares the symmetry (``ModelCard.mirror``; ``service/engine.py``).
++y up, front toward -z), and the four whose front and back look alike (``yaw180``) about z = 0
+too. A pose that is nearly right moves the cloud to where such a plane is nearly x = 0 (or
+z = 0); ``mirror_refined`` finds the plane the moved cloud is actually symmetric about and turns
+and shifts the pose so that it is exactly there; ``mirror_finished`` does it for each of a
+category's planes in turn. Measured (docs/recipe.md, *Mirror symmetry at test time*): on the
+shipped models' test views, +0.4 to +4.3 points at (10°, 0.1 r) for one plane and a median
+rotation error 25-40% lower. The runtime applies it after a run's last step where the model's
+card declares the planes (``ModelCard.mirror_planes``; ``service/engine.py``).
 """
 
 from __future__ import annotations
@@ -16,6 +18,32 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree  # imported here: a first request must not pay for it
 
 from itnet.geometry import apply_rigid, axis_angle_to_matrix, rotation_error_deg
+
+MIRROR_PLANES = ("x", "z")  # x = 0: left-right; z = 0: front-back
+# Turns about +y that bring each plane to x = 0 (a quarter turn takes z = 0 to x = 0).
+_TO_X = {
+    "x": np.eye(4),
+    "z": np.block(
+        [
+            [axis_angle_to_matrix([0.0, 1.0, 0.0], np.pi / 2), np.zeros((3, 1))],
+            [np.zeros((1, 3)), np.ones((1, 1))],
+        ]
+    ),
+}
+
+
+def mirror_finished(
+    cloud: NDArray, pose: NDArray, planes: list[str] | tuple[str, ...], **options: float
+) -> NDArray:
+    """``mirror_refined`` about each of ``planes`` ('x', 'z') in turn (``options``: its
+    keywords): a pose (4, 4) of a normalised cloud (N, 3) finished by every mirror symmetry its
+    category has."""
+    for plane in planes:
+        if plane not in _TO_X:
+            raise ValueError(f"unknown mirror plane {plane!r} (known: {', '.join(MIRROR_PLANES)})")
+        turn = _TO_X[plane]
+        pose = turn.T @ mirror_refined(cloud, turn @ pose, **options)  # type: ignore[arg-type]
+    return pose
 
 
 def mirror_refined(

@@ -44,12 +44,18 @@ class ModelCard(BaseModel):
         "'yaw180' (C2), 'yaw90' (C4) or 'yaw' (any turn: round objects); a pose is correct when "
         "any equivalent pose is",
     )
-    mirror: bool = Field(
-        False,
-        description="the category's shapes are left-right mirror-symmetric about the canonical "
-        "x = 0 plane: the runtime finishes a single run's pose by that symmetry (itnet.mirror) "
-        "unless the request says not to",
+    mirror_planes: list[Literal["x", "z"]] = Field(
+        default_factory=list,
+        description="canonical planes the category's shapes are mirror-symmetric about: 'x' "
+        "(x = 0, left-right), 'z' (z = 0, front-back); the runtime finishes a single run's pose "
+        "by them (itnet.mirror) unless the request says not to",
     )
+
+    @property
+    def mirror(self) -> bool:
+        """Whether the category has a mirror symmetry the runtime can finish poses by."""
+        return bool(self.mirror_planes)
+
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",

@@ -18,11 +18,13 @@ split (``python -m itnet.model.categories``):
 Symmetry is measured per shape: the Chamfer distance between two random 400-point samples of a
 shape (disjoint halves of its points), one turned by 90, by 180 and by a random other angle about
 up, over the distance between the two unturned halves (the sampling floor). A class whose median ratio for a turn is below
-``SYMMETRY_RATIO`` looks alike under that turn. The mirror (``Category.mirror``: left-right
-symmetric about the canonical x = 0 plane, which ``itnet.mirror`` uses to finish a pose) is
-measured alike, with one half reflected in x = 0 instead of turned: 0.81-0.88 for nine classes
-(a reflected half lies as near as the other half); the desk's ranges from 1.01 to 1.24 with the
-sample of shapes (many desks have their drawers on one side), so it alone is not declared.
+``SYMMETRY_RATIO`` looks alike under that turn. The mirror planes (``Category.mirror_planes``,
+which ``itnet.mirror`` uses to finish a pose) are measured alike, with one half reflected in
+x = 0 (left-right) or z = 0 (front-back) instead of turned. x = 0: 0.81-0.88 for nine classes (a
+reflected half lies as near as the other half); the desk's ranges from 1.01 to 1.24 with the
+sample of shapes (many desks have their drawers on one side), so it is not declared. z = 0:
+0.86-0.89 for the four ``yaw180`` classes (front and back alike), which declare it; 1.11 and
+more for the others (the bed's head end, the chair's back).
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ class Category:
     name: str
     quarter_turns: int = 0  # turns of +90 degrees about +y after the source frame's mapping
     symmetry: str = "none"
-    mirror: bool = False  # left-right symmetric about the canonical x = 0 plane
+    # canonical planes of mirror symmetry: 'x' (x = 0, left-right), 'z' (z = 0, front-back)
+    mirror_planes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.symmetry not in SYMMETRY_NAMES:
@@ -56,16 +59,16 @@ class Category:
 MODELNET10: dict[str, Category] = {
     c.name: c
     for c in (
-        Category("bathtub", 1, "yaw180", mirror=True),
-        Category("bed", 0, "none", mirror=True),
-        Category("chair", 0, "none", mirror=True),
+        Category("bathtub", 1, "yaw180", ("x", "z")),
+        Category("bed", 0, "none", ("x",)),
+        Category("chair", 0, "none", ("x",)),
         Category("desk", 1, "none"),  # mirror ratio 1.01-1.24 by sample: drawers on one side
-        Category("dresser", 1, "yaw180", mirror=True),
-        Category("monitor", 1, "none", mirror=True),
-        Category("night_stand", 1, "yaw180", mirror=True),
-        Category("sofa", 1, "none", mirror=True),
-        Category("table", 1, "yaw180", mirror=True),
-        Category("toilet", 0, "none", mirror=True),
+        Category("dresser", 1, "yaw180", ("x", "z")),
+        Category("monitor", 1, "none", ("x",)),
+        Category("night_stand", 1, "yaw180", ("x", "z")),
+        Category("sofa", 1, "none", ("x",)),
+        Category("table", 1, "yaw180", ("x", "z")),
+        Category("toilet", 0, "none", ("x",)),
     )
 }
 
@@ -75,7 +78,7 @@ def category(name: str, symmetry: str | None = None) -> Category:
     known = MODELNET10.get(name, Category(name))
     if symmetry is None or symmetry == "auto":
         return known
-    return Category(name, known.quarter_turns, symmetry, known.mirror)
+    return Category(name, known.quarter_turns, symmetry, known.mirror_planes)
 
 
 def model_category(requested: str | None, trained_on: str, symmetry: str | None) -> Category:
@@ -91,8 +94,10 @@ def self_match_ratios(
 ) -> dict[str, float]:
     """Median over shapes of Chamfer(half, turned other half) / Chamfer(half, other half)
     for turns of 90 and 180 degrees and a random angle in (17, 70) degrees, and with the other
-    half reflected in x = 0 ('mirror')."""
-    ratios: dict[str, list[float]] = {"yaw90": [], "yaw180": [], "yaw": [], "mirror": []}
+    half reflected in x = 0 ('mirror_x') or in z = 0 ('mirror_z')."""
+    ratios: dict[str, list[float]] = {
+        "yaw90": [], "yaw180": [], "yaw": [], "mirror_x": [], "mirror_z": []
+    }  # fmt: skip
     for shape in shapes:
         order = rng.permutation(len(shape.points))  # two disjoint halves: independent samples
         n = min(sample, len(order) // 2)
@@ -101,7 +106,8 @@ def self_match_ratios(
         for key, angle in (("yaw90", 90.0), ("yaw180", 180.0), ("yaw", rng.uniform(17, 70))):
             turn = axis_angle_to_matrix([0.0, 1.0, 0.0], np.radians(angle))
             ratios[key].append(chamfer(a, b @ turn.T) / floor)
-        ratios["mirror"].append(chamfer(a, b * [-1.0, 1.0, 1.0]) / floor)
+        ratios["mirror_x"].append(chamfer(a, b * [-1.0, 1.0, 1.0]) / floor)
+        ratios["mirror_z"].append(chamfer(a, b * [1.0, 1.0, -1.0]) / floor)
     return {k: round(float(np.median(v)), 3) for k, v in ratios.items()}
 
 
@@ -149,8 +155,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--shapes", type=int, default=80, help="training shapes per category")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
-    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | mirror ratio | "
-          "mirror measured | declared | turn | long axis along x | upper part toward +z |")  # fmt: skip
+    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | mirror x | mirror z "
+          "| mirrors declared | turn | long axis along x | upper part toward +z |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.category:
         cat = category(name)
@@ -160,8 +166,9 @@ def main(argv: list[str] | None = None) -> None:
         shapes = [load_shape(f, args.frame, cat.quarter_turns) for f in picked]
         ratios, frame = self_match_ratios(shapes, rng), frame_statistics(shapes)
         print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
-              f"{decide_symmetry(ratios)} | {cat.symmetry} | {ratios['mirror']} | "
-              f"{ratios['mirror'] < SYMMETRY_RATIO} | {cat.mirror} | {90 * cat.quarter_turns}° | "
+              f"{decide_symmetry(ratios)} | {cat.symmetry} | {ratios['mirror_x']} | "
+              f"{ratios['mirror_z']} | {','.join(cat.mirror_planes) or '-'} | "
+              f"{90 * cat.quarter_turns}° | "
               f"{frame['long_axis_x']:.0%} | {frame['leans_+z']:.0%} |")  # fmt: skip
 
 

@@ -34,7 +34,7 @@ from itnet.geometry import (
     rotation_angle_deg,
     viewing_axis_turns,
 )
-from itnet.mirror import mirror_refined
+from itnet.mirror import mirror_finished
 from itnet.preprocess import (
     DegenerateCloudError,
     Normalization,
@@ -204,6 +204,7 @@ class AnytimeRun(Iterator[Estimate]):
             )
         self.mirror = bool(mirror)
         self.mirrored: bool | None = None  # once finished: True, or False where it did not fit
+        self.mirror_planes: list[str] = []  # the planes that finished it
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
@@ -305,20 +306,29 @@ class AnytimeRun(Iterator[Estimate]):
         return self._converged_or(self.last)
 
     def _finish(self) -> None:
-        """After the last step (once): finish ``last`` by the mirror symmetry if asked for and
-        if the budget left (less the reserve) holds the refinement's predicted time; not after a
-        cancel or before any step."""
+        """After the last step (once): finish ``last`` by the card's mirror planes, in order, as
+        many as the budget left (less the reserve) holds at a plane's predicted time; none after
+        a cancel or before any step. ``mirrored``: whether a plane finished it, ``mirror_planes``
+        which."""
         if not self.mirror or self.mirrored is not None:
             return
-        self.mirrored = False
+        self.mirrored, self.mirror_planes = False, []
         if self.stopped_by == "cancelled" or self.iteration == 0:
             return
-        if self.budget_ms - self.reserve_ms - self.elapsed_ms() < self.model.predicted_mirror_ms():
-            return
-        start = time.perf_counter()
         before = self.last.pose_normalized.astype(np.float64)
-        pose = mirror_refined(self.points[0].astype(np.float64), before)
-        self.model.record_mirror_ms((time.perf_counter() - start) * 1e3)
+        pose, points = before, self.points[0].astype(np.float64)
+        for plane in self.model.card.mirror_planes:
+            if (
+                self.budget_ms - self.reserve_ms - self.elapsed_ms()
+                < self.model.predicted_mirror_ms()
+            ):
+                break
+            start = time.perf_counter()
+            pose = mirror_finished(points, pose, [plane])
+            self.model.record_mirror_ms((time.perf_counter() - start) * 1e3)
+            self.mirror_planes.append(plane)
+        if not self.mirror_planes:
+            return
         d = pose @ invert_rigid(before)
         self.last = self._estimate(
             pose.astype(np.float32),
@@ -384,5 +394,9 @@ class AnytimeRun(Iterator[Estimate]):
             "elapsed_ms": round(self.elapsed_ms(), 3),
             "model": self.model.card.name,
             **({"ensemble": self.ensemble} if self.ensemble > 1 else {}),
-            **({"mirror": self.mirrored} if self.mirror else {}),
+            **(
+                {"mirror": self.mirrored, "mirror_planes": self.mirror_planes}
+                if self.mirror
+                else {}
+            ),
         }

@@ -63,8 +63,8 @@ class LoadedModel:
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
     concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
-    # running estimate of the mirror refinement's time (itnet.mirror; EWMA), from a conservative
-    # start: 3-5 ms on 2 cores for a 256-point subset (docs/recipe.md)
+    # running estimate of one mirror plane's refinement (itnet.mirror; EWMA): measured by
+    # warm_up, else a conservative start (3-5 ms on 2 cores for a 256-point subset)
     mirror_ms: float = 10.0
 
     def __post_init__(self) -> None:
@@ -98,13 +98,13 @@ class LoadedModel:
         return pose_next, delta
 
     def record_mirror_ms(self, ms: float, weight: float = 0.3) -> None:
-        """Fold a measured mirror refinement's time into its estimate."""
+        """Fold a measured mirror refinement's time (one plane's) into its estimate."""
         with self._lock:
             self.mirror_ms = (1 - weight) * self.mirror_ms + weight * ms
 
     def predicted_mirror_ms(self) -> float:
-        """What the next mirror refinement may take: its running estimate with a margin (its
-        time scatters with the cloud's shape)."""
+        """What the next mirror refinement may take, a plane: its running estimate with a margin
+        (its time scatters with the cloud's shape)."""
         return 1.5 * self.mirror_ms
 
     def record_step_ms(self, ms: float, weight: float = 0.2, at: float | None = None) -> None:
@@ -147,7 +147,8 @@ class LoadedModel:
 
     def warm_up(self, runs: int = 5) -> None:
         """Run a few steps so the first request does not pay for lazy initialisation, and seed
-        the step-time estimate."""
+        the step-time estimate; where the card declares mirror planes, seed the mirror
+        refinement's estimate too (all its rounds, a plane, on the card's point count)."""
         rng = np.random.default_rng(0)
         x = rng.normal(size=(1, self.card.points, 3)).astype(np.float32)
         pose = np.eye(4, dtype=np.float32)[None]
@@ -157,6 +158,15 @@ class LoadedModel:
             ms = (time.perf_counter() - start) * 1e3
             self.record_step_ms(ms, weight=0.5)
             self.baseline_ms = ms if self.baseline_ms == 0 else min(self.baseline_ms, ms)
+        if self.card.mirror:
+            from itnet.mirror import mirror_refined
+
+            times = []
+            for _ in range(2):
+                start = time.perf_counter()
+                mirror_refined(x[0].astype(np.float64), np.eye(4), settled=0.0)
+                times.append((time.perf_counter() - start) * 1e3)
+            self.mirror_ms = min(times)
 
 
 def read_card(session: ort.InferenceSession, path: Path) -> ModelCard | ClassifierCard:

@@ -57,7 +57,7 @@ class EstimateParams(BaseModel):
     )
     mirror: bool | None = Field(
         default=None,
-        description="finish the final pose by the category's left-right mirror symmetry "
+        description="finish the final pose by the category's mirror symmetries "
         "(itnet.mirror; a few milliseconds, taken only if budget_ms still holds them); default: "
         "for a single run (not an ensemble) where the model's card declares the symmetry (GET "
         "/v1/models: 'mirror'); true for a model without it is refused",
@@ -128,6 +128,11 @@ class EstimateResponse(Pose):
         description="where the mirror refinement was on: true if the final pose was finished by "
         "it, false if the budget could not hold it (the final pose is then the last estimate)",
     )
+    mirror_planes: list[str] | None = Field(
+        None,
+        description="where the mirror refinement was on: the planes that finished the pose, in "
+        "order (fewer than the model's when the budget held only some)",
+    )
 
 
 class ModelInfo(BaseModel):
@@ -156,9 +161,13 @@ class ModelInfo(BaseModel):
     )
     mirror: bool = Field(
         False,
-        description="the category is left-right mirror-symmetric about its canonical x = 0 "
-        "plane: a single run's final pose is finished by that symmetry unless a request says "
-        "'mirror': false",
+        description="the category has mirror symmetries (mirror_planes): a single run's final "
+        "pose is finished by them unless a request says 'mirror': false",
+    )
+    mirror_planes: list[str] = Field(
+        default_factory=list,
+        description="canonical planes of mirror symmetry: 'x' (x = 0, left-right), 'z' (z = 0, "
+        "front-back)",
     )
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")

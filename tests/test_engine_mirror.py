@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from itnet.geometry import rotation_angle_deg
-from itnet.mirror import mirror_refined
+from itnet.mirror import mirror_finished
 from itnet.preprocess import pose_from_normalized
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.runtime import load_model
@@ -23,7 +23,7 @@ def mirror_dir(tmp_path_factory: pytest.TempPathFactory, make_net) -> Path:  # t
 
     folder = tmp_path_factory.mktemp("mirror_models")
     card = ModelCard(
-        name="tiny", category="chair", points=256, recommended_iterations=5, mirror=True
+        name="tiny", category="chair", points=256, recommended_iterations=5, mirror_planes=["x"]
     )
     export_step(make_net(), card, folder / "tiny.onnx")
     return folder
@@ -51,10 +51,10 @@ def test_the_final_pose_is_the_last_estimate_finished_by_the_mirror(mirrored, cl
     run = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=4, converge_rotation_deg=0)
     estimates = list(run)
     result = run.result()
-    assert result["mirror"] is True and run.mirrored is True
+    assert result["mirror"] is True and run.mirrored is True and result["mirror_planes"] == ["x"]
     assert result["iterations"] == 4 and [e.iteration for e in estimates] == [1, 2, 3, 4]
-    expected = mirror_refined(
-        run.points[0].astype(np.float64), estimates[-1].pose_normalized.astype(np.float64)
+    expected = mirror_finished(
+        run.points[0].astype(np.float64), estimates[-1].pose_normalized.astype(np.float64), ["x"]
     )
     final = np.asarray(result["T_canonical_from_input"])
     assert np.allclose(final, pose_from_normalized(expected, run.normalization), atol=1e-5)
@@ -117,7 +117,7 @@ def test_the_service_and_the_cli_pass_it_on(mirror_dir, tiny_model_dir, cloud, t
     body = {"points": cloud.tolist(), "budget_ms": 5000, "max_iterations": 3}
     with TestClient(create_app(Settings(model_dir=mirror_dir))) as client:
         (info,) = client.get("/v1/models").json()["models"]
-        assert info["mirror"] is True
+        assert info["mirror"] is True and info["mirror_planes"] == ["x"]
         assert client.post("/v1/estimate", json=body).json()["mirror"] is True
         assert "mirror" not in client.post("/v1/estimate", json={**body, "mirror": False}).json()
         with client.websocket_connect("/v1/estimate/stream") as ws:
@@ -136,3 +136,32 @@ def test_the_service_and_the_cli_pass_it_on(mirror_dir, tiny_model_dir, cloud, t
     assert '"mirror": true' in row.output
     off = CliRunner().invoke(cli, [*args, "--no-mirror"])
     assert off.exit_code == 0 and '"mirror"' not in off.output
+
+
+def test_planes_are_taken_in_order_as_far_as_the_budget_goes(mirrored, cloud):
+    """A card with two planes, and room left for one: the first finishes the pose, the reply
+    says which."""
+    from dataclasses import dataclass, field
+
+    from itnet.service.runtime import LoadedModel
+
+    @dataclass
+    class RoomForOne(LoadedModel):
+        predictions: list[float] = field(default_factory=lambda: [0.0, 1e9])
+
+        def predicted_mirror_ms(self) -> float:
+            return self.predictions.pop(0)
+
+    card = mirrored.card.model_copy(update={"mirror_planes": ["x", "z"]})
+    model = RoomForOne(card=card, path=mirrored.path, session=mirrored.session)
+    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=3, converge_rotation_deg=0)
+    estimates = list(run)
+    assert run.result()["mirror_planes"] == ["x"] and run.result()["mirror"] is True
+    expected = mirror_finished(
+        run.points[0].astype(np.float64), estimates[-1].pose_normalized.astype(np.float64), ["x"]
+    )
+    assert np.allclose(run.last.pose_normalized, expected, atol=1e-5)
+    both = AnytimeRun(mirrored.__class__(card=card, path=mirrored.path, session=mirrored.session),
+                      cloud, budget_ms=10_000, max_iterations=3, converge_rotation_deg=0)  # fmt: skip
+    both.run_to_end()
+    assert both.result()["mirror_planes"] == ["x", "z"]

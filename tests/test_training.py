@@ -221,10 +221,14 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     assert card.mirror is False  # a user's category declares no mirror symmetry unless told
     mirror_path = tmp_path / "models" / "xm.onnx"
     told = runner.invoke(
-        app, ["export", str(run / "best.pt"), "--out", str(mirror_path), "--name", "xm", "--mirror"]
-    )
+        app, ["export", str(run / "best.pt"), "--out", str(mirror_path), "--name", "xm",
+              "--mirror-planes", "z,x"]
+    )  # fmt: skip
     assert told.exit_code == 0, told.output
-    assert load_model(mirror_path, warm_up=False).card.mirror is True
+    assert load_model(mirror_path, warm_up=False).card.mirror_planes == ["z", "x"]
+    wrong = runner.invoke(app, ["export", str(run / "best.pt"), "--out", str(mirror_path),
+                                "--mirror-planes", "x,y"])  # fmt: skip
+    assert wrong.exit_code == 2 and "--mirror-planes" in wrong.output
 
 
 def test_compiled_training_matches_eager(shape_folder, tmp_path):

@@ -34,12 +34,12 @@ def export(
         help="Runs fused per estimate when a request does not say (needs "
         "--ensemble-report above 1).",
     ),
-    mirror: bool | None = typer.Option(
+    mirror_planes: str | None = typer.Option(
         None,
-        "--mirror/--no-mirror",
-        help="The category is left-right mirror-symmetric about its canonical x = 0 plane: the "
-        "runtime finishes poses by it (itnet.mirror). Default: measured for ModelNet10's classes "
-        "(`python -m itnet.model.categories`), off for your own category.",
+        help="Canonical planes the category is mirror-symmetric about, comma-separated: 'x' "
+        "(x = 0, left-right), 'z' (z = 0, front-back), or 'none'; the runtime finishes poses by "
+        "them (itnet.mirror). Default: measured for ModelNet10's classes (`python -m "
+        "itnet.model.categories`), none for your own category.",
     ),
     report: Path | None = typer.Option(None, help="report.json of `itnet eval` to record."),
     ensemble_report: Path | None = typer.Option(
@@ -96,7 +96,7 @@ def export(
         name=name,
         category=cat.name,
         symmetry=cat.symmetry,
-        mirror=cat.mirror if mirror is None else mirror,
+        mirror_planes=_planes(mirror_planes, cat.mirror_planes),
         version=version,
         points=points,
         trained_points=config["points"],
@@ -131,3 +131,16 @@ def export(
     typer.echo(
         f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB); ONNX vs torch max |diff| {diff:.2e}"
     )
+
+
+def _planes(text: str | None, known: tuple[str, ...]) -> list[str]:
+    """--mirror-planes 'x,z' | 'none' | None (the category's own) -> the card's planes."""
+    from itnet.mirror import MIRROR_PLANES
+
+    if text is None:
+        return list(known)
+    planes = [] if text.strip() == "none" else [t.strip() for t in text.split(",")]
+    bad = [p for p in planes if p not in MIRROR_PLANES]
+    if bad or len(set(planes)) != len(planes):
+        raise typer.BadParameter(f"--mirror-planes {text!r}: give x, z or x,z (each once), or none")
+    return planes

@@ -49,7 +49,7 @@ def models(
                 info.name,
                 info.category,
                 info.symmetry,
-                "yes" if info.mirror else "no",
+                ",".join(info.mirror_planes) or "-",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -68,7 +68,8 @@ def models(
         )
     typer.echo(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default; "
-        "mirror: a single run's final pose is finished by the category's left-right symmetry; "
+        "mirror: the planes (x: left-right, z: front-back) a single run's final pose is "
+        "finished by; "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 

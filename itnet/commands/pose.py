@@ -40,7 +40,7 @@ def pose(
     mirror: bool | None = typer.Option(
         None,
         "--mirror/--no-mirror",
-        help="Finish the final pose by the category's left-right mirror symmetry (a few ms, "
+        help="Finish the final pose by the category's mirror symmetries (a few ms, "
         "within --budget-ms). Default: for a single run, where the model's card declares it "
         "(`itnet models`).",
     ),

@@ -44,8 +44,8 @@ def test_models_table_shows_the_shipped_cards():
         row = next(r for r in rows if r.startswith(f"{name} "))
         card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
         accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
-        assert card.mirror  # every shipped category is left-right symmetric
-        assert row.split()[:7] == [name, card.category, card.symmetry, "yes", card.precision,
+        assert card.mirror_planes == ["x"]  # left-right symmetric; front and back differ
+        assert row.split()[:7] == [name, card.category, card.symmetry, "x", card.precision,
                                    str(card.points), str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")

@@ -27,6 +27,7 @@ async def models(state: StateDep) -> ModelsResponse:
             recommended_iterations=m.card.recommended_iterations,
             recommended_ensemble=m.card.recommended_ensemble,
             mirror=m.card.mirror,
+            mirror_planes=list(m.card.mirror_planes),
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,
