@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from itnet.fusion import fuse_poses
 from itnet.geometry import random_rotation
 from itnet.metrics import paired_accuracy
-from itnet.mirror import mirror_refined
+from itnet.mirror import mirror_finished
 from itnet.model.categories import category
 from itnet.model.category_set import test_scans, validation_scans
 from itnet.model.evaluate import report
@@ -89,6 +89,12 @@ def main() -> None:
         "--only", default="", help="Measure only the options whose name contains this text."
     )
     parser.add_argument(
+        "--mirror-planes",
+        default=None,
+        help="planes of the mirror option, e.g. x or x,z (default: the model card's, else x)",
+    )
+    parser.add_argument("--plot", type=Path, default=None, help="write the rotation error CDFs")
+    parser.add_argument(
         "--mirror-whole",
         action="store_true",
         help="refine by the mirror on the whole cloud, not on the run's subset (the engine's)",
@@ -114,6 +120,8 @@ def main() -> None:
     print(f"{model.card.category} ({args.model.name}), {args.scanner} {args.split} views: "
           f"{len(clouds)} scans, median {int(np.median([len(c) for c in clouds]))} points")  # fmt: skip
     right: dict[str, NDArray] = {}  # option -> right or wrong per scan
+    rotation_errors: dict[str, NDArray] = {}  # option -> final rotation error per scan
+    planes = (args.mirror_planes or ",".join(model.card.mirror_planes) or "x").split(",")
     for name, (inputs, starts) in options(clouds, np.random.default_rng(0)).items():
         if args.only not in name:
             continue
@@ -125,14 +133,18 @@ def main() -> None:
             mirror_on = clouds if args.mirror_whole else list(inputs[:, 0].astype(np.float64))
             for i, (cloud, pose) in enumerate(zip(mirror_on, fused)):
                 start = time.perf_counter()
-                fused[i] = mirror_refined(cloud, pose)
+                fused[i] = mirror_finished(cloud, pose, planes)
                 seconds.append(time.perf_counter() - start)
-            print(f"  mirror refinement: median {1e3 * np.median(seconds):.1f} ms a cloud")
+            print(f"  mirror refinement ({','.join(planes)}): median "
+                  f"{1e3 * np.median(seconds):.1f} ms a cloud")  # fmt: skip
         final = np.stack([pose_from_normalized(f, n) for f, n in zip(fused, norms)])
         rep, rot, trans = report(final[:, None], scans, symmetry)
         acc = rep.accuracy[-1]
         turned, shifted = rot[:, -1] >= 10, trans[:, -1] >= 0.1
         right[name] = ~(turned | shifted)
+        rotation_errors[
+            f"{name}{' (' + ','.join(planes) + ')' if name.endswith(MIRRORED) else ''}"
+        ] = rot[:, -1]
         unrefined = right.get(name.removesuffix(MIRRORED)) if name.endswith(MIRRORED) else None
         if unrefined is not None:  # the same subsets, refined or not: a paired gain
             gain = paired_accuracy(right[name], unrefined)
@@ -147,6 +159,13 @@ def main() -> None:
             f" / {100 * np.mean(turned & shifted):.1f} %",
             flush=True,
         )
+
+    if args.plot is not None:
+        from itnet.model.plots import plot_rotation_cdfs
+
+        title = (f"{model.card.category} ({args.model.name}), {args.scanner} {args.split} views, "
+                 f"{len(clouds)} scans, 10 iterations")  # fmt: skip
+        print(f"wrote {plot_rotation_cdfs(rotation_errors, args.plot, title)}")
 
 
 if __name__ == "__main__":

@@ -56,3 +56,28 @@ def plot_anytime(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_rotation_cdfs(errors: dict[str, NDArray], path: Path, title: str) -> Path:
+    """One CDF of the final rotation error (degrees, (S,) each) per named option, on the same
+    scans, with the 10° threshold marked. Writes ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for name, e in errors.items():
+        e = np.sort(e)
+        median = float(np.median(e))
+        ax.plot(e, np.arange(1, len(e) + 1) / len(e) * 100, label=f"{name} (median {median:.1f}°)")
+    ax.axvline(10, color="grey", lw=0.8)
+    ax.set(xlabel="rotation error (°)", ylabel="% of scans below", xlim=(0, 30), ylim=(0, 100))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

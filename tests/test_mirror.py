@@ -96,3 +96,12 @@ def test_two_planes_also_fix_the_turn_about_x():
     assert np.array_equal(mirror_finished(cloud, np.eye(4), []), np.eye(4))
     with pytest.raises(ValueError, match="unknown mirror plane"):
         mirror_finished(cloud, np.eye(4), ["y"])
+
+
+def test_rotation_error_cdfs_are_plotted(tmp_path):
+    from itnet.model.plots import plot_rotation_cdfs
+
+    rng = np.random.default_rng(5)
+    errors = {"one run": rng.gamma(2.0, 2.5, 300), "+ mirror": rng.gamma(2.0, 1.5, 300)}
+    path = plot_rotation_cdfs(errors, tmp_path / "cdf.png", "two options")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
