@@ -1,7 +1,9 @@
 """Does the classifier gain from several looks at one cloud? K inputs per view, their class
 probabilities averaged (as log-probabilities): own random 256-point subsets of the cloud, and
 optionally each turned 360/K degrees about the cloud's z axis (the canonicaliser then starts from
-K different poses, as the pose ensemble's runs do). Top-1 and mean class accuracy against one
+K different poses, as the pose ensemble's runs do), or turned with every second look also
+reflected in x ('mirrored': a mirror-symmetric object's reflected view is a view of it from the
+mirrored camera). Top-1 and mean class accuracy against one
 look, paired, and the time of one request's batch of K through the shipped graph; with the size
 prior too where the card has one (each view's size in metres, ModelNet's units read as inches,
 as ``itnet classify-size-prior`` measures it).
@@ -80,6 +82,9 @@ def main() -> None:
             rng = np.random.default_rng(i)
             if mode == "turns":
                 x = turned_looks(cloud, k, points, rng)
+            elif mode == "mirrored":  # the turned looks, every second one reflected in x
+                x = turned_looks(cloud, k, points, rng)
+                x[1::2, :, 0] *= -1
             else:
                 x = np.stack([cap_points(cloud, points, rng) for _ in range(k)]).astype(np.float32)
             start = time.perf_counter()
