@@ -9,6 +9,7 @@ from itnet.commands import (
     align,
     batch,
     bench,
+    card,
     classify,
     evaluate,
     export,
@@ -46,6 +47,7 @@ app.command("serve")(serve.serve)
 app.command("train")(train.train)
 app.command("eval")(evaluate.evaluate)
 app.command("export")(export.export)
+app.command("card")(card.card)
 app.command("bench")(bench.bench)
 app.add_typer(batch.app, name="batch")
 app.command("classify")(classify.classify)

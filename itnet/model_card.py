@@ -56,6 +56,9 @@ class ModelCard(BaseModel):
         """Whether the category has a mirror symmetry the runtime can finish poses by."""
         return bool(self.mirror_planes)
 
+    mirror_evaluation: str = Field(
+        "", description="the mirror planes' measured effect as served: one run without and with"
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",
@@ -154,4 +157,34 @@ def describe_ensemble(report: dict, k: int) -> str:
     return (
         f"{k} runs fused, within {report['budget_ms']:g} ms, on the {report['split']} views, at "
         f"(10 deg, 0.1 radius): " + ", ".join(parts) + f" [{report['machine']}]"
+    )
+
+
+def describe_mirror(without: dict, with_planes: dict) -> str:
+    """The card's ``mirror_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of one
+    run (K = 1) on the same views, the card without and with its mirror planes. Raises
+    ValueError where they share no such measurement or measured different scans."""
+    kinds = [
+        name
+        for name, rows in with_planes.items()
+        if isinstance(rows, dict) and "1" in rows and "1" in without.get(name, {})
+    ]
+    if not kinds:
+        raise ValueError("the reports share no kind of view measured with one run")
+    parts = []
+    for kind in kinds:
+        plain, mirrored = without[kind]["1"], with_planes[kind]["1"]
+        if plain["scans"] != mirrored["scans"] or without.get("split") != with_planes.get("split"):
+            raise ValueError(f"{kind}: the two reports measured different scans")
+        finished = mirrored.get("mirror_finished")
+        done = "" if finished is None else f", {100 * finished:.0f}% finished in time"
+        parts.append(
+            f"{kind} {plain['accuracy']:.1f}% -> {mirrored['accuracy']:.1f}% "
+            f"({mirrored['scans']} scans{done})"
+        )
+    return (
+        f"one run within {with_planes['budget_ms']:g} ms on the {with_planes['split']} views, "
+        "without and with the mirror planes, at (10 deg, 0.1 radius): "
+        + ", ".join(parts)
+        + f" [{with_planes['machine']}]"
     )

@@ -169,6 +169,7 @@ class ModelInfo(BaseModel):
         description="canonical planes of mirror symmetry: 'x' (x = 0, left-right), 'z' (z = 0, "
         "front-back)",
     )
+    mirror_evaluation: str = Field("", description="the planes' measured effect, one run")
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

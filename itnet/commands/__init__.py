@@ -21,3 +21,15 @@ def check_units(value: str | None) -> str | None:
         except ValueError as err:
             raise typer.BadParameter(str(err)) from None
     return value
+
+
+def parse_mirror_planes(text: str | None, default: tuple[str, ...] | list[str]) -> list[str]:
+    """--mirror-planes 'x', 'x,z' or 'none'; None: ``default`` -> the card's planes."""
+    from itnet.mirror import MIRROR_PLANES
+
+    if text is None:
+        return list(default)
+    planes = [] if text.strip() == "none" else [t.strip() for t in text.split(",")]
+    if any(p not in MIRROR_PLANES for p in planes) or len(set(planes)) != len(planes):
+        raise typer.BadParameter(f"--mirror-planes {text!r}: give x, z or x,z (each once), or none")
+    return planes

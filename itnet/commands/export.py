@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from itnet.commands import parse_mirror_planes
+
 
 def export(
     checkpoint: Path = typer.Argument(..., help="Torch checkpoint (best.pt of a run)."),
@@ -96,7 +98,7 @@ def export(
         name=name,
         category=cat.name,
         symmetry=cat.symmetry,
-        mirror_planes=_planes(mirror_planes, cat.mirror_planes),
+        mirror_planes=parse_mirror_planes(mirror_planes, cat.mirror_planes),
         version=version,
         points=points,
         trained_points=config["points"],
@@ -131,16 +133,3 @@ def export(
     typer.echo(
         f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB); ONNX vs torch max |diff| {diff:.2e}"
     )
-
-
-def _planes(text: str | None, known: tuple[str, ...]) -> list[str]:
-    """--mirror-planes 'x,z' | 'none' | None (the category's own) -> the card's planes."""
-    from itnet.mirror import MIRROR_PLANES
-
-    if text is None:
-        return list(known)
-    planes = [] if text.strip() == "none" else [t.strip() for t in text.split(",")]
-    bad = [p for p in planes if p not in MIRROR_PLANES]
-    if bad or len(set(planes)) != len(planes):
-        raise typer.BadParameter(f"--mirror-planes {text!r}: give x, z or x,z (each once), or none")
-    return planes

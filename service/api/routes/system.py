@@ -28,6 +28,7 @@ async def models(state: StateDep) -> ModelsResponse:
             recommended_ensemble=m.card.recommended_ensemble,
             mirror=m.card.mirror,
             mirror_planes=list(m.card.mirror_planes),
+            mirror_evaluation=m.card.mirror_evaluation,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,

@@ -1,0 +1,60 @@
+"""``itnet card MODEL.onnx``: show or change what an exported pose model's card says about its
+category, without touching its weights (the card is the graph's metadata)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from itnet.commands import parse_mirror_planes
+
+
+def card(
+    model: Path = typer.Argument(..., help="An exported pose model (.onnx)."),
+    mirror_planes: str | None = typer.Option(
+        None,
+        help="Set the category's planes of mirror symmetry: x (x = 0, left-right), z (z = 0, "
+        "front-back), x,z, or none (`python -m itnet.model.categories` measures them).",
+    ),
+    without_mirror: Path | None = typer.Option(
+        None, help="`benchmarks.bench_ensemble` JSON of one run with the card's planes off ..."
+    ),
+    with_mirror: Path | None = typer.Option(
+        None, help="... and on, on the same views: recorded as the card's mirror_evaluation."
+    ),
+    out: Path | None = typer.Option(None, help="Write here instead of changing MODEL in place."),
+) -> None:
+    """Print the card (JSON); with options, write the changed card into the model file."""
+    import onnx
+
+    from itnet.export.onnx_export import save_with_card
+    from itnet.model_card import ModelCard, describe_mirror
+    from itnet.service.runtime import ModelLoadError, load_any
+
+    try:
+        current = load_any(model, warm_up=False).card
+    except ModelLoadError as err:
+        typer.echo(f"error: {err}", err=True)
+        raise typer.Exit(2) from None
+    if not isinstance(current, ModelCard):
+        typer.echo(f"error: {model} is the classifier; its card is written by classify-export",
+                   err=True)  # fmt: skip
+        raise typer.Exit(2)
+    update: dict[str, object] = {}
+    if mirror_planes is not None:
+        update["mirror_planes"] = parse_mirror_planes(mirror_planes, current.mirror_planes)
+    if (without_mirror is None) != (with_mirror is None):
+        raise typer.BadParameter("give both --without-mirror and --with-mirror, or neither")
+    if without_mirror is not None and with_mirror is not None:
+        try:
+            update["mirror_evaluation"] = describe_mirror(
+                json.loads(without_mirror.read_text()), json.loads(with_mirror.read_text())
+            )
+        except (KeyError, ValueError) as err:
+            raise typer.BadParameter(f"--with-mirror: {err}") from None
+    changed = current.model_copy(update=update)
+    if update:
+        save_with_card(onnx.load(str(model)), changed, out or model)
+    typer.echo(changed.model_dump_json(indent=1))

@@ -1,0 +1,68 @@
+"""``itnet card``: a model's card changed without its weights, with the mirror's measurement."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from itnet.cli import app
+from itnet.model_card import describe_mirror
+from itnet.service.runtime import load_model
+
+runner = CliRunner()
+
+
+def bench_report(accuracy: float, finished: float | None = None) -> dict:
+    row = {"accuracy": accuracy, "gain": 0.0, "gain_stderr": 0.0, "scans": 40}
+    if finished is not None:
+        row["mirror_finished"] = finished
+    return {"machine": "test", "budget_ms": 20.0, "split": "test", "paper": {"1": row}}
+
+
+def test_card_sets_the_planes_and_their_measurement_and_keeps_the_weights(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    before = load_model(path, warm_up=False)
+    (tmp_path / "without.json").write_text(json.dumps(bench_report(70.0)))
+    (tmp_path / "with.json").write_text(json.dumps(bench_report(75.0, 0.95)))
+    args = ["card", str(path), "--mirror-planes", "x,z", "--without-mirror",
+            str(tmp_path / "without.json"), "--with-mirror", str(tmp_path / "with.json")]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    after = load_model(path, warm_up=False)
+    assert after.card.mirror_planes == ["x", "z"]
+    assert after.card.mirror_evaluation == json.loads(result.stdout)["mirror_evaluation"]
+    assert "paper 70.0% -> 75.0% (40 scans, 95% finished in time)" in after.card.mirror_evaluation
+    assert (
+        after.card.model_copy(update={"mirror_planes": [], "mirror_evaluation": ""}) == before.card
+    )
+    x = np.random.default_rng(0).normal(size=(2, 256, 3)).astype(np.float32)
+    pose = np.tile(np.eye(4, dtype=np.float32), (2, 1, 1))
+    assert np.array_equal(before.step(x, pose)[0], after.step(x, pose)[0])  # the same weights
+    shown = runner.invoke(app, ["card", str(path)])  # no options: only shows it
+    assert json.loads(shown.stdout)["mirror_planes"] == ["x", "z"]
+
+
+def test_card_refuses_bad_planes_half_a_measurement_and_the_classifier(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    wrong = runner.invoke(app, ["card", str(path), "--mirror-planes", "y"])
+    assert wrong.exit_code == 2 and "--mirror-planes" in wrong.output
+    (tmp_path / "with.json").write_text(json.dumps(bench_report(75.0)))
+    half = runner.invoke(app, ["card", str(path), "--with-mirror", str(tmp_path / "with.json")])
+    assert half.exit_code == 2 and "neither" in half.output
+    assert load_model(path, warm_up=False).card.mirror_planes == []  # nothing was written
+    from pathlib import Path
+
+    classifier = Path(__file__).parents[1] / "itnet" / "models" / "classifier.onnx"
+    refused = runner.invoke(app, ["card", str(classifier), "--mirror-planes", "x"])
+    assert refused.exit_code == 2 and "classifier" in refused.stderr
+
+
+def test_describe_mirror_needs_the_same_scans():
+    other = bench_report(75.0)
+    other["paper"]["1"]["scans"] = 41
+    with pytest.raises(ValueError, match="different scans"):
+        describe_mirror(bench_report(70.0), other)
