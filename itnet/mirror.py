@@ -17,17 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree  # imported here: a first request must not pay for it
 
-from itnet.geometry import apply_rigid, axis_angle_to_matrix, rotation_error_deg
+from itnet.geometry import apply_rigid, axis_angle_to_matrix, rigid_from_rotation_translation
 
 MIRROR_PLANES = ("x", "z")  # x = 0: left-right; z = 0: front-back
 # Turns about +y that bring each plane to x = 0 (a quarter turn takes z = 0 to x = 0).
 _TO_X = {
     "x": np.eye(4),
-    "z": np.block(
-        [
-            [axis_angle_to_matrix([0.0, 1.0, 0.0], np.pi / 2), np.zeros((3, 1))],
-            [np.zeros((1, 3)), np.ones((1, 1))],
-        ]
+    "z": rigid_from_rotation_translation(
+        axis_angle_to_matrix([0.0, 1.0, 0.0], np.pi / 2), [0, 0, 0]
     ),
 }
 
@@ -88,15 +85,12 @@ def mirror_refined(
     normal = vectors[:, 0] * np.sign(vectors[0, 0] + 1e-12)
     offset = float(normal @ align[:3, 3]) / 2
     axis = np.cross(normal, [1.0, 0.0, 0.0])
-    correction = np.eye(4)
-    if np.linalg.norm(axis) > 1e-12:
-        angle = np.arctan2(np.linalg.norm(axis), normal[0])
-        correction[:3, :3] = axis_angle_to_matrix(axis / np.linalg.norm(axis), angle)
-    correction[0, 3] = -offset
-    turn = rotation_error_deg(correction[:3, :3], np.eye(3))
-    if values[0] > -0.5 or turn > max_turn_deg or abs(offset) > max_shift:
+    sine = float(np.linalg.norm(axis))
+    angle = float(np.arctan2(sine, normal[0]))  # the smallest turn taking ``normal`` to +x
+    turn = axis_angle_to_matrix(axis / sine, angle) if sine > 1e-12 else np.eye(3)
+    if values[0] > -0.5 or np.degrees(angle) > max_turn_deg or abs(offset) > max_shift:
         return pose  # no reflection found, or one far from the estimate's plane
-    return correction @ pose
+    return rigid_from_rotation_translation(turn, [-offset, 0.0, 0.0]) @ pose
 
 
 def rigid_fit(source: NDArray, target: NDArray) -> NDArray:
@@ -104,7 +98,5 @@ def rigid_fit(source: NDArray, target: NDArray) -> NDArray:
     cs, ct = source.mean(0), target.mean(0)
     u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
     flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    out = np.eye(4)
-    out[:3, :3] = vt.T @ flip @ u.T
-    out[:3, 3] = ct - out[:3, :3] @ cs
-    return out
+    rotation = vt.T @ flip @ u.T
+    return rigid_from_rotation_translation(rotation, ct - rotation @ cs)

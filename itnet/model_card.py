@@ -50,12 +50,6 @@ class ModelCard(BaseModel):
         "(x = 0, left-right), 'z' (z = 0, front-back); the runtime finishes a single run's pose "
         "by them (itnet.mirror) unless the request says not to",
     )
-
-    @property
-    def mirror(self) -> bool:
-        """Whether the category has a mirror symmetry the runtime can finish poses by."""
-        return bool(self.mirror_planes)
-
     mirror_evaluation: str = Field(
         "", description="the mirror planes' measured effect as served: one run without and with"
     )
@@ -76,6 +70,11 @@ class ModelCard(BaseModel):
         "", description="the recommended ensemble against one run, where it is more than 1"
     )
     training: dict[str, object] = Field(default_factory=dict)
+
+    @property
+    def mirror(self) -> bool:
+        """Whether the category has a mirror symmetry the runtime can finish poses by."""
+        return bool(self.mirror_planes)
 
 
 class SizePrior(BaseModel):

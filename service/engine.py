@@ -190,8 +190,8 @@ class AnytimeRun(Iterator[Estimate]):
             raise BadCloudError("ensemble cannot be combined with starts or points_per_step")
         if mirror and not model.card.mirror:
             raise BadCloudError(
-                f"model {model.card.name!r} declares no mirror symmetry (its card's 'mirror' is "
-                "false): mirror cannot finish its poses"
+                f"model {model.card.name!r} declares no mirror symmetry (its card has no "
+                "mirror_planes): mirror cannot finish its poses"
             )
         # Finish the final pose by the category's mirror symmetry: by default wherever the card
         # declares it, for a single run (validation: +0.8 to +5.3 points for one run, -1.0 to
@@ -203,8 +203,7 @@ class AnytimeRun(Iterator[Estimate]):
                 model.card.mirror and ensemble == 1 and starts is None and points_per_step is None
             )
         self.mirror = bool(mirror)
-        self.mirrored: bool | None = None  # once finished: True, or False where it did not fit
-        self.mirror_planes: list[str] = []  # the planes that finished it
+        self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
@@ -288,13 +287,7 @@ class AnytimeRun(Iterator[Estimate]):
         self.model.record_step_ms(self._last_step_ms / self._load)
         self.iteration += 1
         if self.ensemble > 1:
-            current = fuse_poses(self.pose_normalized, self.model.card.symmetry)
-            d = current @ invert_rigid(self.last.pose_normalized.astype(np.float64))
-            self.last = self._estimate(
-                current.astype(np.float32),
-                float(rotation_angle_deg(d[:3, :3])),
-                math.hypot(float(d[0, 3]), float(d[1, 3]), float(d[2, 3])),
-            )
+            self.last = self._moved_to(fuse_poses(self.pose_normalized, self.model.card.symmetry))
             return self._converged_or(self.last)
         d = delta[0]  # the update's angle, in scalar math (numpy's per-call cost is the loop's)
         cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
@@ -308,15 +301,14 @@ class AnytimeRun(Iterator[Estimate]):
     def _finish(self) -> None:
         """After the last step (once): finish ``last`` by the card's mirror planes, in order, as
         many as the budget left (less the reserve) holds at a plane's predicted time; none after
-        a cancel or before any step. ``mirrored``: whether a plane finished it, ``mirror_planes``
-        which."""
-        if not self.mirror or self.mirrored is not None:
+        a cancel or before any step. ``mirror_planes``: the planes that finished it."""
+        if not self.mirror or self.mirror_planes is not None:
             return
-        self.mirrored, self.mirror_planes = False, []
+        self.mirror_planes = []
         if self.stopped_by == "cancelled" or self.iteration == 0:
             return
-        before = self.last.pose_normalized.astype(np.float64)
-        pose, points = before, self.points[0].astype(np.float64)
+        pose = self.last.pose_normalized.astype(np.float64)
+        points = self.points[0].astype(np.float64)
         for plane in self.model.card.mirror_planes:
             if (
                 self.budget_ms - self.reserve_ms - self.elapsed_ms()
@@ -327,15 +319,23 @@ class AnytimeRun(Iterator[Estimate]):
             pose = mirror_finished(points, pose, [plane])
             self.model.record_mirror_ms((time.perf_counter() - start) * 1e3)
             self.mirror_planes.append(plane)
-        if not self.mirror_planes:
-            return
-        d = pose @ invert_rigid(before)
-        self.last = self._estimate(
-            pose.astype(np.float32),
+        if self.mirror_planes:
+            self.last = self._moved_to(pose)
+
+    @property
+    def mirrored(self) -> bool | None:
+        """Once finished: whether a mirror plane finished the pose (None before, or when off)."""
+        return None if self.mirror_planes is None else bool(self.mirror_planes)
+
+    def _moved_to(self, pose_normalized: NDArray) -> Estimate:
+        """The estimate at ``pose_normalized`` (4, 4), its update measured from ``last``'s pose
+        (the fused ensemble's step, the mirror's correction)."""
+        d = pose_normalized @ invert_rigid(self.last.pose_normalized.astype(np.float64))
+        return self._estimate(
+            pose_normalized.astype(np.float32),
             float(rotation_angle_deg(d[:3, :3])),
             math.hypot(float(d[0, 3]), float(d[1, 3]), float(d[2, 3])),
         )
-        self.mirrored = True
 
     def _converged_or(self, estimate: Estimate) -> Estimate:
         """``estimate``, after marking the run converged if its update was below the tolerance."""
@@ -395,7 +395,7 @@ class AnytimeRun(Iterator[Estimate]):
             "model": self.model.card.name,
             **({"ensemble": self.ensemble} if self.ensemble > 1 else {}),
             **(
-                {"mirror": self.mirrored, "mirror_planes": self.mirror_planes}
+                {"mirror": self.mirrored, "mirror_planes": list(self.mirror_planes or [])}
                 if self.mirror
                 else {}
             ),
