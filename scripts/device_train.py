@@ -4,9 +4,13 @@ inside a fixed time budget.
 The machine gets the repository and a pack of the training clouds (``model/cloud_pack.py``); it
 has PyTorch but not this project installed, and nothing can be fetched there. One command:
 
-    python3 scripts/device_train.py run --pack .pack/modelnet10-train.xz --out "$OUT" --budget 520
+    mkdir -p /tmp/wsite && for w in .whl/*.whl; do python3 -m zipfile -e $w /tmp/wsite; done
+    export PYTHONPATH=/tmp/wsite
+    python3 scripts/device_train.py run --pack .pack/modelnet10-train.xz --out "$OUT" --budget 565
 
-with ``.pack`` and ``.whl`` (pydantic's wheels for the machine's Python 3.12) carried. What
+with ``.pack`` and ``.whl`` (pydantic's wheels for the machine's Python 3.12) carried. The wheels
+are unpacked onto ``PYTHONPATH`` rather than installed: ``pip install`` there put them where the
+machine's ``python3`` (PyTorch's environment) did not look (session 19's first call). What
 travels is at most 64 MiB: the tracked files take ~48 MiB (session 17) and the wheels 2.7. The
 pack holds the training split of all ten classes (the machine never reads the test split; the
 classifier needs every class) on a grid of 1,023 steps: 11.9 MiB (1/2,046 of each shape's box,
@@ -292,7 +296,10 @@ def stop_mps(env: dict[str, str] | None) -> None:
     control = shutil.which("nvidia-cuda-mps-control")
     if env is None or control is None:
         return
-    subprocess.run([control], input="quit\n", text=True, env={**os.environ, **env}, timeout=20)
+    try:  # seen hanging on a leased H100 (session 19): never let it end the run
+        subprocess.run([control], input="quit\n", text=True, env={**os.environ, **env}, timeout=20)
+    except subprocess.TimeoutExpired:
+        print("MPS did not quit within 20 s; going on", flush=True)
     for key in env:
         os.environ.pop(key, None)
 
