@@ -20,7 +20,8 @@ import numpy as np
 
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path, split: str = "test",
-            points_per_step: int | None = None) -> dict:  # fmt: skip
+            points_per_step: int | None = None,
+            mirror: bool | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -41,7 +42,12 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         poses, iterations, elapsed, mirrored = [], [], [], []
         for cloud in scans.clouds:
             run = AnytimeRun(
-                model, cloud, budget_ms=budget_ms, ensemble=k, points_per_step=points_per_step
+                model,
+                cloud,
+                budget_ms=budget_ms,
+                ensemble=k,
+                points_per_step=points_per_step,
+                mirror=mirror,
             )
             last = run.run_to_end()
             poses.append(last.pose)
@@ -86,11 +92,18 @@ def main() -> None:
     parser.add_argument(
         "--points-per-step", type=int, default=None, help="one run's subset (K = 1 only)"
     )
+    parser.add_argument(
+        "--mirror",
+        choices=["default", "on", "off"],
+        default="default",
+        help="finish by the card's mirror planes: the engine's default (single runs), always, never",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
     args = parser.parse_args()
     views = args.views or (4 if args.split == "val" else 5)
+    mirror = {"default": None, "on": True, "off": False}[args.mirror]
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
         "model": str(args.model),
@@ -98,6 +111,7 @@ def main() -> None:
         "split": args.split,
         "views": views,
         "points_per_step": args.points_per_step,
+        "mirror": args.mirror,
         **{
             s: measure(
                 args.model,
@@ -109,6 +123,7 @@ def main() -> None:
                 args.data,
                 args.split,
                 args.points_per_step,
+                mirror,
             )
             for s in args.scanners
         },

@@ -34,7 +34,8 @@ class ModelCard(BaseModel):
         ge=1,
         le=16,
         description="runs fused per estimate when a request does not say (the ensemble mode): "
-        "more than 1 where a single run falls short and K runs, measured within 20 ms, do not",
+        "more than 1 where a single run falls short of the bar and K runs fused, measured "
+        "within the default budget_ms, do not (ensemble_evaluation says how)",
     )
     normalization: str = NORMALIZATION
     canonical_frame: str = "+y up, front toward -z, origin at the bounding-box centre"

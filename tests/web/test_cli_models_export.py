@@ -51,6 +51,11 @@ def test_models_table_shows_the_shipped_cards():
         assert ("default" in row) == (name == "chair")
     bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
     assert bed.recommended_ensemble == 4 and "4 runs fused" in bed.ensemble_evaluation
+    # the bathtub (session 19): 8 runs fused within the default 50 ms; two mirror planes
+    row = next(r for r in rows if r.startswith("bathtub "))
+    assert row.split()[:7] == ["bathtub", "bathtub", "yaw180", "x,z", "int8", "256", "8"]
+    tub = load_model(SHIPPED / "bathtub.onnx", warm_up=False).card
+    assert "8 runs fused, within 50 ms" in tub.ensemble_evaluation
 
 
 def test_models_in_a_folder_without_models_is_an_error(tmp_path):
