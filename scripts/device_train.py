@@ -22,7 +22,10 @@ classifier needs every class) on a grid of 1,023 steps: 11.9 MiB (1/2,046 of eac
 
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
 (``CLASSIFIER_JOB``: the shipped classifier fine-tuned, class-balanced, batch 100), a ninth
-process sharing the GPU.
+process sharing the GPU.  ``--jobs shared`` (``EXPERIMENTS``) trains one pose network on all ten
+classes from scratch: the comparison with the per-category networks that the second lease
+(session 19) left as the next step, since 3,300 more steps each no longer helped them. Run it
+alone (one job made 21.7 steps/s on an H100, nine made 8.2 each).
 
 1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
    package-dir mapping of pyproject.toml);
@@ -97,7 +100,15 @@ CLASSIFIER_JOB = {
     "threads": 1,
     "log_every": 10,  # the calibration's rate needs a few timed entries
 }
-JOB_NAMES = [*JOBS, CLASSIFIER]
+# Experiments, run only when --jobs names them. "shared": one network for all ten classes (every
+# class folder of the pack, ~3,900 shapes), from scratch at the rate the five from-scratch
+# categories learned at in session 15: the comparison docs/categories.md leaves for a lease (per
+# class, `itnet eval --checkpoint runs/shared/best.pt --category C` against that class's own
+# network). Run it alone or with one or two others: nine processes give each a ninth of the GPU.
+EXPERIMENTS: dict[str, dict] = {
+    "shared": {"category": "modelnet10", "lr": 1e-3},
+}
+JOB_NAMES = [*JOBS, *EXPERIMENTS, CLASSIFIER]
 
 
 def package_links(root: Path) -> Path:
@@ -143,12 +154,13 @@ def job_config(
         return classifier_config(args, steps, decay_every)
     from itnet.model.train import TrainConfig
 
-    fields = _start_fields(name, {**COMMON, **JOBS[name]}, args)
+    fields = _start_fields(name, {**COMMON, **{**JOBS, **EXPERIMENTS}[name]}, args)
+    category = fields.pop("category", name)
     if args.tiny:  # the CPU check: a small network and batch, a few validation scans
         fields.update(batch=8, point_channels=(16, 32, 64), head_channels=(32, 16), init_from=None)
-        fields.update(validation_fraction=0.05, val_views=1)
+        fields.update(validation_fraction=0.05, val_views=1, log_every=10)  # a rate by step 30
     return TrainConfig(
-        category=name,
+        category=category,
         data=args.data,
         cache=args.work / "cache",
         out=args.work / "runs" / name,
@@ -426,7 +438,10 @@ def main() -> int:
     run_p.add_argument("--out", type=Path, required=True)
     run_p.add_argument("--budget", type=float, default=540.0, help="seconds for everything")
     run_p.add_argument(
-        "--jobs", nargs="*", choices=JOB_NAMES, help="default: every job but the classifier"
+        "--jobs",
+        nargs="*",
+        choices=JOB_NAMES,
+        help="default: every category's job (JOBS); the classifier and EXPERIMENTS only when named",
     )
     run_p.add_argument("--calibration-steps", type=int, default=CALIBRATION_STEPS)
     run_p.add_argument("--margin", type=float, default=30.0, help="seconds kept for packing")

@@ -95,8 +95,9 @@ def _ball(rng: np.random.Generator, n: int = 300) -> np.ndarray:
 
 @pytest.mark.slow
 def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> None:
-    """--jobs classifier: a pack without the test split (what travels to the machine) unpacks,
-    the classifier trains on every class folder, and its shipped checkpoint comes back."""
+    """--jobs classifier shared: a pack without the test split (what travels to the machine)
+    unpacks, the classifier and the shared pose network (an experiment, never a default job)
+    train on every class folder, and their shipped checkpoints come back."""
     from modelnet_tree import write_modelnet_tree
 
     from itnet.model.classify.train import load_classifier
@@ -110,7 +111,8 @@ def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> 
     command = [sys.executable, str(SCRIPT), "run", "--device", "cpu", "--tiny"]
     command += ["--pack", str(tmp_path / "train.xz"), "--data", str(tmp_path / "data")]
     command += ["--work", str(work), "--out", str(out), "--budget", str(budget)]
-    command += ["--jobs", "classifier", "--calibration-steps", "40", "--data-workers", "0"]
+    command += ["--jobs", "classifier", "shared", "--calibration-steps", "40"]
+    command += ["--data-workers", "0"]
     command += ["--restart-s", "5", "--validation-s", "1", "--margin", "5"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     done = subprocess.run(
@@ -128,3 +130,7 @@ def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> 
     net, state = load_classifier(tmp_path / "shipped" / "classifier" / "best.pt")
     assert "optimizer" not in state and state["classes"] == ["ball", "bathtub"]
     assert state["step"] == job["best_step"] and net.config.point_channels == (16, 32, 64)
+    shared = json.loads((out / "summary.json").read_text())["jobs"]["shared"]
+    assert shared["steps_done"] > 40 and shared["best_val_accuracy"] is not None, shared
+    config = json.loads((tmp_path / "shipped" / "shared" / "config.json").read_text())
+    assert config["category"] == "modelnet10" and config["lr"] == 1e-3  # every class, scratch
