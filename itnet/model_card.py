@@ -54,6 +54,11 @@ class ModelCard(BaseModel):
     mirror_evaluation: str = Field(
         "", description="the mirror planes' measured effect as served: one run without and with"
     )
+    mirror_fused: bool = Field(
+        False,
+        description="finish the fused pose of several runs (the ensemble mode) by the mirror "
+        "planes too, by default (a single run's always is): chosen per category on validation",
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",

@@ -52,6 +52,19 @@ MAX_ENSEMBLE = 16  # runs one request may fuse (each costs a share of the step)
 ENSEMBLE_SUBSET = 0.8  # an ensemble run's share of a cloud no larger than the model's point count
 
 
+def fitting_ensemble(recommended: int, run_step_ms: float, iterations: int,
+                     available_ms: float) -> int:  # fmt: skip
+    """The runs a request that names none gets: the card's ``recommended``, halved until
+    ``iterations`` fused steps fit ``available_ms`` by the running estimate of one run's step
+    (``run_step_ms``: a step of K runs costs about K of them); at least 1. Unknown timing
+    (``run_step_ms`` 0, before the first step) keeps ``recommended``. Fewer runs that reach
+    their iterations beat more that stop early (the anytime curve still rises at 10)."""
+    k = recommended
+    while k > 1 and k * run_step_ms * iterations > available_ms:
+        k //= 2
+    return k
+
+
 class BadCloudError(ValueError):
     """The cloud cannot be used: wrong shape, non-finite values, too few/many points, degenerate."""
 
@@ -181,9 +194,21 @@ class AnytimeRun(Iterator[Estimate]):
         cloud = validate_cloud(points, limits)
         if points_per_step is not None and points_per_step < limits.min_points:
             raise BadCloudError(f"points_per_step must be at least {limits.min_points}")
-        if ensemble is None:  # the card's, unless the caller chose its own starts or subsets
-            own = starts is not None or points_per_step is not None
-            ensemble = 1 if own else model.card.recommended_ensemble
+        # Kept back from the budget for handing the reply back after the last step (the service
+        # measures it: service/handback.py); never more than half of the budget.
+        self.reserve_ms = min(max(0.0, reserve_ms), float(budget_ms) / 2)
+        if ensemble is None:  # the card's, as many as the budget holds, unless the caller chose
+            own = starts is not None or points_per_step is not None  # its own starts or subsets
+            size = min(model.card.points, max(limits.min_points, int(ENSEMBLE_SUBSET * len(cloud))))
+            available = budget_ms - self.reserve_ms - (time.perf_counter() - self.started) * 1e3
+            run_ms = model.predicted_step_ms() * max(size / model.card.points, 0.25)
+            ensemble = (
+                1
+                if own
+                else fitting_ensemble(
+                    model.card.recommended_ensemble, run_ms, max_iterations, available
+                )
+            )
         if not (1 <= ensemble <= MAX_ENSEMBLE):
             raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {ensemble}")
         if ensemble > 1 and (starts is not None or points_per_step is not None):
@@ -194,13 +219,16 @@ class AnytimeRun(Iterator[Estimate]):
                 "mirror_planes): mirror cannot finish its poses"
             )
         # Finish the final pose by the category's mirror symmetry: by default wherever the card
-        # declares it, for a single run (validation: +0.8 to +5.3 points for one run, -1.0 to
-        # +0.3 for four fused ones, whose pose is steadier and which leave it little budget),
-        # never for runs from the caller's own starts or subsets (alignment's hypotheses, whose
-        # every pose is used, not the last estimate).
+        # declares it, for a single run (validation: +0.8 to +5.3 points), and for fused runs
+        # where the card says so (mirror_fused; session 19's validation, 8 runs in 80 ms: chair
+        # +2.6 / +1.9 points, bathtub -2.3 / -1.1), never for runs from the caller's own starts
+        # or subsets (alignment's hypotheses, whose every pose is used, not the last estimate).
         if mirror is None:
             mirror = (
-                model.card.mirror and ensemble == 1 and starts is None and points_per_step is None
+                model.card.mirror
+                and (ensemble == 1 or model.card.mirror_fused)
+                and starts is None
+                and points_per_step is None
             )
         self.mirror = bool(mirror)
         self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
@@ -245,9 +273,6 @@ class AnytimeRun(Iterator[Estimate]):
         self._load = max(self.points.shape[0] * self.points.shape[1] / model.card.points, 0.25)
         self.model = model
         self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
-        # Kept back from the budget for handing the reply back after the last step (the service
-        # measures it: service/handback.py); never more than half of the budget.
-        self.reserve_ms = min(max(0.0, reserve_ms), self.budget_ms / 2)
         self.converge = (converge_rotation_deg, converge_translation)
         self.iteration = 0
         self.stopped_by: str | None = None

@@ -59,8 +59,9 @@ class EstimateParams(BaseModel):
         default=None,
         description="finish the final pose by the category's mirror symmetries "
         "(itnet.mirror; a few milliseconds, taken only if budget_ms still holds them); default: "
-        "for a single run (not an ensemble) where the model's card declares the symmetry (GET "
-        "/v1/models: 'mirror'); true for a model without it is refused",
+        "where the model's card declares the symmetry (GET /v1/models: 'mirror'), for a single "
+        "run, and for fused runs where the card says so ('mirror_fused'); true for a model "
+        "without it is refused",
     )
     units: Unit | None = Field(
         default=None,
@@ -170,6 +171,9 @@ class ModelInfo(BaseModel):
         "front-back)",
     )
     mirror_evaluation: str = Field("", description="the planes' measured effect, one run")
+    mirror_fused: bool = Field(
+        False, description="fused runs (the ensemble mode) are finished by the planes too"
+    )
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

@@ -61,6 +61,44 @@ def test_card_refuses_bad_planes_half_a_measurement_and_the_classifier(tiny_mode
     assert refused.exit_code == 2 and "classifier" in refused.stderr
 
 
+def test_card_sets_mirror_fused_only_with_planes(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    refused = runner.invoke(app, ["card", str(path), "--mirror-fused"])  # no planes yet
+    assert refused.exit_code == 2 and "planes" in refused.output
+    done = runner.invoke(app, ["card", str(path), "--mirror-planes", "x", "--mirror-fused"])
+    assert done.exit_code == 0, done.output
+    assert load_model(path, warm_up=False).card.mirror_fused is True
+    cleared = runner.invoke(app, ["card", str(path), "--mirror-planes", "none"])
+    assert cleared.exit_code == 0, cleared.output  # no planes: nothing left to finish by
+    card = load_model(path, warm_up=False).card
+    assert card.mirror_planes == [] and card.mirror_fused is False
+
+
+def test_card_sets_the_recommended_ensemble_with_its_measurement(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    report = bench_report(60.0)
+    report["paper"]["8"] = {"accuracy": 66.0, "gain": 6.0, "gain_stderr": 2.0, "scans": 40}
+    (tmp_path / "ens.json").write_text(json.dumps(report))
+    bare = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "8"])
+    assert bare.exit_code == 2 and "--ensemble-report" in bare.output
+    wrong = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "4",
+                                "--ensemble-report", str(tmp_path / "ens.json")])  # fmt: skip
+    assert wrong.exit_code == 2 and "4 runs" in wrong.output  # the report has no K = 4
+    done = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "8",
+                               "--ensemble-report", str(tmp_path / "ens.json")])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    card = load_model(path, warm_up=False).card
+    assert card.recommended_ensemble == 8
+    assert card.ensemble_evaluation.startswith("8 runs fused, within 20 ms, on the test views")
+    assert "paper 66.0% (one run 60.0%, +6.0 ± 2.0; 40 scans)" in card.ensemble_evaluation
+    back = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "1"])
+    assert back.exit_code == 0, back.output
+    card = load_model(path, warm_up=False).card
+    assert card.recommended_ensemble == 1 and card.ensemble_evaluation == ""
+
+
 def test_describe_mirror_needs_the_same_scans():
     other = bench_report(75.0)
     other["paper"]["1"]["scans"] = 41

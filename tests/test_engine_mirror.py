@@ -89,6 +89,20 @@ def test_own_starts_and_ensembles_leave_it_off_unless_asked(mirrored, cloud):
     assert asked.result()["mirror"] is True and asked.result()["ensemble"] == 4
 
 
+def test_a_card_with_mirror_fused_finishes_fused_runs_by_default(mirror_dir, cloud):
+    """mirror_fused on the card (the chair's, session 19) finishes the ensemble's fused pose too,
+    unless the request says not to; a single run is finished either way."""
+    model = load_model(mirror_dir / "tiny.onnx", threads=1)
+    model.card = model.card.model_copy(update={"mirror_fused": True})
+    fused = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4)
+    fused.run_to_end()
+    assert fused.result()["mirror"] is True and fused.result()["ensemble"] == 4
+    off = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4, mirror=False)
+    assert off.mirror is False
+    own = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, starts=np.eye(3))
+    assert own.mirror is False  # alignment's hypotheses stay unfinished
+
+
 def test_skipped_when_the_budget_cannot_hold_it_or_the_run_was_cancelled(mirrored, cloud):
     mirrored.mirror_ms = 1e6  # predicted to take far longer than the budget left
     run = AnytimeRun(mirrored, cloud, budget_ms=5_000, max_iterations=3)

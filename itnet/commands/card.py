@@ -24,13 +24,29 @@ def card(
     with_mirror: Path | None = typer.Option(
         None, help="... and on, on the same views: recorded as the card's mirror_evaluation."
     ),
+    mirror_fused: bool | None = typer.Option(
+        None,
+        "--mirror-fused/--no-mirror-fused",
+        help="Finish fused runs (the ensemble mode) by the planes too, by default.",
+    ),
+    recommended_ensemble: int | None = typer.Option(
+        None,
+        min=1,
+        max=16,
+        help="Runs fused by default (the budget permitting); above 1 it needs --ensemble-report.",
+    ),
+    ensemble_report: Path | None = typer.Option(
+        None,
+        help="`benchmarks.bench_ensemble` JSON measuring that many runs against one: recorded as "
+        "the card's ensemble_evaluation.",
+    ),
     out: Path | None = typer.Option(None, help="Write here instead of changing MODEL in place."),
 ) -> None:
     """Print the card (JSON); with options, write the changed card into the model file."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model_card import ModelCard, describe_mirror
+    from itnet.model_card import ModelCard, describe_ensemble, describe_mirror
     from itnet.service.runtime import ModelLoadError, load_any
 
     try:
@@ -45,6 +61,27 @@ def card(
     update: dict[str, object] = {}
     if mirror_planes is not None:
         update["mirror_planes"] = parse_mirror_planes(mirror_planes, current.mirror_planes)
+    if recommended_ensemble is not None:
+        update["recommended_ensemble"] = recommended_ensemble
+        if recommended_ensemble == 1:
+            update["ensemble_evaluation"] = ""
+        elif ensemble_report is None:
+            raise typer.BadParameter(
+                "a recommended ensemble needs its measurement: --ensemble-report"
+            )
+        else:
+            try:
+                update["ensemble_evaluation"] = describe_ensemble(
+                    json.loads(ensemble_report.read_text()), recommended_ensemble
+                )
+            except (KeyError, ValueError) as err:
+                raise typer.BadParameter(f"--ensemble-report: {err}") from None
+    elif ensemble_report is not None:
+        raise typer.BadParameter("--ensemble-report measures --recommended-ensemble: give both")
+    if mirror_fused is not None:
+        if mirror_fused and not (update.get("mirror_planes", current.mirror_planes)):
+            raise typer.BadParameter("--mirror-fused needs mirror planes on the card")
+        update["mirror_fused"] = mirror_fused
     if (without_mirror is None) != (with_mirror is None):
         raise typer.BadParameter("give both --without-mirror and --with-mirror, or neither")
     if without_mirror is not None and with_mirror is not None:
@@ -54,7 +91,9 @@ def card(
             )
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-mirror: {err}") from None
+    if not update.get("mirror_planes", current.mirror_planes):
+        update["mirror_fused"] = False  # no planes: nothing to finish fused runs by
     changed = current.model_copy(update=update)
-    if update:
+    if changed != current:
         save_with_card(onnx.load(str(model)), changed, out or model)
     typer.echo(changed.model_dump_json(indent=1))

@@ -155,3 +155,42 @@ def test_a_card_recommending_an_ensemble_runs_it_unless_the_request_says(fused_m
     assert json.loads(out.output.strip().splitlines()[-1])["ensemble"] == 4
     out = CliRunner().invoke(app, [*args, "--max-iterations", "2", "--ensemble", "1"])
     assert "ensemble" not in json.loads(out.output.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize(
+    ("recommended", "step_ms", "iterations", "available_ms", "runs"),
+    [
+        (8, 0.5, 10, 50.0, 8),  # 8 runs x 10 steps x 0.5 ms = 40 ms: fits
+        (8, 0.5, 10, 30.0, 4),  # 40 ms does not; 4 runs (20 ms) do
+        (8, 0.5, 10, 12.0, 2),
+        (8, 0.5, 10, 4.0, 1),  # not even one run fits: one run, the budget stops it
+        (4, 0.5, 10, 1000.0, 4),  # never more than the card's
+        (8, 0.0, 10, 1.0, 8),  # no timing yet: the card's
+        (1, 5.0, 10, 1.0, 1),
+    ],
+)
+def test_the_default_ensemble_is_what_the_budget_holds(
+    recommended, step_ms, iterations, available_ms, runs
+):
+    from itnet.service.engine import fitting_ensemble
+
+    assert fitting_ensemble(recommended, step_ms, iterations, available_ms) == runs
+
+
+def test_a_tight_budget_gets_fewer_default_runs_and_an_explicit_ensemble_is_kept(
+    fused_model_dir, cloud
+):
+    """A run's step measured at 1 ms: 4 runs x 10 iterations need 40 ms. A 25 ms request that
+    names no ensemble gets 2 runs (20 ms), a 9 ms one a single run (mirror-finished where the
+    card has planes); a request that names 4 gets 4, whatever the budget."""
+    fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
+    fused.step_ms = 1.0
+    fused._recent.clear()
+    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
+    assert AnytimeRun(fused, cloud, budget_ms=25, max_iterations=10).ensemble == 2
+    assert AnytimeRun(fused, cloud, budget_ms=9, max_iterations=10).ensemble == 1
+    assert AnytimeRun(fused, cloud, budget_ms=25, max_iterations=5).ensemble == 4  # 20 ms
+    assert AnytimeRun(fused, cloud, budget_ms=9, max_iterations=10, ensemble=4).ensemble == 4
+    # the reply says how many ran
+    run = AnytimeRun(fused, cloud, budget_ms=25, max_iterations=10)
+    assert run.run_to_end() is not None and run.result()["ensemble"] == 2

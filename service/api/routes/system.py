@@ -29,6 +29,7 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror=m.card.mirror,
             mirror_planes=list(m.card.mirror_planes),
             mirror_evaluation=m.card.mirror_evaluation,
+            mirror_fused=m.card.mirror_fused,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,
