@@ -67,9 +67,9 @@ def models(
             f"({', '.join(reply.auto.classes)}) picks the pose model (--model auto)"
         )
     typer.echo(
-        f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default; "
-        "mirror: the planes (x: left-right, z: front-back) a single run's final pose is "
-        "finished by; "
+        f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default, as "
+        "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
+        "run's final pose is finished by, fused runs' too where --json says mirror_fused; "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
