@@ -35,7 +35,7 @@ def pose(
         help="Accuracy mode: K runs from starts turned 360/K degrees about the cloud's z axis, "
         "each on its own random subset, fused robustly after every iteration; a step costs about "
         "K times as much (still within --budget-ms). Default: the model's recommended count "
-        "(`itnet models`; 1 for most).",
+        "(`itnet models`; 1 for most), halved until its iterations fit --budget-ms.",
     ),
     mirror: bool | None = typer.Option(
         None,

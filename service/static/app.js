@@ -84,7 +84,7 @@ function showModel() {
   $('model-info').textContent = `${info.name}: category ${info.category}, symmetry ${info.symmetry}, `
     + `${info.precision}, ${info.points} points, trained with ${info.trained_iterations} iterations; `
     + (accuracy === undefined ? '' : `${(100 * accuracy).toFixed(1)}% correct at ${info.recommended_iterations} iterations (one run); `)
-    + (runs > 1 ? `${runs} runs fused by default; ` : '')
+    + (runs > 1 ? `${runs} runs fused by default, as many as the budget holds; ` : '')
     + `one step ${info.step_ms.toFixed(2)} ms here.`;
 }
 

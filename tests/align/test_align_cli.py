@@ -205,7 +205,7 @@ def test_the_shipped_toilet_aligns_its_example_pair():
 
 
 def test_the_shipped_bed_aligns_its_example_pair_and_auto_finds_the_bed():
-    """The installed bed model (4 runs fused by default for a pose; itnet-align runs its own
+    """The installed bed model (8 runs fused by default for a pose; itnet-align runs its own
     starts) on a held-out ModelNet10 bed scanned twice in metres (the first pair made, seed 3).
     With --model auto the two clouds are classified together: alone, the first looks more like
     a sofa (0.35 against 0.24 for a bed)."""
