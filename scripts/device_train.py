@@ -444,10 +444,10 @@ def main() -> int:
         help="default: every category's job (JOBS); the classifier and EXPERIMENTS only when named",
     )
     run_p.add_argument("--calibration-steps", type=int, default=CALIBRATION_STEPS)
-    run_p.add_argument("--margin", type=float, default=30.0, help="seconds kept for packing")
+    run_p.add_argument("--margin", type=float, default=20.0, help="seconds kept for packing")
     run_p.add_argument("--restart-s", type=float, default=25.0)
     run_p.add_argument("--validation-s", type=float, default=4.0)
-    run_p.add_argument("--safety", type=float, default=0.9)
+    run_p.add_argument("--safety", type=float, default=0.95)  # 0.9 left 95 s of 565 (session 19)
     run_p.add_argument("--mps", action="store_true", help="share the GPU through CUDA MPS")
     job_p = sub.choices["job"]
     job_p.add_argument("--name", required=True, choices=JOB_NAMES)
