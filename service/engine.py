@@ -65,6 +65,12 @@ def fitting_ensemble(recommended: int, run_step_ms: float, iterations: int,
     return k
 
 
+def _run_subset(model_points: int, min_points: int, cloud_points: int) -> int:
+    """Points of one ensemble run's subset: ENSEMBLE_SUBSET of the cloud, within [min_points,
+    the model's point count]."""
+    return min(model_points, max(min_points, int(ENSEMBLE_SUBSET * cloud_points)))
+
+
 class BadCloudError(ValueError):
     """The cloud cannot be used: wrong shape, non-finite values, too few/many points, degenerate."""
 
@@ -199,7 +205,7 @@ class AnytimeRun(Iterator[Estimate]):
         self.reserve_ms = min(max(0.0, reserve_ms), float(budget_ms) / 2)
         if ensemble is None:  # the card's, as many as the budget holds, unless the caller chose
             own = starts is not None or points_per_step is not None  # its own starts or subsets
-            size = min(model.card.points, max(limits.min_points, int(ENSEMBLE_SUBSET * len(cloud))))
+            size = _run_subset(model.card.points, limits.min_points, len(cloud))
             available = budget_ms - self.reserve_ms - (time.perf_counter() - self.started) * 1e3
             run_ms = model.predicted_step_ms() * max(size / model.card.points, 0.25)
             ensemble = (
@@ -251,7 +257,7 @@ class AnytimeRun(Iterator[Estimate]):
         rng = np.random.default_rng(seed)
         if points_per_step is None and ensemble > 1:
             norm = _normalization(cloud)
-            size = min(model.card.points, max(limits.min_points, int(ENSEMBLE_SUBSET * len(cloud))))
+            size = _run_subset(model.card.points, limits.min_points, len(cloud))
             normalized = norm.apply(cloud)
             inputs = [cap_points(normalized, size, rng) for _ in turns]
             self.normalizations = [norm] * len(turns)
