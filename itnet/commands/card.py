@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from itnet.commands import parse_mirror_planes
+from itnet.commands import ensemble_evaluation, parse_mirror_planes
 
 
 def card(
@@ -46,7 +46,7 @@ def card(
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model_card import ModelCard, describe_ensemble, describe_mirror
+    from itnet.model_card import ModelCard, describe_mirror
     from itnet.service.runtime import ModelLoadError, load_any
 
     try:
@@ -63,19 +63,7 @@ def card(
         update["mirror_planes"] = parse_mirror_planes(mirror_planes, current.mirror_planes)
     if recommended_ensemble is not None:
         update["recommended_ensemble"] = recommended_ensemble
-        if recommended_ensemble == 1:
-            update["ensemble_evaluation"] = ""
-        elif ensemble_report is None:
-            raise typer.BadParameter(
-                "a recommended ensemble needs its measurement: --ensemble-report"
-            )
-        else:
-            try:
-                update["ensemble_evaluation"] = describe_ensemble(
-                    json.loads(ensemble_report.read_text()), recommended_ensemble
-                )
-            except (KeyError, ValueError) as err:
-                raise typer.BadParameter(f"--ensemble-report: {err}") from None
+        update["ensemble_evaluation"] = ensemble_evaluation(recommended_ensemble, ensemble_report)
     elif ensemble_report is not None:
         raise typer.BadParameter("--ensemble-report measures --recommended-ensemble: give both")
     if mirror_fused is not None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from itnet.commands import parse_mirror_planes
+from itnet.commands import ensemble_evaluation, parse_mirror_planes
 
 
 def export(
@@ -62,7 +62,7 @@ def export(
     from itnet.export.quantize import quantize_point_layers
     from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
-    from itnet.model_card import ModelCard, describe_ensemble
+    from itnet.model_card import ModelCard
     from itnet.service.runtime import load_model
 
     net, state = load_checkpoint(checkpoint)
@@ -82,16 +82,7 @@ def export(
             f"views, full SO(3), random units) of the {rep['category']} test split, "
             f"{rep['points']} points"
         )
-    if recommended_ensemble > 1 and ensemble_report is None:
-        raise typer.BadParameter("a recommended ensemble needs its measurement: --ensemble-report")
-    ensemble_evaluation = ""
-    if ensemble_report is not None:
-        try:
-            ensemble_evaluation = describe_ensemble(
-                json.loads(ensemble_report.read_text()), recommended_ensemble
-            )
-        except (KeyError, ValueError) as err:
-            raise typer.BadParameter(f"--ensemble-report: {err}") from None
+    ensemble_text = ensemble_evaluation(recommended_ensemble, ensemble_report)
     name = name or cat.name  # a mug model is served as 'mug', not 'chair'
     out = out or Path("itnet/models") / f"{name}.onnx"
     card = ModelCard(
@@ -107,7 +98,7 @@ def export(
         recommended_ensemble=recommended_ensemble,
         accuracy=accuracy,
         evaluation=evaluation,
-        ensemble_evaluation=ensemble_evaluation,
+        ensemble_evaluation=ensemble_text,
         training={
             "steps": state["step"],
             "batch": config["batch"],
