@@ -59,15 +59,16 @@ def card(
                    err=True)  # fmt: skip
         raise typer.Exit(2)
     update: dict[str, object] = {}
+    planes = parse_mirror_planes(mirror_planes, current.mirror_planes)
     if mirror_planes is not None:
-        update["mirror_planes"] = parse_mirror_planes(mirror_planes, current.mirror_planes)
+        update["mirror_planes"] = planes
     if recommended_ensemble is not None:
         update["recommended_ensemble"] = recommended_ensemble
         update["ensemble_evaluation"] = ensemble_evaluation(recommended_ensemble, ensemble_report)
     elif ensemble_report is not None:
         raise typer.BadParameter("--ensemble-report measures --recommended-ensemble: give both")
     if mirror_fused is not None:
-        if mirror_fused and not (update.get("mirror_planes", current.mirror_planes)):
+        if mirror_fused and not planes:
             raise typer.BadParameter("--mirror-fused needs mirror planes on the card")
         update["mirror_fused"] = mirror_fused
     if (without_mirror is None) != (with_mirror is None):
@@ -79,7 +80,7 @@ def card(
             )
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-mirror: {err}") from None
-    if not update.get("mirror_planes", current.mirror_planes):
+    if not planes:
         update["mirror_fused"] = False  # no planes: nothing to finish fused runs by
     changed = current.model_copy(update=update)
     if changed != current:
