@@ -6,7 +6,10 @@ Starts ``uvicorn itnet.service.server:app_from_env`` on 127.0.0.1 (a free port),
 
 1. latency for each budget (5/20/60 ms): client round trip vs the engine's own ``elapsed_ms``;
 2. JSON vs binary (float32) bodies for a large cloud;
-3. throughput with 1, 4 and 16 concurrent clients for a fixed time (bounded request count).
+3. throughput with 1, 4 and 16 concurrent clients for a fixed time (bounded request count);
+4. the accuracy mode (``ensemble``) as served: iterations reached and time, for each
+   ``model:budget_ms:runs`` of ``--accuracy`` (runs ``default``: the card's, fitted to the budget),
+   run first so that its first row's first request is the fresh server's first.
 
 Prints markdown tables. Loopback only; the server is stopped at the end.
 """
@@ -135,6 +138,48 @@ def throughput_table(url: str, cloud: np.ndarray, budget: float, concurrency: li
     return "\n".join(rows)
 
 
+def accuracy_table(url: str, cloud: np.ndarray, cases: list[tuple[str, float, int | None]],
+                   count: int) -> str:  # fmt: skip
+    """The accuracy mode through the server: per (model, budget, runs or None for the card's
+    default) case, ``count`` sequential requests; the very first one is reported apart."""
+    rows = ["| model | budget ms | runs asked | runs used | iterations median (min) | "
+            "engine p50 / max ms | round trip p50 ms | first request: iterations, ms |",
+            "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    with httpx.Client(base_url=url, timeout=30) as http:
+        for model, budget, runs in cases:
+            request = {"points": cloud.tolist(), "budget_ms": budget, "model": model}
+            if runs is not None:
+                request["ensemble"] = runs
+            body = json.dumps(request).encode()
+            replies, client_ms = [], []
+            for _ in range(count + 1):
+                start = time.perf_counter()
+                reply = http.post("/v1/estimate", content=body, headers=JSON)
+                client_ms.append((time.perf_counter() - start) * 1e3)
+                reply.raise_for_status()
+                replies.append(reply.json())
+            first, rest, client_ms = replies[0], replies[1:], client_ms[1:]
+            iterations = [r["iterations"] for r in rest]
+            engine = [r["elapsed_ms"] for r in rest]
+            used = sorted({r.get("ensemble") or 1 for r in rest})
+            rows.append(
+                f"| {model} | {budget:g} | {runs or 'default'} | {'/'.join(map(str, used))} | "
+                f"{np.median(iterations):g} ({min(iterations)}) | {percentile(engine, 50):.1f} / "
+                f"{max(engine):.1f} | {percentile(client_ms, 50):.1f} | {first['iterations']}, "
+                f"{first['elapsed_ms']:.1f} |"
+            )
+    return "\n".join(rows)
+
+
+def parse_cases(text: str) -> list[tuple[str, float, int | None]]:
+    """``'chair:50:8,bathtub:20:default'`` -> [('chair', 50.0, 8), ('bathtub', 20.0, None)]."""
+    cases = []
+    for item in filter(None, text.split(",")):
+        model, budget, runs = item.split(":")
+        cases.append((model, float(budget), None if runs == "default" else int(runs)))
+    return cases
+
+
 def main(
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     points: int = typer.Option(2048, help="Points in the latency/throughput cloud."),
@@ -146,6 +191,11 @@ def main(
     duration_s: float = typer.Option(3.0, min=0.1, help="Seconds per throughput row."),
     max_requests: int = typer.Option(2000, min=1, help="Request cap per throughput row."),
     threads: int = typer.Option(2, min=1, help="onnxruntime threads per model (ITNET_THREADS)."),
+    accuracy: str = typer.Option(
+        "chair:50:8,chair:20:4,chair:20:8,bathtub:50:default,bathtub:20:default,bed:50:default",
+        help="Accuracy-mode cases, model:budget_ms:runs (runs 'default': the card's); cases of "
+        "models the server has not loaded are skipped; '' for none.",
+    ),
 ) -> None:
     """Measure the service over loopback and print markdown tables."""
     budget_list = [float(b) for b in budgets.split(",")]
@@ -158,10 +208,17 @@ def main(
     log = Path(tempfile.gettempdir()) / "itnet-bench-service.log"
     with serve(harness_model_dir(model_dir), log, env) as server:
         url = server.url
-        model = httpx.get(f"{url}/v1/models").json()["models"][0]
-        typer.echo(f"model: {model['name']} ({model['points']} points, one step "
+        listing = httpx.get(f"{url}/v1/models").json()
+        model = next(m for m in listing["models"] if m["name"] == listing["default_model"])
+        typer.echo(f"default model: {model['name']} ({model['points']} points, one step "
                    f"{model['step_ms']:.2f} ms at start-up)\n")  # fmt: skip
         cloud, large = box_cloud(points), box_cloud(large_points, seed=1)
+        loaded = {m["name"] for m in listing["models"]}
+        cases = [c for c in parse_cases(accuracy) if c[0] in loaded]
+        if cases:
+            typer.echo(f"### Accuracy mode ({points} points, JSON, {requests} requests each "
+                       "after the first)\n")  # fmt: skip
+            typer.echo(accuracy_table(url, cloud, cases, requests) + "\n")
         typer.echo(f"### Latency by budget ({points} points, JSON, {requests} requests each)\n")
         typer.echo(latency_table(url, cloud, budget_list, requests) + "\n")
         typer.echo(f"### JSON vs binary body (budget 20 ms, {requests} requests each)\n")
