@@ -114,6 +114,7 @@ def main(
     points: int = typer.Option(2048, help="Points per cloud."),
     margin_ms: float = typer.Option(10.0, help="Allowed p99 overrun of the budget."),
     threads: int = typer.Option(2, help="ITNET_THREADS of the server."),
+    workers: int = typer.Option(1, min=1, help="`itnet serve --workers`: server processes."),
     max_concurrent: int = typer.Option(
         0, help="ITNET_LIMITS__MAX_CONCURRENT_REQUESTS (0: the server's default, 2 per core)."
     ),
@@ -136,8 +137,8 @@ def main(
     cloud = sample_cloud(points)
     body = json.dumps({"points": cloud.tolist(), "budget_ms": budget_ms}).encode()
     rows = []
-    with serve(folder, log, env) as server:
-        for _ in range(20):  # warm up
+    with serve(folder, log, env, args=["--workers", str(workers)]) as server:
+        for _ in range(20 * workers):  # warm up (each worker)
             assert httpx.post(f"{server.url}/v1/estimate", content=body, headers=JSON,
                               timeout=30).status_code == 200  # fmt: skip
         rss_before = server.rss_mb()
@@ -154,8 +155,8 @@ def main(
         health = httpx.get(f"{server.url}/healthz", timeout=5).status_code
         rss_after = server.rss_mb()
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points (JSON, "
-               f"{len(body):,} bytes); budget {budget_ms:g} ms; server limit {max_concurrent} "
-               f"concurrent estimates, {threads} onnxruntime threads, "
+               f"{len(body):,} bytes); budget {budget_ms:g} ms; {workers} server process(es), "
+               f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip
     typer.echo(table(rows, margin_ms))
     typer.echo(f"after the run: /healthz {health}; server RSS {rss_before:.0f} -> "
