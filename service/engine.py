@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -99,19 +99,31 @@ class Estimate:
     def pose(self) -> NDArray[np.float64]:
         return pose_from_normalized(self.pose_normalized.astype(np.float64), self.normalization)
 
-    def to_dict(self) -> dict:
+    def to_dict(self, quat_wxyz: NDArray[np.float64] | None = None) -> dict:
+        """The JSON form (``quat_wxyz``: the pose's quaternion, if already computed)."""
         return {
             "iteration": self.iteration,
-            **pose_fields(self.pose),
+            **pose_fields(self.pose, quat_wxyz),
             "elapsed_ms": round(self.elapsed_ms, 3),
             "update_rotation_deg": round(self.update_rotation_deg, 5),
             "update_translation": self.update_translation,
         }
 
 
-def pose_fields(pose: NDArray[np.float64]) -> dict:
-    """The JSON form of a pose: matrix, both quaternion orders, translation."""
-    quat = matrix_to_quat_wxyz(pose[:3, :3])
+def estimates_to_dicts(estimates: Sequence[Estimate]) -> list[dict]:
+    """``Estimate.to_dict`` of each, their quaternions converted in one batch: a reply's ten
+    estimates took 0.77 ms one by one on 2 cores (numpy's per-call cost, ten times), which every
+    request paid inside its budget."""
+    if not estimates:
+        return []
+    quats = matrix_to_quat_wxyz(np.stack([e.pose[:3, :3] for e in estimates]))
+    return [e.to_dict(q) for e, q in zip(estimates, quats, strict=True)]
+
+
+def pose_fields(pose: NDArray[np.float64], quat_wxyz: NDArray[np.float64] | None = None) -> dict:
+    """The JSON form of a pose: matrix, both quaternion orders, translation (``quat_wxyz``: the
+    rotation's quaternion, if already computed)."""
+    quat = matrix_to_quat_wxyz(pose[:3, :3]) if quat_wxyz is None else quat_wxyz
     return {
         "T_canonical_from_input": pose.tolist(),
         "quat_wxyz": quat.tolist(),

@@ -206,3 +206,21 @@ def test_points_per_step_gives_each_start_its_own_normalised_subset(model, cloud
 def test_bad_starts_are_refused(model, cloud, starts, message):
     with pytest.raises(BadCloudError, match=message):
         AnytimeRun(model, cloud, starts=starts)
+
+
+def test_a_replys_estimates_batched_match_one_by_one(tiny_model_dir) -> None:  # type: ignore[no-untyped-def]
+    """estimates_to_dicts converts the quaternions in one batch; the dicts are to_dict's."""
+    from itnet.service.engine import AnytimeRun, estimates_to_dicts
+    from itnet.service.runtime import load_model
+
+    model = load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
+    cloud = np.random.default_rng(3).normal(size=(300, 3)) * [0.3, 0.5, 0.2]
+    estimates = list(AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=6))
+    assert len(estimates) == 6
+    batched, single = estimates_to_dicts(estimates), [e.to_dict() for e in estimates]
+    assert [d.keys() for d in batched] == [d.keys() for d in single]
+    for b, s in zip(batched, single, strict=True):
+        np.testing.assert_allclose(b["quat_wxyz"], s["quat_wxyz"], atol=1e-12)
+        np.testing.assert_allclose(b["quat_xyzw"], s["quat_xyzw"], atol=1e-12)
+        assert b["T_canonical_from_input"] == s["T_canonical_from_input"]
+    assert estimates_to_dicts([]) == []
