@@ -56,38 +56,24 @@ def matrix_to_quat_wxyz(rotation: ArrayLike) -> FloatArray:
         [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
     )
     pivot = np.argmax(sq, axis=-1)
-    s = 2.0 * np.sqrt(np.maximum(sq[np.arange(len(r)), pivot], 1e-300))
-    q = np.empty((len(r), 4))
-    candidates = {
-        0: lambda: (
-            s / 4,
-            (r[:, 2, 1] - r[:, 1, 2]) / s,
-            (r[:, 0, 2] - r[:, 2, 0]) / s,
-            (r[:, 1, 0] - r[:, 0, 1]) / s,
-        ),
-        1: lambda: (
-            (r[:, 2, 1] - r[:, 1, 2]) / s,
-            s / 4,
-            (r[:, 0, 1] + r[:, 1, 0]) / s,
-            (r[:, 0, 2] + r[:, 2, 0]) / s,
-        ),
-        2: lambda: (
-            (r[:, 0, 2] - r[:, 2, 0]) / s,
-            (r[:, 0, 1] + r[:, 1, 0]) / s,
-            s / 4,
-            (r[:, 1, 2] + r[:, 2, 1]) / s,
-        ),
-        3: lambda: (
-            (r[:, 1, 0] - r[:, 0, 1]) / s,
-            (r[:, 0, 2] + r[:, 2, 0]) / s,
-            (r[:, 1, 2] + r[:, 2, 1]) / s,
-            s / 4,
-        ),
-    }
-    for k, make in candidates.items():
-        sel = pivot == k
-        if np.any(sel):
-            q[sel] = np.stack(make(), axis=-1)[sel]
+    rows = np.arange(len(r))
+    s = 2.0 * np.sqrt(np.maximum(sq[rows, pivot], 1e-300))
+    # Each pivot's (w, x, y, z) times s (the pivot's own component: s / 4 = (s * s / 4) / s),
+    # built for all four pivots at once and picked per matrix: one pass of numpy calls however
+    # many matrices (the per-call cost dominated a single matrix's conversion).
+    d21, d02, d10 = r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]
+    s01, s02, s12 = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]
+    own = s * s / 4
+    scaled = np.stack(
+        [
+            np.stack([own, d21, d02, d10], axis=-1),
+            np.stack([d21, own, s01, s02], axis=-1),
+            np.stack([d02, s01, own, s12], axis=-1),
+            np.stack([d10, s02, s12, own], axis=-1),
+        ],
+        axis=1,
+    )  # (n, pivot, 4)
+    q = scaled[rows, pivot] / s[:, None]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q = np.where(q[:, :1] < 0, -q, q)
     return q.reshape(*batch, 4)
