@@ -123,7 +123,7 @@ def test_batch_refuses_what_it_cannot_do(tmp_path: Path) -> None:
         (["batch", "pose", str(tmp_path / "nothing*.ply"), "-o", str(tmp_path / "p.parquet")],
          "no cloud files"),
         (["batch", "pose", cloud, "-o", str(tmp_path / "p.csv")], "must end in"),
-        (["batch", "pose", cloud, "-o", str(tmp_path / "p.jsonl"), "--model", "sofa"],
+        (["batch", "pose", cloud, "-o", str(tmp_path / "p.jsonl"), "--model", "no-such-model"],
          "unknown model"),
         (["batch", "align", str(tmp_path / "none.csv"), "-o", str(tmp_path / "p.jsonl")],
          "no such manifest"),

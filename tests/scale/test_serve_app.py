@@ -57,7 +57,9 @@ def test_health_models_and_errors_are_the_services(url: str) -> None:
         assert models["default_model"] == "chair"
         bad = c.post("/v1/estimate", json={"points": [[0.0, 0.0, 0.0]] * 3})
         assert bad.status_code == 422 and bad.json()["kind"] == "bad_cloud"
-        unknown = c.post("/v1/estimate", json={"points": [[0, 0, 1]] * 64, "model": "sofa"})
+        unknown = c.post(
+            "/v1/estimate", json={"points": [[0, 0, 1]] * 64, "model": "no-such-model"}
+        )
         assert unknown.status_code == 404 and unknown.json()["kind"] == "unknown_model"
         huge = c.post(
             "/v1/estimate",

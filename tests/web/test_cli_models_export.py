@@ -60,6 +60,11 @@ def test_models_table_shows_the_shipped_cards():
     assert row.split()[:7] == ["bathtub", "bathtub", "yaw180", "x,z", "int8", "256", "8"]
     tub = load_model(SHIPPED / "bathtub.onnx", warm_up=False).card
     assert "8 runs fused, within 50 ms" in tub.ensemble_evaluation
+    # the sofa (session 20): 8 runs fused, finished by its left-right mirror too
+    row = next(r for r in rows if r.startswith("sofa "))
+    assert row.split()[:7] == ["sofa", "sofa", "none", "x", "int8", "256", "8"]
+    sofa = load_model(SHIPPED / "sofa.onnx", warm_up=False).card
+    assert sofa.mirror_fused and "8 runs fused, within 50 ms" in sofa.ensemble_evaluation
 
 
 def test_models_in_a_folder_without_models_is_an_error(tmp_path):
