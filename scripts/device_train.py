@@ -6,19 +6,22 @@ has PyTorch but not this project installed, and nothing can be fetched there. On
 
     mkdir -p /tmp/wsite && for w in .whl/*.whl; do python3 -m zipfile -e $w /tmp/wsite; done
     export PYTHONPATH=/tmp/wsite
-    python3 scripts/device_train.py run --pack .pack/modelnet10-train.xz --out "$OUT" --budget 565
+    python3 scripts/device_train.py run --pack .pack/modelnet10-train-511.xz --out "$OUT" --budget 565
 
-with ``.pack`` and ``.whl`` (pydantic's wheels for the machine's Python 3.12) carried. The wheels
-are unpacked onto ``PYTHONPATH`` rather than installed: ``pip install`` there put them where the
-machine's ``python3`` (PyTorch's environment) did not look (session 19's first call). What
-travels is at most 64 MiB: the tracked files take ~48 MiB (session 17) and the wheels 2.7. The
-pack holds the training split of all ten classes (the machine never reads the test split; the
-classifier needs every class) on a grid of 1,023 steps: 11.9 MiB (1/2,046 of each shape's box,
-~0.2 mm on a chair, under the training scans' depth noise)::
+with ``.pack/modelnet10-train-511.xz`` (the file, not the folder) and ``.whl`` (pydantic's wheels
+for the machine's Python 3.12) carried. The wheels are unpacked onto ``PYTHONPATH`` rather than
+installed: ``pip install`` there put them where the machine's ``python3`` (PyTorch's
+environment) did not look (session 19's first call). What travels is at most 64 MiB: the
+tracked files take 47.6 MiB (session 20, after the shipped ``.pt`` weights went to float16; 53.8
+with the sofa and float32 weights, when the old 11.9 MiB pack no longer fitted) and the wheels
+2.7. The pack holds the training split of all ten classes (the machine never reads the test
+split; the classifier needs every class) on a grid of 511 steps: 10.5 MiB (1/1,022 of each
+shape's box, ~1 mm on a chair, under the training scans' depth noise; sessions 15 and 19 used
+1,023 steps, 11.9 MiB)::
 
     from itnet.model.cloud_pack import pack
     pack(Path("../shared/data/modelnet10"), [...all ten names...],
-         Path(".pack/modelnet10-train.xz"), levels=1023, splits=("train",))
+         Path(".pack/modelnet10-train-511.xz"), levels=511, splits=("train",))
 
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
 (``CLASSIFIER_JOB``: the shipped classifier fine-tuned, class-balanced, batch 100), a ninth
