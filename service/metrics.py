@@ -8,10 +8,16 @@
   WebSocket client left).
 * ``itnet_errors_total{kind}``: refused or failed requests by error kind.
 * ``itnet_in_flight``: estimates running now.
+
+With ``itnet serve --workers N`` every worker is its own process: ``serve`` points
+``PROMETHEUS_MULTIPROC_DIR`` at a fresh folder, each worker's values go to files there
+(prometheus_client's multiprocess mode), and ``/metrics`` from any worker reports the sum over
+all of them.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
@@ -24,6 +30,17 @@ from prometheus_client import (
     Histogram,
     generate_latest,
 )
+from prometheus_client.multiprocess import MultiProcessCollector
+
+# Set (by ``service.server.run`` with several workers, or by the operator) before the worker
+# processes start: prometheus_client reads it when it is imported.
+MULTIPROCESS_DIR_ENV = "PROMETHEUS_MULTIPROC_DIR"
+
+
+def multiprocess_dir() -> str | None:
+    """The folder where the workers' metric values add up, if several processes serve."""
+    return os.environ.get(MULTIPROCESS_DIR_ENV) or None
+
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -79,7 +96,10 @@ class Metrics:
             "itnet_runs", "Finished runs by stop reason", ["model", "stopped_by"], registry=r
         )
         self.errors = Counter("itnet_errors", "Errors by kind", ["kind"], registry=r)
-        self.in_flight = Gauge("itnet_in_flight", "Estimates running now", registry=r)
+        self.in_flight = Gauge(
+            "itnet_in_flight", "Estimates running now", registry=r,
+            multiprocess_mode="livesum",  # with several workers: the sum over the live ones
+        )  # fmt: skip
         self.gc_pause = Histogram(
             "itnet_gc_pause_seconds", "Garbage-collector passes by generation", ["generation"],
             buckets=GC_BUCKETS, registry=r,
@@ -100,8 +120,14 @@ class Metrics:
         self.errors.labels(kind).inc()
 
     def render(self) -> bytes:
-        """The Prometheus text exposition format (version 0.0.4)."""
-        return generate_latest(self.registry)
+        """The Prometheus text exposition format (version 0.0.4): this app's registry, or every
+        worker's values where several processes serve (``multiprocess_dir``)."""
+        folder = multiprocess_dir()
+        if folder is None:
+            return generate_latest(self.registry)
+        every_worker = CollectorRegistry()
+        MultiProcessCollector(every_worker, path=folder)
+        return generate_latest(every_worker)
 
 
 class RequestMetricsMiddleware:

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 import signal
+import tempfile
 import threading
 from types import FrameType
 from typing import Any
@@ -19,6 +21,7 @@ from fastapi import FastAPI
 from itnet.service.app import create_app
 from itnet.service.guards.protocol import GuardedHttpToolsProtocol
 from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
+from itnet.service.metrics import MULTIPROCESS_DIR_ENV, multiprocess_dir
 from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 
@@ -99,6 +102,17 @@ def run(
         uvicorn.run(app, host=host, port=port, log_level=log_level, **options)
         return
     os.environ.update(settings_to_env(settings))
-    uvicorn.run(
-        FACTORY, factory=True, workers=workers, host=host, port=port, log_level=log_level, **options
-    )
+    # The workers' metrics add up in one folder (service/metrics.py), unless the operator named
+    # one; a folder made here is removed when the server stops.
+    made = None if multiprocess_dir() else tempfile.mkdtemp(prefix="itnet-metrics-")
+    if made is not None:
+        os.environ[MULTIPROCESS_DIR_ENV] = made
+    try:
+        uvicorn.run(
+            FACTORY, factory=True, workers=workers, host=host, port=port, log_level=log_level,
+            **options,
+        )  # fmt: skip
+    finally:
+        if made is not None:
+            os.environ.pop(MULTIPROCESS_DIR_ENV, None)
+            shutil.rmtree(made, ignore_errors=True)
