@@ -13,8 +13,11 @@ from itnet.service.guards.body import limited_body
 from itnet.service.metrics import ARRIVED
 from itnet.service.state import ServiceState
 
+# The plain lookups below are ``async def`` on purpose: FastAPI runs a ``def`` dependency in a
+# worker thread, and those two thread hops cost a request about 0.5 ms of its budget on 2 cores.
 
-def get_state(connection: HTTPConnection) -> ServiceState:
+
+async def get_state(connection: HTTPConnection) -> ServiceState:
     """The app's state (HTTP requests and WebSockets alike)."""
     return connection.app.state.service
 
@@ -33,14 +36,19 @@ async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
     """The request body under the server's limits (``service/guards/body.py``: size, encoding, the
     byte budget, a deadline from the first byte), held in the budget until the request ends."""
     limits = state.settings.limits
-    async with limited_body(request, limits, state.buffers, arrival(request)) as body:
+    async with limited_body(request, limits, state.buffers, arrived_at(request)) as body:
         yield body
 
 
-def arrival(connection: HTTPConnection) -> float:
+def arrived_at(connection: HTTPConnection) -> float:
     """``time.perf_counter()`` when the request reached the app (now, if nobody recorded it)."""
     arrived = connection.scope.get(ARRIVED)
     return float(arrived) if arrived is not None else time.perf_counter()
+
+
+async def arrival(connection: HTTPConnection) -> float:
+    """``arrived_at`` as a dependency."""
+    return arrived_at(connection)
 
 
 GateOpenDep = Annotated[None, Depends(gate_open)]
