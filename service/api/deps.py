@@ -32,25 +32,22 @@ async def gate_open(state: StateDep) -> None:
     state.gate.check()
 
 
-async def read_body(request: Request, state: StateDep) -> AsyncIterator[bytes]:
-    """The request body under the server's limits (``service/guards/body.py``: size, encoding, the
-    byte budget, a deadline from the first byte), held in the budget until the request ends."""
-    limits = state.settings.limits
-    async with limited_body(request, limits, state.buffers, arrived_at(request)) as body:
-        yield body
-
-
-def arrived_at(connection: HTTPConnection) -> float:
+async def arrival(connection: HTTPConnection) -> float:
     """``time.perf_counter()`` when the request reached the app (now, if nobody recorded it)."""
     arrived = connection.scope.get(ARRIVED)
     return float(arrived) if arrived is not None else time.perf_counter()
 
 
-async def arrival(connection: HTTPConnection) -> float:
-    """``arrived_at`` as a dependency."""
-    return arrived_at(connection)
+ArrivedDep = Annotated[float, Depends(arrival)]
+
+
+async def read_body(request: Request, state: StateDep, arrived: ArrivedDep) -> AsyncIterator[bytes]:
+    """The request body under the server's limits (``service/guards/body.py``: size, encoding, the
+    byte budget, a deadline from the first byte), held in the budget until the request ends."""
+    limits = state.settings.limits
+    async with limited_body(request, limits, state.buffers, arrived) as body:
+        yield body
 
 
 GateOpenDep = Annotated[None, Depends(gate_open)]
 BodyDep = Annotated[bytes, Depends(read_body)]
-ArrivedDep = Annotated[float, Depends(arrival)]
