@@ -44,17 +44,20 @@ def box_cloud(points: int, seed: int = 0) -> np.ndarray:
 
 
 def timed_posts(http: httpx.Client, body: bytes, headers: dict, params: dict, count: int) -> dict:
-    """``count`` sequential POSTs: client ms, engine ms, iterations (after one warm-up)."""
-    http.post("/v1/estimate", content=body, headers=headers, params=params).raise_for_status()
-    client_ms, engine_ms, iterations = [], [], []
+    """``count`` sequential POSTs after one warm-up: client ms, engine ms, iterations, the replies
+    (JSON), and the warm-up's reply (``first``)."""
+    first = http.post("/v1/estimate", content=body, headers=headers, params=params)
+    first.raise_for_status()
+    client_ms, replies = [], []
     for _ in range(count):
         start = time.perf_counter()
         reply = http.post("/v1/estimate", content=body, headers=headers, params=params)
         client_ms.append((time.perf_counter() - start) * 1e3)
         reply.raise_for_status()
-        engine_ms.append(reply.json()["elapsed_ms"])
-        iterations.append(reply.json()["iterations"])
-    return {"client": client_ms, "engine": engine_ms, "iterations": iterations}
+        replies.append(reply.json())
+    return {"client": client_ms, "engine": [r["elapsed_ms"] for r in replies],
+            "iterations": [r["iterations"] for r in replies], "replies": replies,
+            "first": first.json()}  # fmt: skip
 
 
 def latency_table(url: str, cloud: np.ndarray, budgets: list[float], count: int) -> str:
@@ -150,22 +153,13 @@ def accuracy_table(url: str, cloud: np.ndarray, cases: list[tuple[str, float, in
             request = {"points": cloud.tolist(), "budget_ms": budget, "model": model}
             if runs is not None:
                 request["ensemble"] = runs
-            body = json.dumps(request).encode()
-            replies, client_ms = [], []
-            for _ in range(count + 1):
-                start = time.perf_counter()
-                reply = http.post("/v1/estimate", content=body, headers=JSON)
-                client_ms.append((time.perf_counter() - start) * 1e3)
-                reply.raise_for_status()
-                replies.append(reply.json())
-            first, rest, client_ms = replies[0], replies[1:], client_ms[1:]
-            iterations = [r["iterations"] for r in rest]
-            engine = [r["elapsed_ms"] for r in rest]
-            used = sorted({r.get("ensemble") or 1 for r in rest})
+            r = timed_posts(http, json.dumps(request).encode(), JSON, {}, count)
+            iterations, engine, first = r["iterations"], r["engine"], r["first"]
+            used = sorted({reply.get("ensemble") or 1 for reply in r["replies"]})
             rows.append(
                 f"| {model} | {budget:g} | {runs or 'default'} | {'/'.join(map(str, used))} | "
                 f"{np.median(iterations):g} ({min(iterations)}) | {percentile(engine, 50):.1f} / "
-                f"{max(engine):.1f} | {percentile(client_ms, 50):.1f} | {first['iterations']}, "
+                f"{max(engine):.1f} | {percentile(r['client'], 50):.1f} | {first['iterations']}, "
                 f"{first['elapsed_ms']:.1f} |"
             )
     return "\n".join(rows)
