@@ -12,14 +12,18 @@
 With ``itnet serve --workers N`` every worker is its own process: ``serve`` points
 ``PROMETHEUS_MULTIPROC_DIR`` at a fresh folder, each worker's values go to files there
 (prometheus_client's multiprocess mode), and ``/metrics`` from any worker reports the sum over
-all of them.
+all of them. A worker that died (and was restarted by uvicorn's supervisor) leaves its last
+``itnet_in_flight`` behind; ``render`` forgets the live-mode gauges of processes that no longer
+exist (``forget_dead_workers``), while counters keep a dead worker's counts, as they should.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import time
 from collections.abc import Awaitable, Callable, MutableMapping
+from pathlib import Path
 from typing import Any
 
 from prometheus_client import (
@@ -30,7 +34,7 @@ from prometheus_client import (
     Histogram,
     generate_latest,
 )
-from prometheus_client.multiprocess import MultiProcessCollector
+from prometheus_client.multiprocess import MultiProcessCollector, mark_process_dead
 
 # Set (by ``service.server.run`` with several workers, or by the operator) before the worker
 # processes start: prometheus_client reads it when it is imported.
@@ -40,6 +44,37 @@ MULTIPROCESS_DIR_ENV = "PROMETHEUS_MULTIPROC_DIR"
 def multiprocess_dir() -> str | None:
     """The folder where the workers' metric values add up, if several processes serve."""
     return os.environ.get(MULTIPROCESS_DIR_ENV) or None
+
+
+# A live-mode gauge's file in the multiprocess folder: gauge_livesum_<pid>.db and the like.
+_LIVE_GAUGE_FILE = re.compile(r"^gauge_live[a-z]*_(\d+)\.db$")
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def forget_dead_workers(folder: str) -> list[int]:
+    """Remove the live-mode gauge files (``itnet_in_flight``) of processes that no longer exist,
+    so a dead worker's last value stops counting. Returns the pids forgotten.
+
+    prometheus_client leaves this to ``mark_process_dead``, which a supervisor is meant to call
+    when a worker exits; uvicorn's has no hook for it, so the scrape does it.
+    """
+    dead = set()
+    for path in Path(folder).glob("gauge_live*_*.db"):
+        match = _LIVE_GAUGE_FILE.match(path.name)
+        if match and not _process_exists(int(match.group(1))):
+            dead.add(int(match.group(1)))
+    for pid in dead:
+        mark_process_dead(pid, folder)
+    return sorted(dead)
 
 
 Scope = MutableMapping[str, Any]
@@ -125,6 +160,7 @@ class Metrics:
         folder = multiprocess_dir()
         if folder is None:
             return generate_latest(self.registry)
+        forget_dead_workers(folder)
         every_worker = CollectorRegistry()
         MultiProcessCollector(every_worker, path=folder)
         return generate_latest(every_worker)

@@ -3,13 +3,18 @@ and the folder they add up in goes when the server stops."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import httpx
 import numpy as np
+import pytest
 
 from benchmarks.harness import serve
+from itnet.service.metrics import MULTIPROCESS_DIR_ENV, Metrics, forget_dead_workers
 
 ESTIMATES_OK = re.compile(r'itnet_requests_total\{endpoint="/v1/estimate",status="200"\} (\S+)')
 
@@ -31,3 +36,45 @@ def test_metrics_of_several_workers_add_up(tiny_model_dir: Path, tmp_path: Path)
             assert [float(v) for v in ESTIMATES_OK.findall(text)] == [12.0], text
             assert re.search(r"^itnet_in_flight 0\.0$", text, re.MULTILINE), text
     assert list(scratch.glob("itnet-metrics-*")) == []
+
+
+WORKER = """
+import os, sys, time
+from itnet.service.metrics import Metrics
+metrics = Metrics()
+metrics.in_flight.inc()
+metrics.requests.labels("/v1/estimate", "200").inc()
+print("ready", flush=True)
+if sys.argv[1] == "die":
+    os._exit(1)  # killed mid-request: no dec, no clean-up
+time.sleep(60)
+"""
+
+
+def test_a_dead_workers_in_flight_is_forgotten_and_its_counts_kept(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One worker dies mid-request, one is still running one: ``/metrics`` says one estimate is
+    in flight (not two), and both requests stay counted."""
+    folder = tmp_path / "metrics"
+    folder.mkdir()
+    env = {**os.environ, MULTIPROCESS_DIR_ENV: str(folder)}
+    dead = subprocess.run([sys.executable, "-c", WORKER, "die"], env=env, capture_output=True)
+    assert dead.returncode == 1 and b"ready" in dead.stdout, dead.stderr
+    alive = subprocess.Popen(
+        [sys.executable, "-c", WORKER, "live"], env=env, stdout=subprocess.PIPE
+    )
+    try:
+        assert alive.stdout is not None and alive.stdout.readline().strip() == b"ready"
+        assert len(list(folder.glob("gauge_livesum_*.db"))) == 2
+        monkeypatch.setenv(MULTIPROCESS_DIR_ENV, str(folder))
+        text = Metrics().render().decode()
+        assert re.search(r"^itnet_in_flight 1\.0$", text, re.MULTILINE), text
+        assert [float(v) for v in ESTIMATES_OK.findall(text)] == [2.0], text
+        assert [p.name for p in folder.glob("gauge_livesum_*.db")] == [
+            f"gauge_livesum_{alive.pid}.db"
+        ]
+        assert forget_dead_workers(str(folder)) == []  # the live one stays
+    finally:
+        alive.kill()
+        alive.wait()
