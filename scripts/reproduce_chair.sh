@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Reproduce the shipped chair models and every number the README reports about them.
-#   bash scripts/reproduce_chair.sh                # trains (five stages; see the README), then measures
+# Reproduce the shipped chair models and every number docs/chair.md reports about them.
+#   bash scripts/reproduce_chair.sh                # trains (five stages; see docs/chair.md), then measures
 #   SKIP_TRAIN=1 bash scripts/reproduce_chair.sh   # measure an existing $RUN/best.pt
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -254,8 +254,8 @@ class AnytimeRun(Iterator[Estimate]):
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
         # into different basins when the view is ambiguous and agree when it is not, which is
-        # what the fusion needs: on validation views (chair, table, toilet; README, *Ensemble
-        # mode*) K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
+        # what the fusion needs: on validation views (chair, table, toilet; docs/ensemble.md)
+        # K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
         self.ensemble = ensemble
         if ensemble > 1:
             starts = viewing_axis_turns(ensemble)
