@@ -18,6 +18,17 @@ from pathlib import Path
 import numpy as np
 
 
+def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:
+    """Where the misses are, % of all scans: near misses in rotation (10–20°), wrong basins
+    (over 20°), and the centre over 0.1 r with the rotation right. (S,), (S,) -> shares."""
+    share = lambda mask: round(100.0 * float(np.mean(mask)), 1)  # noqa: E731
+    return {
+        "rot_10_20": share((rot_deg >= 10) & (rot_deg < 20)),
+        "rot_over_20": share(rot_deg >= 20),
+        "centre_only": share((rot_deg < 10) & (trans >= 0.1)),
+    }
+
+
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path, split: str = "test",
             points_per_step: int | None = None,
@@ -61,6 +72,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         out[str(k)] = {
             # gain: against the first setting on the same scans (paired), with its s.e.
             **paired_accuracy(correct, first),
+            "misses": misses(rot[:, -1], trans[:, -1]),
             "median_iterations": float(np.median(iterations)),
             **({"runs": {str(r): runs.count(r) for r in sorted(set(runs))}} if k == 0 else {}),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
