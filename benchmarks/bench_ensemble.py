@@ -32,7 +32,8 @@ def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path, split: str = "test",
             points_per_step: int | None = None,
-            mirror: bool | None = None) -> dict:  # fmt: skip
+            mirror: bool | None = None, centre: bool | None = None,
+            baseline: dict | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -59,6 +60,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 ensemble=k or None,  # 0: the engine's default (the card's, as the budget holds)
                 points_per_step=points_per_step,
                 mirror=mirror,
+                centre=centre,
             )
             last = run.run_to_end()
             poses.append(last.pose)
@@ -69,10 +71,18 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         _, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
         correct = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         first = correct if first is None else first
+        # against another run of this benchmark on the same scans (--baseline): paired
+        before = (baseline or {}).get(scanner, {}).get(str(k), {}).get("correct")
+        versus = (
+            {"versus_baseline": paired_accuracy(correct, [c == "1" for c in before])}
+            if before is not None and len(before) == len(correct)
+            else {}
+        )
         out[str(k)] = {
             # gain: against the first setting on the same scans (paired), with its s.e.
             **paired_accuracy(correct, first),
             "misses": misses(rot[:, -1], trans[:, -1]),
+            **versus,
             "median_iterations": float(np.median(iterations)),
             **({"runs": {str(r): runs.count(r) for r in sorted(set(runs))}} if k == 0 else {}),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
@@ -85,6 +95,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             ),
         }
         print(scanner, f"K={k}", out[str(k)], flush=True)
+        out[str(k)]["correct"] = "".join("1" if c else "0" for c in correct)  # per scan, in order
     return out
 
 
@@ -114,12 +125,27 @@ def main() -> None:
         default="default",
         help="finish by the card's mirror planes: the engine's default (single runs), always, never",
     )
+    parser.add_argument(
+        "--centre",
+        choices=["default", "on", "off"],
+        default="default",
+        help="finish the centre by the card's correction: the engine's default (where the card "
+        "has one), always, never",
+    )
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        help="a JSON of this benchmark on the same scans: adds each setting's paired gain over it",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
     args = parser.parse_args()
     views = args.views or (4 if args.split == "val" else 5)
     mirror = {"default": None, "on": True, "off": False}[args.mirror]
+    centre = {"default": None, "on": True, "off": False}[args.centre]
+    baseline = json.loads(args.baseline.read_text()) if args.baseline else None
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
         "model": str(args.model),
@@ -128,6 +154,8 @@ def main() -> None:
         "views": views,
         "points_per_step": args.points_per_step,
         "mirror": args.mirror,
+        "centre": args.centre,
+        **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
                 args.model,
@@ -140,6 +168,8 @@ def main() -> None:
                 args.split,
                 args.points_per_step,
                 mirror,
+                centre,
+                baseline,
             )
             for s in args.scanners
         },

@@ -112,9 +112,10 @@ class AsyncItnetClient:
         binary: bool = False,
         units: str | None = None,
         mirror: bool | None = None,
+        centre: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model, units, mirror)
+        fields = request_fields(budget_ms, max_iterations, model, units, mirror, centre)
         try:
             if binary:
                 reply = await self._http.post(
@@ -134,10 +135,11 @@ class AsyncItnetClient:
         model: str = "chair",
         units: str | None = None,
         mirror: bool | None = None,
+        centre: bool | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
-            points, request_fields(budget_ms, max_iterations, model, units, mirror)
+            points, request_fields(budget_ms, max_iterations, model, units, mirror, centre)
         )
         try:
             url = websocket_url(self.base_url)

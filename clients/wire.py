@@ -116,8 +116,10 @@ def request_fields(
     model: str,
     units: str | None = None,
     mirror: bool | None = None,
+    centre: bool | None = None,
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations, units and mirror only when given)."""
+    """The request's non-point fields (max_iterations, units, mirror and centre only when
+    given)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
@@ -125,6 +127,8 @@ def request_fields(
         out["units"] = units
     if mirror is not None:
         out["mirror"] = mirror
+    if centre is not None:
+        out["centre"] = centre
     return out
 
 

@@ -10,6 +10,7 @@ from itnet.commands import (
     batch,
     bench,
     card,
+    centre,
     classify,
     evaluate,
     export,
@@ -48,6 +49,7 @@ app.command("train")(train.train)
 app.command("eval")(evaluate.evaluate)
 app.command("export")(export.export)
 app.command("card")(card.card)
+app.command("centre-fit")(centre.centre_fit)
 app.command("bench")(bench.bench)
 app.add_typer(batch.app, name="batch")
 app.command("classify")(classify.classify)

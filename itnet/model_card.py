@@ -59,6 +59,14 @@ class ModelCard(BaseModel):
         description="finish the fused pose of several runs (the ensemble mode) by the mirror "
         "planes too, by default (a single run's always is): chosen per category on validation",
     )
+    centre_correction: dict | None = Field(
+        None,
+        description="a linear correction of the object centre, applied after the last step "
+        "(itnet.centre.CentreCorrection; fitted on training shapes by itnet centre-fit)",
+    )
+    centre_evaluation: str = Field(
+        "", description="the centre correction's measured effect as served: without and with"
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",

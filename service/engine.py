@@ -26,6 +26,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.centre import centre_finished
 from itnet.fusion import fuse_poses
 from itnet.geometry import (
     invert_rigid,
@@ -194,6 +195,7 @@ class AnytimeRun(Iterator[Estimate]):
         points_per_step: int | None = None,
         ensemble: int | None = None,
         mirror: bool | None = None,
+        centre: bool | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -250,6 +252,17 @@ class AnytimeRun(Iterator[Estimate]):
             )
         self.mirror = bool(mirror)
         self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
+        if centre and model.centre is None:
+            raise BadCloudError(
+                f"model {model.card.name!r} has no centre correction (its card has no "
+                "centre_correction): centre cannot finish its poses"
+            )
+        # Then finish the object centre by the card's correction (itnet.centre), by default
+        # wherever the card has one, except for runs from the caller's own starts or subsets.
+        if centre is None:
+            centre = model.centre is not None and starts is None and points_per_step is None
+        self.centre = bool(centre)
+        self.centred: bool | None = None  # once finished: whether the correction moved the pose
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
@@ -342,9 +355,22 @@ class AnytimeRun(Iterator[Estimate]):
         return self._converged_or(self.last)
 
     def _finish(self) -> None:
-        """After the last step (once): finish ``last`` by the card's mirror planes, in order, as
-        many as the budget left (less the reserve) holds at a plane's predicted time; none after
-        a cancel or before any step. ``mirror_planes``: the planes that finished it."""
+        """After the last step (once): finish ``last`` by the card's mirror planes, then by its
+        centre correction; none after a cancel or before any step."""
+        self._finish_mirror()
+        if not self.centre or self.centred is not None:
+            return
+        self.centred = False
+        if self.stopped_by == "cancelled" or self.iteration == 0 or self.model.centre is None:
+            return
+        pose = self.last.pose_normalized.astype(np.float64)
+        self.last = self._moved_to(centre_finished(self.points[0], pose, self.model.centre))
+        self.centred = True
+
+    def _finish_mirror(self) -> None:
+        """``last`` finished by the card's mirror planes, in order, as many as the budget left
+        (less the reserve) holds at a plane's predicted time. ``mirror_planes``: the planes
+        that finished it."""
         if not self.mirror or self.mirror_planes is not None:
             return
         self.mirror_planes = []
@@ -442,4 +468,5 @@ class AnytimeRun(Iterator[Estimate]):
                 if self.mirror
                 else {}
             ),
+            **({"centre": bool(self.centred)} if self.centre else {}),
         }

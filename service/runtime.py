@@ -21,6 +21,7 @@ import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
 
+from itnet.centre import CentreCorrection
 from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, parse_card
 from itnet.service.step_slots import StepSlots
 
@@ -80,6 +81,11 @@ class LoadedModel:
 
     def __post_init__(self) -> None:
         self._slots = StepSlots(self.concurrent_steps)
+        # The card's centre correction, parsed once (a bad one fails the load, not a request).
+        data = self.card.centre_correction
+        self.centre: CentreCorrection | None = (
+            None if data is None else CentreCorrection.from_dict(data)
+        )
         self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
         self._high: tuple[float, float, float] | None = None  # (quantile ms, when, quantile)
 

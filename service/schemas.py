@@ -63,6 +63,12 @@ class EstimateParams(BaseModel):
         "run, and for fused runs where the card says so ('mirror_fused'); true for a model "
         "without it is refused",
     )
+    centre: bool | None = Field(
+        default=None,
+        description="finish the final pose's object centre by the model's centre correction "
+        "(itnet.centre, a fraction of a millisecond); default: where the model's card has one "
+        "(GET /v1/models: 'centre'); true for a model without it is refused",
+    )
     units: Unit | None = Field(
         default=None,
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
@@ -134,6 +140,11 @@ class EstimateResponse(Pose):
         description="where the mirror refinement was on: the planes that finished the pose, in "
         "order (fewer than the model's when the budget held only some)",
     )
+    centre: bool | None = Field(
+        None,
+        description="where the centre correction was on: true if it finished the final pose "
+        "(false when the run made no step)",
+    )
 
 
 class ModelInfo(BaseModel):
@@ -174,6 +185,12 @@ class ModelInfo(BaseModel):
     mirror_fused: bool = Field(
         False, description="fused runs (the ensemble mode) are finished by the planes too"
     )
+    centre: bool = Field(
+        False,
+        description="the model has a centre correction: the final pose's object centre "
+        "is finished by it unless a request says 'centre': false",
+    )
+    centre_evaluation: str = Field("", description="the correction's measured effect, one run")
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

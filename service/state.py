@@ -197,6 +197,7 @@ class ServiceState:
                 reserve_ms=reserve_ms,
                 ensemble=params.ensemble,
                 mirror=params.mirror,
+                centre=params.centre,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

@@ -40,8 +40,8 @@ def models(
         typer.echo(json.dumps(reply.model_dump()))
         return
     rows = [
-        ("name", "category", "symmetry", "mirror", "precision", "points", "runs", "accuracy",
-         "step", ""),
+        ("name", "category", "symmetry", "mirror", "centre", "precision", "points", "runs",
+         "accuracy", "step", ""),
     ]  # fmt: skip
     for info in reply.models:
         rows.append(
@@ -50,6 +50,7 @@ def models(
                 info.category,
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
+                "yes" if info.centre else "-",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -69,7 +70,8 @@ def models(
     typer.echo(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default, as "
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
-        "run's final pose is finished by, fused runs' too where --json says mirror_fused; "
+        "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
+        "the final pose's object centre is finished by the card's correction; "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 

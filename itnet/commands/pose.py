@@ -44,6 +44,12 @@ def pose(
         "within --budget-ms). Default: for a single run, where the model's card declares it "
         "(`itnet models`).",
     ),
+    centre: bool | None = typer.Option(
+        None,
+        "--centre/--no-centre",
+        help="Finish the final pose's object centre by the model's centre correction (a fraction "
+        "of a ms). Default: where the model's card has one (`itnet models`).",
+    ),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
@@ -65,11 +71,11 @@ def pose(
         if loaded is None:  # the classification counts against the budget
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
-                ensemble=ensemble, units=units, mirror=mirror,
+                ensemble=ensemble, units=units, mirror=mirror, centre=centre,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
-            mirror=mirror,
+            mirror=mirror, centre=centre,
         )  # fmt: skip
 
     failed = False

@@ -30,6 +30,8 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_planes=list(m.card.mirror_planes),
             mirror_evaluation=m.card.mirror_evaluation,
             mirror_fused=m.card.mirror_fused,
+            centre=m.centre is not None,
+            centre_evaluation=m.card.centre_evaluation,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,

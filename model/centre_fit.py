@@ -1,0 +1,127 @@
+"""Fit a pose model's centre correction (``itnet.centre``) and measure it on validation views.
+
+Scans of the category's *training* shapes (occluded and paper views, their own seed) are posed
+by the model as the service serves them (``AnytimeRun``, the card's mirror finish, no centre
+correction); each final pose gives the features of the moved cloud and where the true object
+centre lies in that frame. A ridge regression on the scans whose rotation is within 20 degrees
+(the others are in a wrong basin, where no centre helps) is the correction. It is then measured
+on the validation views (held-out training shapes, as ``itnet train`` validates), one run, with
+and without it: the correction moves only the translation, so both come from the same runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.centre import CentreCorrection, centre_features, fit_centre_correction
+from itnet.metrics import is_correct, paired_accuracy
+from itnet.model.data import ScanSet
+from itnet.model.evaluate import report
+from itnet.service.engine import AnytimeRun
+from itnet.service.runtime import LoadedModel
+
+FIT_MAX_ROTATION_DEG = 20.0
+
+
+@dataclass
+class ServedCentres:
+    """Per scan (S): features (S, F) of the moved cloud, the true centre's offset (S, 3) in the
+    moved, normalised frame, the normalised scale over the object radius (S,), and the served
+    pose's rotation and translation errors (S,) (degrees, object radii)."""
+
+    features: NDArray[np.float64]
+    offsets: NDArray[np.float64]
+    scale_over_radius: NDArray[np.float64]
+    rotation_deg: NDArray[np.float64]
+    translation: NDArray[np.float64]
+
+
+def served_centres(model: LoadedModel, scans: ScanSet, symmetry: str) -> ServedCentres:
+    """Pose every scan as served (one run, no centre correction) and measure its centre."""
+    features, offsets, ratio, poses = [], [], [], []
+    for cloud, truth, radius in zip(scans.clouds, scans.poses, scans.radii):
+        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=1, centre=False)
+        last = run.run_to_end()
+        pose_n = last.pose_normalized.astype(np.float64)
+        moved = run.points[0].astype(np.float64) @ pose_n[:3, :3].T + pose_n[:3, 3]
+        norm = run.normalization
+        centre = -truth[:3, :3].T @ truth[:3, 3]  # the object's centre in the input frame
+        offsets.append(pose_n[:3, :3] @ ((centre - norm.center) / norm.scale) + pose_n[:3, 3])
+        features.append(centre_features(moved))
+        ratio.append(norm.scale / float(radius))
+        poses.append(last.pose)
+    _, rot, trans = report(np.stack(poses)[:, None], scans, symmetry)
+    return ServedCentres(
+        np.array(features), np.array(offsets), np.array(ratio), rot[:, -1], trans[:, -1]
+    )
+
+
+def fit(
+    served: list[ServedCentres], ridge: float = 10.0, max_rotation_deg: float = FIT_MAX_ROTATION_DEG
+) -> CentreCorrection:
+    """The correction from served training scans, fitted where the rotation is within
+    ``max_rotation_deg``. Raises ValueError when fewer than 10 scans are."""
+    keep = [s.rotation_deg < max_rotation_deg for s in served]
+    if sum(int(k.sum()) for k in keep) < 10:
+        raise ValueError(
+            f"only {sum(int(k.sum()) for k in keep)} training scans were posed within "
+            f"{max_rotation_deg:g} degrees: the model is not accurate enough to fit a centre "
+            "correction on"
+        )
+    return fit_centre_correction(
+        np.concatenate([s.features[k] for s, k in zip(served, keep)]),
+        np.concatenate([s.offsets[k] for s, k in zip(served, keep)]),
+        ridge,
+    )
+
+
+def measure(served: ServedCentres, correction: CentreCorrection) -> dict[str, float]:
+    """Accuracy at (10 deg, 0.1 r) without and with the correction on the same runs (paired),
+    and the median translation error of the scans whose rotation is right, before and after."""
+    z = (served.features - correction.mean) / correction.scale
+    predicted = z @ correction.weights[:-1] + correction.weights[-1]
+    after = np.linalg.norm(served.offsets - predicted, axis=1) * served.scale_over_radius
+    before = served.translation
+    right = served.rotation_deg < 10
+    without = is_correct(served.rotation_deg, before).astype(float)
+    with_ = is_correct(served.rotation_deg, after).astype(float)
+    return {
+        "without": round(100 * float(without.mean()), 1),
+        **paired_accuracy(with_, without),
+        "median_translation_without": _median(before[right]),
+        "median_translation_with": _median(after[right]),
+    }
+
+
+def _median(values: NDArray) -> float | None:
+    return round(float(np.median(values)), 4) if len(values) else None
+
+
+def describe(results: dict[str, dict[str, float]]) -> str:
+    """The card's ``centre_evaluation`` line from ``measure``'s results by view kind."""
+    def median(value: float | None) -> str:
+        return "n/a" if value is None else f"{value:.3f}"
+
+    parts = [
+        f"{kind} {r['without']:.1f}% -> {r['accuracy']:.1f}% ({r['gain']:+.1f} +- "
+        f"{r['gain_stderr']:.1f}, {r['scans']} scans; median centre error where the rotation "
+        f"is right {median(r['median_translation_without'])} -> "
+        f"{median(r['median_translation_with'])} r)"
+        for kind, r in results.items()
+    ]
+    return "validation views, one run, without and with the centre correction: " + "; ".join(parts)
+
+
+def training_scans(data: Path, category, views: int, seed: int, scan, cache: Path) -> ScanSet:  # type: ignore[no-untyped-def]
+    """Seeded scans of the category's training shapes (not its validation shapes)."""
+    from itnet.model.data import cached_scan_set, load_shapes, split_files
+
+    files = split_files(data, category.name, 0.1, 0)["train"]
+    shapes, _ = load_shapes(
+        files, "modelnet", cache, True, category.quarter_turns, category.symmetry
+    )
+    return cached_scan_set(shapes, views, seed, scan, cache)

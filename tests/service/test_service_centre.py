@@ -1,0 +1,63 @@
+"""The centre correction through the service: on by default where the card has one, off when a
+request says ``"centre": false``, listed by ``GET /v1/models``, refused for a model without."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from itnet.centre import FEATURE_COUNT, CentreCorrection
+from itnet.service.app import create_app
+from itnet.service.settings import Settings
+
+OFFSET = [0.05, -0.02, 0.1]  # the correction's constant prediction, normalised units
+
+
+@pytest.fixture(scope="module")
+def centred(
+    tmp_path_factory: pytest.TempPathFactory, make_net, settings: Settings
+) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+
+    folder: Path = tmp_path_factory.mktemp("centred_models")
+    weights = np.zeros((FEATURE_COUNT + 1, 3))
+    weights[-1] = OFFSET
+    correction = CentreCorrection(np.zeros(FEATURE_COUNT), np.ones(FEATURE_COUNT), weights)
+    card = ModelCard(name="tiny", category="chair", points=256, recommended_iterations=3,
+                     centre_correction=correction.to_dict(), centre_evaluation="measured")  # fmt: skip
+    export_step(make_net(), card, folder / "tiny.onnx")
+    with TestClient(create_app(Settings(model_dir=folder, limits=settings.limits))) as client:
+        yield client
+
+
+def _post(client: TestClient, points: list, **fields: object) -> dict:
+    reply = client.post("/v1/estimate", json={"points": points, "budget_ms": 2000, **fields})
+    assert reply.status_code == 200, reply.text
+    return reply.json()
+
+
+def test_the_centre_is_finished_unless_the_request_says_not_to(
+    centred: TestClient, make_cloud
+) -> None:  # type: ignore[no-untyped-def]
+    cloud = make_cloud()
+    on, off = _post(centred, cloud.tolist()), _post(centred, cloud.tolist(), centre=False)
+    assert on["centre"] is True and off.get("centre") is None
+    assert np.allclose(on["quat_wxyz"], off["quat_wxyz"], atol=1e-6)  # the rotation is kept
+    scale = float(np.sqrt(((cloud - cloud.mean(0)) ** 2).sum(1).mean()))
+    moved = np.subtract(on["translation"], off["translation"])
+    assert np.allclose(moved, -np.array(OFFSET) * scale, atol=1e-4)
+    (info,) = centred.get("/v1/models").json()["models"]
+    assert info["centre"] is True and info["centre_evaluation"] == "measured"
+
+
+def test_a_model_without_a_correction_says_so(client: TestClient, make_cloud) -> None:  # type: ignore[no-untyped-def]
+    reply = client.post(
+        "/v1/estimate", json={"points": make_cloud().tolist(), "budget_ms": 500, "centre": True}
+    )
+    assert reply.status_code == 422 and "no centre correction" in reply.json()["detail"]
+    assert client.get("/v1/models").json()["models"][0]["centre"] is False

@@ -1,0 +1,117 @@
+"""The centre correction (itnet.centre): its features, its fit, and the engine applying it after
+the last step where the card has one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from itnet.centre import (
+    FEATURE_COUNT,
+    CentreCorrection,
+    centre_features,
+    centre_finished,
+    fit_centre_correction,
+)
+from itnet.preprocess import pose_from_normalized
+from itnet.service.engine import AnytimeRun, BadCloudError
+from itnet.service.runtime import load_model
+
+
+def intercept_only(offset: list[float]) -> CentreCorrection:
+    """A correction that predicts the same centre offset for every cloud."""
+    weights = np.zeros((FEATURE_COUNT + 1, 3))
+    weights[-1] = offset
+    return CentreCorrection(np.zeros(FEATURE_COUNT), np.ones(FEATURE_COUNT), weights)
+
+
+def test_features_describe_where_the_cloud_lies() -> None:
+    rng = np.random.default_rng(0)
+    cloud = rng.normal(size=(500, 3))
+    f = centre_features(cloud)
+    assert f.shape == (FEATURE_COUNT,)
+    assert np.isclose(f[-64:].sum(), 1.0)  # every point in one grid cell (outliers at the border)
+    shifted = centre_features(cloud + np.array([0.5, 0.0, 0.0]))
+    assert np.allclose(shifted[15:18] - f[15:18], [0.5, 0, 0])  # the mean moves with the cloud
+    with pytest.raises(ValueError):
+        centre_features(np.zeros((0, 3)))
+
+
+def test_the_fit_recovers_a_linear_map_and_round_trips_through_the_card() -> None:
+    rng = np.random.default_rng(1)
+    features = np.stack([centre_features(rng.normal(size=(200, 3)) * rng.uniform(0.5, 1.5, 3))
+                         for _ in range(400)])  # fmt: skip
+    truth = rng.normal(size=(FEATURE_COUNT, 3)) * 0.05
+    offsets = features @ truth + [0.1, -0.2, 0.05]
+    correction = fit_centre_correction(features, offsets, ridge=1e-6)
+    z = (features - correction.mean) / correction.scale
+    assert np.allclose(z @ correction.weights[:-1] + correction.weights[-1], offsets, atol=1e-3)
+    again = CentreCorrection.from_dict(correction.to_dict())
+    assert np.allclose(again.weights, correction.weights, atol=1e-5)
+    with pytest.raises(ValueError):
+        CentreCorrection(correction.mean, correction.scale, correction.weights[:-1])
+    with pytest.raises(ValueError):
+        CentreCorrection.from_dict({**correction.to_dict(), "features": "another-v9"})
+
+
+def test_the_finished_pose_moves_the_predicted_centre_to_the_origin() -> None:
+    pose = np.eye(4)
+    pose[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    pose[:3, 3] = [0.3, 0.0, -0.1]
+    points = np.random.default_rng(2).normal(size=(100, 3))
+    done = centre_finished(points, pose, intercept_only([0.05, -0.02, 0.1]))
+    assert np.allclose(done[:3, :3], pose[:3, :3])
+    assert np.allclose(done[:3, 3], [0.25, 0.02, -0.2])
+
+
+@pytest.fixture(scope="module")
+def centred_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[no-untyped-def]
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+
+    folder: Path = tmp_path_factory.mktemp("centre_models")
+    card = ModelCard(
+        name="tiny", category="chair", points=256, recommended_iterations=4,
+        centre_correction=intercept_only([0.05, -0.02, 0.1]).to_dict(),
+    )  # fmt: skip
+    export_step(make_net(), card, folder / "tiny.onnx")
+    return load_model(folder / "tiny.onnx", threads=1)
+
+
+def cloud() -> np.ndarray:
+    return np.random.default_rng(3).normal(size=(400, 3)) * [0.5, 1.0, 0.3] + [2.0, -1.0, 4.0]
+
+
+def test_the_engine_finishes_the_centre_by_the_card_and_says_so(centred_model) -> None:  # type: ignore[no-untyped-def]
+    on = AnytimeRun(centred_model, cloud(), budget_ms=10_000, converge_rotation_deg=0)
+    off = AnytimeRun(
+        centred_model, cloud(), budget_ms=10_000, converge_rotation_deg=0, centre=False
+    )
+    on.run_to_end(), off.run_to_end()
+    assert on.result()["centre"] is True and "centre" not in off.result()
+    expected = pose_from_normalized(
+        centre_finished(on.points[0], off.last.pose_normalized, centred_model.centre),
+        off.normalization,
+    )
+    assert np.allclose(on.result()["T_canonical_from_input"], expected, atol=1e-5)
+    moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
+    assert np.allclose(moved, -np.array([0.05, -0.02, 0.1]) * on.normalization.scale, atol=1e-5)
+
+
+def test_no_correction_without_a_step_or_for_the_callers_own_starts(centred_model) -> None:  # type: ignore[no-untyped-def]
+    cancelled = AnytimeRun(centred_model, cloud(), budget_ms=10_000)
+    cancelled.cancel()
+    cancelled.run_to_end()
+    assert cancelled.result()["centre"] is False and cancelled.iteration == 0
+    starts = AnytimeRun(centred_model, cloud(), budget_ms=10_000, starts=np.eye(3)[None])
+    starts.run_to_end()
+    assert "centre" not in starts.result()
+
+
+def test_asking_for_a_correction_the_card_lacks_is_refused(tiny_model_dir: Path) -> None:
+    plain = load_model(tiny_model_dir / "tiny.onnx", threads=1)
+    with pytest.raises(BadCloudError, match="no centre correction"):
+        AnytimeRun(plain, cloud(), budget_ms=50, centre=True)
+    assert "centre" not in AnytimeRun(plain, cloud(), budget_ms=50).result()
