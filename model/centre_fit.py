@@ -103,6 +103,7 @@ def _median(values: NDArray) -> float | None:
 
 def describe(results: dict[str, dict[str, float]]) -> str:
     """The card's ``centre_evaluation`` line from ``measure``'s results by view kind."""
+
     def median(value: float | None) -> str:
         return "n/a" if value is None else f"{value:.3f}"
 

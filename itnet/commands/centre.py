@@ -18,7 +18,8 @@ def centre_fit(
     ridge: float = typer.Option(10.0, min=0.0, help="Ridge weight (standardised features)."),
     seed: int = typer.Option(4242, help="Seed of the training shapes' views."),
     max_rotation: float = typer.Option(
-        20.0, help="Fit on the training scans posed within this many degrees (a wrong basin's "
+        20.0,
+        help="Fit on the training scans posed within this many degrees (a wrong basin's "
         "centre teaches nothing).",
     ),
     write: bool = typer.Option(
