@@ -152,7 +152,8 @@ function onMessage(message) {
     $('timing').textContent = `(${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, model ${result.model})`;
     const runs = result.ensemble ? `, ${result.ensemble} runs fused` : '';
     const mirror = result.mirror ? ', finished by the mirror symmetry' : '';
-    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms${runs}${mirror}, stopped by ${result.stopped_by}`);
+    const centre = result.centre ? ', centre corrected' : '';
+    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms${runs}${mirror}${centre}, stopped by ${result.stopped_by}`);
     pump();
   } else if (message.type === 'error') {
     setStatus(`refused: ${message.detail}`, true);

@@ -75,6 +75,7 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert shown["ensemble"] == api["ensemble"] == 4 and shown["iterations"] == 3
     assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
     assert "4 runs fused" in page.text_content("#status")
+    assert api["centre"] is True and "centre corrected" in page.text_content("#status")
     # Back to the model's count (one run for the chair): the request carries no ensemble, and
     # the URL forgets it.
     page.select_option("#ensemble", "")
