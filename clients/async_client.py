@@ -113,9 +113,10 @@ class AsyncItnetClient:
         units: str | None = None,
         mirror: bool | None = None,
         centre: bool | None = None,
+        viewpoint: list[float] | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model, units, mirror, centre)
+        fields = request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint)
         try:
             if binary:
                 reply = await self._http.post(
@@ -136,10 +137,12 @@ class AsyncItnetClient:
         units: str | None = None,
         mirror: bool | None = None,
         centre: bool | None = None,
+        viewpoint: list[float] | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
-            points, request_fields(budget_ms, max_iterations, model, units, mirror, centre)
+            points,
+            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint),
         )
         try:
             url = websocket_url(self.base_url)

@@ -117,9 +117,10 @@ def request_fields(
     units: str | None = None,
     mirror: bool | None = None,
     centre: bool | None = None,
+    viewpoint: list[float] | None = None,
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations, units, mirror and centre only when
-    given)."""
+    """The request's non-point fields (max_iterations, units, mirror, centre and viewpoint
+    only when given; the viewpoint as 'x,y,z', which a binary request's query also takes)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
@@ -129,6 +130,8 @@ def request_fields(
         out["mirror"] = mirror
     if centre is not None:
         out["centre"] = centre
+    if viewpoint is not None:
+        out["viewpoint"] = ",".join(repr(float(v)) for v in viewpoint)
     return out
 
 

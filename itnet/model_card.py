@@ -64,6 +64,11 @@ class ModelCard(BaseModel):
         description="a linear correction of the object centre, applied after the last step "
         "(itnet.centre.CentreCorrection; fitted on training shapes by itnet centre-fit)",
     )
+    centre_correction_viewpoint: dict | None = Field(
+        None,
+        description="the same with the sensor's direction as well, for requests that give the "
+        "sensor's position (viewpoint)",
+    )
     centre_evaluation: str = Field(
         "", description="the centre correction's measured effect as served: without and with"
     )

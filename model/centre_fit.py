@@ -7,6 +7,8 @@ centre lies in that frame. A ridge regression on the scans whose rotation is wit
 (the others are in a wrong basin, where no centre helps) is the correction. It is then measured
 on the validation views (held-out training shapes, as ``itnet train`` validates), one run, with
 and without it: the correction moves only the translation, so both come from the same runs.
+The scanner's camera sits at the origin of each scan's frame, so the same scans also fit the
+viewpoint correction (the sensor's direction as three more features).
 """
 
 from __future__ import annotations
@@ -17,7 +19,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.centre import CentreCorrection, centre_features, fit_centre_correction
+from itnet.centre import (
+    CentreCorrection,
+    centre_features,
+    fit_centre_correction,
+    sensor_direction,
+)
 from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.data import ScanSet
 from itnet.model.evaluate import report
@@ -30,19 +37,25 @@ FIT_MAX_ROTATION_DEG = 20.0
 @dataclass
 class ServedCentres:
     """Per scan (S): features (S, F) of the moved cloud, the true centre's offset (S, 3) in the
-    moved, normalised frame, the normalised scale over the object radius (S,), and the served
-    pose's rotation and translation errors (S,) (degrees, object radii)."""
+    moved, normalised frame, the normalised scale over the object radius (S,), the served
+    pose's rotation and translation errors (S,) (degrees, object radii), and the direction
+    toward the camera (S, 3) in the moved frame."""
 
     features: NDArray[np.float64]
     offsets: NDArray[np.float64]
     scale_over_radius: NDArray[np.float64]
     rotation_deg: NDArray[np.float64]
     translation: NDArray[np.float64]
+    toward: NDArray[np.float64]
+
+    def with_viewpoint(self) -> NDArray[np.float64]:
+        """The viewpoint correction's features (S, F + 3)."""
+        return np.concatenate([self.features, self.toward], axis=1)
 
 
 def served_centres(model: LoadedModel, scans: ScanSet, symmetry: str) -> ServedCentres:
     """Pose every scan as served (one run, no centre correction) and measure its centre."""
-    features, offsets, ratio, poses = [], [], [], []
+    features, offsets, ratio, poses, toward = [], [], [], [], []
     for cloud, truth, radius in zip(scans.clouds, scans.poses, scans.radii):
         run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=1, centre=False)
         last = run.run_to_end()
@@ -54,17 +67,23 @@ def served_centres(model: LoadedModel, scans: ScanSet, symmetry: str) -> ServedC
         features.append(centre_features(moved))
         ratio.append(norm.scale / float(radius))
         poses.append(last.pose)
+        toward.append(sensor_direction(pose_n, -norm.center / norm.scale))  # camera at the origin
     _, rot, trans = report(np.stack(poses)[:, None], scans, symmetry)
     return ServedCentres(
-        np.array(features), np.array(offsets), np.array(ratio), rot[:, -1], trans[:, -1]
-    )
+        np.array(features), np.array(offsets), np.array(ratio), rot[:, -1], trans[:, -1],
+        np.array(toward),
+    )  # fmt: skip
 
 
 def fit(
-    served: list[ServedCentres], ridge: float = 10.0, max_rotation_deg: float = FIT_MAX_ROTATION_DEG
+    served: list[ServedCentres],
+    ridge: float = 10.0,
+    max_rotation_deg: float = FIT_MAX_ROTATION_DEG,
+    viewpoint: bool = False,
 ) -> CentreCorrection:
     """The correction from served training scans, fitted where the rotation is within
-    ``max_rotation_deg``. Raises ValueError when fewer than 10 scans are."""
+    ``max_rotation_deg`` (``viewpoint``: the sensor's direction as well). Raises ValueError when
+    fewer than 10 scans are."""
     keep = [s.rotation_deg < max_rotation_deg for s in served]
     if sum(int(k.sum()) for k in keep) < 10:
         raise ValueError(
@@ -73,7 +92,9 @@ def fit(
             "correction on"
         )
     return fit_centre_correction(
-        np.concatenate([s.features[k] for s, k in zip(served, keep)]),
+        np.concatenate(
+            [(s.with_viewpoint() if viewpoint else s.features)[k] for s, k in zip(served, keep)]
+        ),
         np.concatenate([s.offsets[k] for s, k in zip(served, keep)]),
         ridge,
     )
@@ -82,7 +103,8 @@ def fit(
 def measure(served: ServedCentres, correction: CentreCorrection) -> dict[str, float]:
     """Accuracy at (10 deg, 0.1 r) without and with the correction on the same runs (paired),
     and the median translation error of the scans whose rotation is right, before and after."""
-    z = (served.features - correction.mean) / correction.scale
+    features = served.with_viewpoint() if correction.uses_viewpoint else served.features
+    z = (features - correction.mean) / correction.scale
     predicted = z @ correction.weights[:-1] + correction.weights[-1]
     after = np.linalg.norm(served.offsets - predicted, axis=1) * served.scale_over_radius
     before = served.translation
@@ -101,7 +123,7 @@ def _median(values: NDArray) -> float | None:
     return round(float(np.median(values)), 4) if len(values) else None
 
 
-def describe(results: dict[str, dict[str, float]]) -> str:
+def describe(results: dict[str, dict[str, float]], what: str = "the centre correction") -> str:
     """The card's ``centre_evaluation`` line from ``measure``'s results by view kind."""
 
     def median(value: float | None) -> str:
@@ -114,7 +136,7 @@ def describe(results: dict[str, dict[str, float]]) -> str:
         f"{median(r['median_translation_with'])} r)"
         for kind, r in results.items()
     ]
-    return "validation views, one run, without and with the centre correction: " + "; ".join(parts)
+    return f"validation views, one run, without and with {what}: " + "; ".join(parts)
 
 
 def training_scans(data: Path, category, views: int, seed: int, scan, cache: Path) -> ScanSet:  # type: ignore[no-untyped-def]

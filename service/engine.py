@@ -163,6 +163,17 @@ def _normalization(cloud: NDArray[np.float64]) -> Normalization:
         raise BadCloudError(str(err)) from None
 
 
+def _viewpoint(viewpoint: ArrayLike) -> NDArray[np.float64]:
+    """The sensor's position (3,), finite, or BadCloudError."""
+    try:
+        point = np.asarray(viewpoint, dtype=np.float64)
+    except (TypeError, ValueError):
+        point = np.empty(0)
+    if point.shape != (3,) or not np.all(np.isfinite(point)):
+        raise BadCloudError("viewpoint must be three finite numbers: the sensor's x, y, z")
+    return point
+
+
 def _rotations(starts: ArrayLike) -> NDArray[np.float32]:
     """Starting rotations (3, 3) or (B, 3, 3) -> (B, 3, 3), checked."""
     r = np.asarray(starts, dtype=np.float64)
@@ -196,6 +207,7 @@ class AnytimeRun(Iterator[Estimate]):
         ensemble: int | None = None,
         mirror: bool | None = None,
         centre: bool | None = None,
+        viewpoint: ArrayLike | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -263,6 +275,10 @@ class AnytimeRun(Iterator[Estimate]):
             centre = model.centre is not None and starts is None and points_per_step is None
         self.centre = bool(centre)
         self.centred: bool | None = None  # once finished: whether the correction moved the pose
+        # Where the sensor was, in the cloud's frame and units (a depth camera's cloud in its own
+        # frame: the origin): the card's viewpoint correction then finishes the centre.
+        self.viewpoint = None if viewpoint is None else _viewpoint(viewpoint)
+        self.centred_by_viewpoint = False  # once finished: the viewpoint correction did it
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
@@ -364,8 +380,18 @@ class AnytimeRun(Iterator[Estimate]):
         if self.stopped_by == "cancelled" or self.iteration == 0 or self.model.centre is None:
             return
         pose = self.last.pose_normalized.astype(np.float64)
-        self.last = self._moved_to(centre_finished(self.points[0], pose, self.model.centre))
+        correction, viewpoint = self.model.centre, None
+        if self.viewpoint is not None and self.model.centre_viewpoint is not None:
+            correction = self.model.centre_viewpoint
+            viewpoint = (self.viewpoint - self.normalization.center) / self.normalization.scale
+        try:
+            finished = centre_finished(self.points[0], pose, correction, viewpoint)
+        except ValueError:  # the viewpoint on the estimated centre: no direction to go by
+            finished = centre_finished(self.points[0], pose, self.model.centre)
+            correction = self.model.centre
+        self.last = self._moved_to(finished)
         self.centred = True
+        self.centred_by_viewpoint = correction is self.model.centre_viewpoint
 
     def _finish_mirror(self) -> None:
         """``last`` finished by the card's mirror planes, in order, as many as the budget left
@@ -469,4 +495,9 @@ class AnytimeRun(Iterator[Estimate]):
                 else {}
             ),
             **({"centre": bool(self.centred)} if self.centre else {}),
+            **(
+                {"centre_viewpoint": self.centred_by_viewpoint}
+                if self.centre and self.viewpoint is not None
+                else {}
+            ),
         }

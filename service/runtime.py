@@ -86,6 +86,12 @@ class LoadedModel:
         self.centre: CentreCorrection | None = (
             None if data is None else CentreCorrection.from_dict(data)
         )
+        data = self.card.centre_correction_viewpoint
+        self.centre_viewpoint: CentreCorrection | None = (
+            None if data is None else CentreCorrection.from_dict(data)
+        )
+        if self.centre_viewpoint is not None and not self.centre_viewpoint.uses_viewpoint:
+            raise ModelLoadError(f"{self.path}: centre_correction_viewpoint takes no viewpoint")
         self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
         self._high: tuple[float, float, float] | None = None  # (quantile ms, when, quantile)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
 
 from itnet.size_prior import Unit
 
@@ -25,6 +25,11 @@ EXAMPLE_POINTS = [[0.1, 0.2, 0.3], [0.4, -0.1, 0.2], [-0.3, 0.5, 0.1], [0.0, -0.
 EXAMPLE_POSE = [[1.0, 0.0, 0.0, -0.05], [0.0, 1.0, 0.0, -0.05], [0.0, 0.0, 1.0, -0.1],
                 [0.0, 0.0, 0.0, 1.0]]  # fmt: skip
 EXAMPLE_REQUEST: dict[str, Any] = {"points": EXAMPLE_POINTS * 8, "budget_ms": 50, "model": "chair"}
+
+
+def _split_commas(value: object) -> object:
+    """'0,0,0' (a query string's value) -> ['0', '0', '0']; anything else as it is."""
+    return value.split(",") if isinstance(value, str) else value
 
 
 class EstimateParams(BaseModel):
@@ -68,6 +73,16 @@ class EstimateParams(BaseModel):
         description="finish the final pose's object centre by the model's centre correction "
         "(itnet.centre, a fraction of a millisecond); default: where the model's card has one "
         "(GET /v1/models: 'centre'); true for a model without it is refused",
+    )
+    viewpoint: Annotated[list[float] | None, BeforeValidator(_split_commas)] = Field(
+        default=None,
+        min_length=3,
+        max_length=3,
+        description="where the sensor was, [x, y, z] in the cloud's frame and units ('x,y,z' in "
+        "a binary request's query): [0, 0, 0] for a depth camera's cloud in its own frame. The "
+        "centre correction then also goes by the direction toward the sensor, where the model "
+        "has that correction (GET /v1/models: 'centre_viewpoint'); the pose does not otherwise "
+        "depend on it",
     )
     units: Unit | None = Field(
         default=None,
@@ -145,6 +160,11 @@ class EstimateResponse(Pose):
         description="where the centre correction was on: true if it finished the final pose "
         "(false when the run made no step)",
     )
+    centre_viewpoint: bool | None = Field(
+        None,
+        description="where the request gave a viewpoint: true if the correction that goes by "
+        "the sensor's direction finished the centre (false: the model has none, or no step ran)",
+    )
 
 
 class ModelInfo(BaseModel):
@@ -190,7 +210,12 @@ class ModelInfo(BaseModel):
         description="the model has a centre correction: the final pose's object centre "
         "is finished by it unless a request says 'centre': false",
     )
-    centre_evaluation: str = Field("", description="the correction's measured effect, one run")
+    centre_viewpoint: bool = Field(
+        False,
+        description="the model also has a centre correction for requests that give "
+        "'viewpoint' (the sensor's position)",
+    )
+    centre_evaluation: str = Field("", description="the corrections' measured effect, one run")
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

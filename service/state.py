@@ -198,6 +198,7 @@ class ServiceState:
                 ensemble=params.ensemble,
                 mirror=params.mirror,
                 centre=params.centre,
+                viewpoint=params.viewpoint,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

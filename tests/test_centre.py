@@ -115,3 +115,54 @@ def test_asking_for_a_correction_the_card_lacks_is_refused(tiny_model_dir: Path)
     with pytest.raises(BadCloudError, match="no centre correction"):
         AnytimeRun(plain, cloud(), budget_ms=50, centre=True)
     assert "centre" not in AnytimeRun(plain, cloud(), budget_ms=50).result()
+
+
+@pytest.fixture(scope="module")
+def viewpoint_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[no-untyped-def]
+    """A card with both corrections: the plain one predicts OFFSET, the viewpoint one predicts
+    the direction toward the sensor (its last three features) times 0.1."""
+    from itnet.centre import FEATURES_VIEWPOINT
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+
+    weights = np.zeros((FEATURE_COUNT + 4, 3))
+    weights[FEATURE_COUNT : FEATURE_COUNT + 3] = 0.1 * np.eye(3)
+    toward = CentreCorrection(
+        np.zeros(FEATURE_COUNT + 3), np.ones(FEATURE_COUNT + 3), weights, FEATURES_VIEWPOINT
+    )
+    folder: Path = tmp_path_factory.mktemp("viewpoint_models")
+    card = ModelCard(
+        name="tiny", category="chair", points=256, recommended_iterations=3,
+        centre_correction=intercept_only([0.05, -0.02, 0.1]).to_dict(),
+        centre_correction_viewpoint=toward.to_dict(),
+    )  # fmt: skip
+    export_step(make_net(), card, folder / "tiny.onnx")
+    return load_model(folder / "tiny.onnx", threads=1)
+
+
+def test_a_viewpoint_moves_the_centre_along_the_sensors_ray(viewpoint_model) -> None:  # type: ignore[no-untyped-def]
+    sensor = np.array([0.0, 0.0, 0.0])  # the cloud sits around (2, -1, 4): the camera's frame
+    run = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000, viewpoint=sensor)
+    off = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000, centre=False)
+    run.run_to_end(), off.run_to_end()
+    result = run.result()
+    assert result["centre"] is True and result["centre_viewpoint"] is True
+    # the estimated centre (where T maps the origin of the canonical frame from) moves 0.1 RMS
+    # radii away from the sensor... as the correction says: toward it is its offset's direction
+    centre = lambda t: -np.asarray(t)[:3, :3].T @ np.asarray(t)[:3, 3]  # noqa: E731
+    moved = centre(result["T_canonical_from_input"]) - centre(
+        off.result()["T_canonical_from_input"]
+    )
+    ray = centre(off.result()["T_canonical_from_input"]) - sensor
+    cos = moved @ ray / np.linalg.norm(moved) / np.linalg.norm(ray)
+    assert np.isclose(np.linalg.norm(moved), 0.1 * run.normalization.scale, rtol=1e-3)
+    assert cos < -0.999  # toward the sensor: the offset points at it, the pose moves it there
+    plain = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000)
+    plain.run_to_end()
+    assert "centre_viewpoint" not in plain.result()
+
+
+def test_a_bad_viewpoint_is_refused(viewpoint_model) -> None:  # type: ignore[no-untyped-def]
+    for bad in ([0, 0], [0, np.nan, 1], "here"):
+        with pytest.raises(BadCloudError, match="viewpoint"):
+            AnytimeRun(viewpoint_model, cloud(), budget_ms=50, viewpoint=bad)

@@ -34,7 +34,9 @@ def centre_fit(
     """Pose scans of the category's training shapes as served, fit a linear correction of the
     object centre on them (``itnet.centre``), and measure one run without and with it on the
     validation views; with --write the card gets it, and the service applies it after the last
-    step (``"centre": false`` in a request turns it off)."""
+    step (``"centre": false`` in a request turns it off). A second correction, which also takes
+    the direction toward the sensor, is fitted and measured the same way (the scanner's camera
+    is at each scan's origin): the service uses it for requests that give ``viewpoint``."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
@@ -59,23 +61,37 @@ def centre_fit(
         typer.echo(f"{kind}: {len(scans.clouds)} training scans posed", err=True)
     try:
         correction = fitting.fit(served, ridge, max_rotation)
+        with_viewpoint = fitting.fit(served, ridge, max_rotation, viewpoint=True)
     except ValueError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
-    results = {}
+    results: dict[str, dict] = {}
+    viewpoint_results: dict[str, dict] = {}
     for kind, scan in kinds.items():
         scans = validation_scans(data, cat, val_views, scan=scan, cache=cache)
-        results[kind] = fitting.measure(
-            fitting.served_centres(loaded, scans, cat.symmetry), correction
-        )
+        posed = fitting.served_centres(loaded, scans, cat.symmetry)
+        results[kind] = fitting.measure(posed, correction)
+        viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
         typer.echo(f"{kind}: {json.dumps(results[kind])}")
-    evaluation = fitting.describe(results)
+        typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
+    evaluation = (
+        fitting.describe(results)
+        + ". "
+        + fitting.describe(
+            viewpoint_results, "the viewpoint correction (requests that give the sensor's position)"
+        )
+    )
     if report is not None:
         report.write_text(json.dumps({"model": str(model), "results": results,
+                                      "viewpoint_results": viewpoint_results,
                                       "evaluation": evaluation}, indent=1))  # fmt: skip
     if write:
         changed = card.model_copy(
-            update={"centre_correction": correction.to_dict(), "centre_evaluation": evaluation}
+            update={
+                "centre_correction": correction.to_dict(),
+                "centre_correction_viewpoint": with_viewpoint.to_dict(),
+                "centre_evaluation": evaluation,
+            }
         )
         save_with_card(onnx.load(str(model)), changed, out or model)
         typer.echo(f"wrote the correction into {out or model}'s card", err=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,6 +17,19 @@ if TYPE_CHECKING:
     from numpy.typing import NDArray
 
     from itnet.service.engine import AnytimeRun
+
+
+def check_viewpoint(value: str | None) -> list[float] | None:
+    """'x,y,z' -> [x, y, z] (three finite numbers), or a usage error."""
+    if value is None:
+        return None
+    try:
+        point = [float(v) for v in value.split(",")]
+    except ValueError:
+        point = []
+    if len(point) != 3 or not all(math.isfinite(v) for v in point):
+        raise typer.BadParameter(f"expected three numbers 'x,y,z', got {value!r}")
+    return point
 
 
 def pose(
@@ -50,6 +64,13 @@ def pose(
         help="Finish the final pose's object centre by the model's centre correction (a fraction "
         "of a ms). Default: where the model's card has one (`itnet models`).",
     ),
+    viewpoint: str | None = typer.Option(
+        None,
+        help="Where the sensor was, 'x,y,z' in the cloud's frame and units ('0,0,0' for a depth "
+        "camera's cloud in its own frame): the centre correction then also goes by the "
+        "direction toward it, where the model has that correction.",
+        callback=check_viewpoint,
+    ),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
@@ -71,11 +92,11 @@ def pose(
         if loaded is None:  # the classification counts against the budget
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
-                ensemble=ensemble, units=units, mirror=mirror, centre=centre,
+                ensemble=ensemble, units=units, mirror=mirror, centre=centre, viewpoint=viewpoint,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
-            mirror=mirror, centre=centre,
+            mirror=mirror, centre=centre, viewpoint=viewpoint,
         )  # fmt: skip
 
     failed = False

@@ -61,3 +61,24 @@ def test_a_model_without_a_correction_says_so(client: TestClient, make_cloud) ->
     )
     assert reply.status_code == 422 and "no centre correction" in reply.json()["detail"]
     assert client.get("/v1/models").json()["models"][0]["centre"] is False
+
+
+def test_a_viewpoint_is_taken_from_json_and_from_a_binary_query(
+    centred: TestClient, make_cloud
+) -> None:  # type: ignore[no-untyped-def]
+    cloud = make_cloud()
+    as_json = _post(centred, cloud.tolist(), viewpoint=[0, 0, 0])
+    reply = centred.post(
+        "/v1/estimate", content=cloud.astype("<f4").tobytes(),
+        params={"budget_ms": 2000, "viewpoint": "0,0,0"},
+        headers={"content-type": "application/octet-stream"},
+    )  # fmt: skip
+    assert reply.status_code == 200, reply.text
+    # this card has no viewpoint correction: the plain one finishes the centre, and says so
+    for result in (as_json, reply.json()):
+        assert result["centre"] is True and result["centre_viewpoint"] is False
+    for bad in ([0, 0], "1,2", [0, "x", 1]):
+        refused = centred.post(
+            "/v1/estimate", json={"points": cloud.tolist(), "budget_ms": 500, "viewpoint": bad}
+        )
+        assert refused.status_code == 422 and "viewpoint" in refused.text, refused.text

@@ -31,6 +31,7 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_evaluation=m.card.mirror_evaluation,
             mirror_fused=m.card.mirror_fused,
             centre=m.centre is not None,
+            centre_viewpoint=m.centre_viewpoint is not None,
             centre_evaluation=m.card.centre_evaluation,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
