@@ -33,7 +33,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             views: int, cache: Path, data: Path, split: str = "test",
             points_per_step: int | None = None,
             mirror: bool | None = None, centre: bool | None = None,
-            baseline: dict | None = None) -> dict:  # fmt: skip
+            baseline: dict | None = None, viewpoint: bool = False) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -61,6 +61,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 points_per_step=points_per_step,
                 mirror=mirror,
                 centre=centre,
+                viewpoint=[0.0, 0.0, 0.0] if viewpoint else None,  # the scanner's camera
             )
             last = run.run_to_end()
             poses.append(last.pose)
@@ -133,6 +134,12 @@ def main() -> None:
         "has one), always, never",
     )
     parser.add_argument(
+        "--viewpoint",
+        action="store_true",
+        help="give the engine the sensor's position (the scans' origin, where the scanner's "
+        "camera is): the card's viewpoint correction finishes the centre",
+    )
+    parser.add_argument(
         "--baseline",
         type=Path,
         default=None,
@@ -155,6 +162,7 @@ def main() -> None:
         "points_per_step": args.points_per_step,
         "mirror": args.mirror,
         "centre": args.centre,
+        "viewpoint": args.viewpoint,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -170,6 +178,7 @@ def main() -> None:
                 mirror,
                 centre,
                 baseline,
+                args.viewpoint,
             )
             for s in args.scanners
         },
