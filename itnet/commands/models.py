@@ -50,7 +50,7 @@ def models(
                 info.category,
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
-                "yes" if info.centre else "-",
+                ("yes+vp" if info.centre_viewpoint else "yes") if info.centre else "-",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -71,7 +71,8 @@ def models(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default, as "
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
-        "the final pose's object centre is finished by the card's correction; "
+        "the final pose's object centre is finished by the card's correction (+vp: another for "
+        "requests that give the sensor's position); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
