@@ -75,7 +75,8 @@ def client_estimator(
                 max_iterations=max_iterations if iterations is None else iterations,
                 model=model,
                 binary=True,
-                mirror=False,  # as in-process: a hypothesis' pose is the network's
+                mirror=False,  # as in-process: a hypothesis' pose is the network's,
+                centre=False,  # not finished by the mirror or the centre correction
             )
             back = rigid_from_rotation_translation(turn, np.zeros(3))
             out.append(PoseEstimate(reply.T_canonical_from_input @ back, reply.iterations,
