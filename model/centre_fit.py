@@ -53,11 +53,14 @@ class ServedCentres:
         return np.concatenate([self.features, self.toward], axis=1)
 
 
-def served_centres(model: LoadedModel, scans: ScanSet, symmetry: str) -> ServedCentres:
-    """Pose every scan as served (one run, no centre correction) and measure its centre."""
+def served_centres(
+    model: LoadedModel, scans: ScanSet, symmetry: str, ensemble: int = 1
+) -> ServedCentres:
+    """Pose every scan as served (``ensemble`` runs fused, no centre correction) and measure its
+    centre."""
     features, offsets, ratio, poses, toward = [], [], [], [], []
     for cloud, truth, radius in zip(scans.clouds, scans.poses, scans.radii):
-        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=1, centre=False)
+        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=ensemble, centre=False)
         last = run.run_to_end()
         pose_n = last.pose_normalized.astype(np.float64)
         moved = run.points[0].astype(np.float64) @ pose_n[:3, :3].T + pose_n[:3, 3]
@@ -123,7 +126,9 @@ def _median(values: NDArray) -> float | None:
     return round(float(np.median(values)), 4) if len(values) else None
 
 
-def describe(results: dict[str, dict[str, float]], what: str = "the centre correction") -> str:
+def describe(
+    results: dict[str, dict[str, float]], what: str = "the centre correction", runs: str = "one run"
+) -> str:
     """The card's ``centre_evaluation`` line from ``measure``'s results by view kind."""
 
     def median(value: float | None) -> str:
@@ -136,7 +141,7 @@ def describe(results: dict[str, dict[str, float]], what: str = "the centre corre
         f"{median(r['median_translation_with'])} r)"
         for kind, r in results.items()
     ]
-    return f"validation views, one run, without and with {what}: " + "; ".join(parts)
+    return f"validation views, {runs}, without and with {what}: " + "; ".join(parts)
 
 
 def training_scans(data: Path, category, views: int, seed: int, scan, cache: Path) -> ScanSet:  # type: ignore[no-untyped-def]

@@ -53,7 +53,7 @@ def test_the_correction_is_fitted_measured_and_written(setup) -> None:  # type: 
     out, report = root / "fitted.onnx", root / "report.json"
     # the tiny untrained network's rotations are anything: fit on all of them
     done = _fit(root, data, "--max-rotation", "181", "--write", "--out", str(out),
-                "--report", str(report))  # fmt: skip
+                "--report", str(report), "--ensemble", "2")  # fmt: skip
     assert done.exit_code == 0, done.output
     measured = json.loads(report.read_text())
     assert set(measured["results"]) == {"occluded", "paper"}
@@ -61,7 +61,8 @@ def test_the_correction_is_fitted_measured_and_written(setup) -> None:  # type: 
     fitted = load_model(out, threads=1)
     assert fitted.centre is not None
     assert fitted.card.centre_evaluation == measured["evaluation"]
-    assert fitted.card.centre_evaluation.startswith("validation views, one run")
+    assert fitted.card.centre_evaluation.startswith("validation views, 2 runs fused")
+    assert fitted.centre_viewpoint is not None and fitted.centre_viewpoint.uses_viewpoint
     assert load_model(root / "bathtub.onnx", threads=1).centre is None  # --out: left as it was
 
 

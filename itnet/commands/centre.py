@@ -17,6 +17,13 @@ def centre_fit(
     val_views: int = typer.Option(8, min=1, help="Views per validation shape, to measure it."),
     ridge: float = typer.Option(10.0, min=0.0, help="Ridge weight (standardised features)."),
     seed: int = typer.Option(4242, help="Seed of the training shapes' views."),
+    ensemble: int = typer.Option(
+        1,
+        min=1,
+        max=16,
+        help="Pose the scans with this many runs fused (the card's default "
+        "for a model served that way), to fit and to measure.",
+    ),
     max_rotation: float = typer.Option(
         20.0,
         help="Fit on the training scans posed within this many degrees (a wrong basin's "
@@ -57,7 +64,7 @@ def centre_fit(
     served = []
     for i, (kind, scan) in enumerate(kinds.items()):
         scans = fitting.training_scans(data, cat, views, seed + i, scan, cache)
-        served.append(fitting.served_centres(loaded, scans, cat.symmetry))
+        served.append(fitting.served_centres(loaded, scans, cat.symmetry, ensemble))
         typer.echo(f"{kind}: {len(scans.clouds)} training scans posed", err=True)
     try:
         correction = fitting.fit(served, ridge, max_rotation)
@@ -69,16 +76,19 @@ def centre_fit(
     viewpoint_results: dict[str, dict] = {}
     for kind, scan in kinds.items():
         scans = validation_scans(data, cat, val_views, scan=scan, cache=cache)
-        posed = fitting.served_centres(loaded, scans, cat.symmetry)
+        posed = fitting.served_centres(loaded, scans, cat.symmetry, ensemble)
         results[kind] = fitting.measure(posed, correction)
         viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
         typer.echo(f"{kind}: {json.dumps(results[kind])}")
         typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
+    runs = "one run" if ensemble == 1 else f"{ensemble} runs fused"
     evaluation = (
-        fitting.describe(results)
+        fitting.describe(results, runs=runs)
         + ". "
         + fitting.describe(
-            viewpoint_results, "the viewpoint correction (requests that give the sensor's position)"
+            viewpoint_results,
+            "the viewpoint correction (requests that give the sensor's position)",
+            runs,
         )
     )
     if report is not None:
