@@ -264,20 +264,27 @@ class AnytimeRun(Iterator[Estimate]):
             )
         self.mirror = bool(mirror)
         self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
-        if centre and model.centre is None:
-            raise BadCloudError(
-                f"model {model.card.name!r} has no centre correction (its card has no "
-                "centre_correction): centre cannot finish its poses"
-            )
-        # Then finish the object centre by the card's correction (itnet.centre), by default
-        # wherever the card has one, except for runs from the caller's own starts or subsets.
-        if centre is None:
-            centre = model.centre is not None and starts is None and points_per_step is None
-        self.centre = bool(centre)
-        self.centred: bool | None = None  # once finished: whether the correction moved the pose
         # Where the sensor was, in the cloud's frame and units (a depth camera's cloud in its own
         # frame: the origin): the card's viewpoint correction then finishes the centre.
         self.viewpoint = None if viewpoint is None else _viewpoint(viewpoint)
+        # Then finish the object centre by the card's correction (itnet.centre): the viewpoint
+        # one where the request gives the sensor's position and the card has it, else the plain
+        # one; by default wherever one applies, except for runs from the caller's own starts or
+        # subsets.
+        applies = model.centre is not None or (
+            self.viewpoint is not None and model.centre_viewpoint is not None
+        )
+        if centre and not applies:
+            raise BadCloudError(
+                f"model {model.card.name!r} has no centre correction (its card has no "
+                "centre_correction"
+                + ("" if self.viewpoint is None else " and no centre_correction_viewpoint")
+                + "): centre cannot finish its poses"
+            )
+        if centre is None:
+            centre = applies and starts is None and points_per_step is None
+        self.centre = bool(centre)
+        self.centred: bool | None = None  # once finished: whether the correction moved the pose
         self.centred_by_viewpoint = False  # once finished: the viewpoint correction did it
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
@@ -377,21 +384,24 @@ class AnytimeRun(Iterator[Estimate]):
         if not self.centre or self.centred is not None:
             return
         self.centred = False
-        if self.stopped_by == "cancelled" or self.iteration == 0 or self.model.centre is None:
+        if self.stopped_by == "cancelled" or self.iteration == 0:
             return
         pose = self.last.pose_normalized.astype(np.float64)
-        correction, viewpoint = self.model.centre, None
+        finished = None
         if self.viewpoint is not None and self.model.centre_viewpoint is not None:
-            correction = self.model.centre_viewpoint
             viewpoint = (self.viewpoint - self.normalization.center) / self.normalization.scale
-        try:
-            finished = centre_finished(self.points[0], pose, correction, viewpoint)
-        except ValueError:  # the viewpoint on the estimated centre: no direction to go by
+            try:
+                finished = centre_finished(
+                    self.points[0], pose, self.model.centre_viewpoint, viewpoint
+                )
+                self.centred_by_viewpoint = True
+            except ValueError:  # the viewpoint on the estimated centre: no direction to go by
+                pass
+        if finished is None and self.model.centre is not None:
             finished = centre_finished(self.points[0], pose, self.model.centre)
-            correction = self.model.centre
-        self.last = self._moved_to(finished)
-        self.centred = True
-        self.centred_by_viewpoint = correction is self.model.centre_viewpoint
+        if finished is not None:
+            self.last = self._moved_to(finished)
+            self.centred = True
 
     def _finish_mirror(self) -> None:
         """``last`` finished by the card's mirror planes, in order, as many as the budget left

@@ -166,3 +166,22 @@ def test_a_bad_viewpoint_is_refused(viewpoint_model) -> None:  # type: ignore[no
     for bad in ([0, 0], [0, np.nan, 1], "here"):
         with pytest.raises(BadCloudError, match="viewpoint"):
             AnytimeRun(viewpoint_model, cloud(), budget_ms=50, viewpoint=bad)
+
+
+def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
+    tmp_path: Path, make_net, viewpoint_model
+) -> None:  # type: ignore[no-untyped-def]
+    from itnet.export.onnx_export import export_step
+
+    card = viewpoint_model.card.model_copy(update={"centre_correction": None})
+    export_step(make_net(), card, tmp_path / "tiny.onnx")
+    only = load_model(tmp_path / "tiny.onnx", threads=1)
+    assert only.centre is None and only.centre_viewpoint is not None
+    without = AnytimeRun(only, cloud(), budget_ms=10_000)
+    without.run_to_end()
+    assert "centre" not in without.result()
+    given = AnytimeRun(only, cloud(), budget_ms=10_000, viewpoint=[0, 0, 0])
+    given.run_to_end()
+    assert given.result()["centre"] is True and given.result()["centre_viewpoint"] is True
+    with pytest.raises(BadCloudError, match="no centre correction"):
+        AnytimeRun(only, cloud(), budget_ms=50, centre=True)

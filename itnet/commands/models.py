@@ -50,7 +50,7 @@ def models(
                 info.category,
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
-                ("yes+vp" if info.centre_viewpoint else "yes") if info.centre else "-",
+                _centre(info.centre, info.centre_viewpoint),
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -81,3 +81,10 @@ def _accuracy(accuracy: dict[str, float], iterations: int) -> str:
     """'49.7% at 10 it.' (the card's figure at the recommended count), or '-' when unmeasured."""
     value = accuracy.get(str(iterations))
     return "-" if value is None else f"{100 * value:.1f}% at {iterations} it."
+
+
+def _centre(plain: bool, viewpoint: bool) -> str:
+    """'yes', 'yes+vp', 'vp' (only for requests that give the sensor's position) or '-'."""
+    if plain:
+        return "yes+vp" if viewpoint else "yes"
+    return "vp" if viewpoint else "-"

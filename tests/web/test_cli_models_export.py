@@ -36,9 +36,10 @@ def test_models_lists_what_the_service_lists(tiny_model_dir):
 
 def centre_column(card) -> str:  # type: ignore[no-untyped-def]
     """What `itnet models` shows for a card's centre corrections."""
+    vp = bool(card.centre_correction_viewpoint)
     if not card.centre_correction:
-        return "-"
-    return "yes+vp" if card.centre_correction_viewpoint else "yes"
+        return "vp" if vp else "-"
+    return "yes+vp" if vp else "yes"
 
 
 def test_models_table_shows_the_shipped_cards():
