@@ -67,3 +67,23 @@ def test_pose_unknown_model_is_a_clear_error(tmp_path, tiny_model_dir, rng):
         and "unknown model 'sofa'" in result.stderr
         and "tiny" in result.stderr
     )
+
+
+def test_pose_says_when_the_shipped_chairs_centre_was_corrected():
+    """The shipped chair's card has both centre corrections: the line says so, --no-centre
+    turns it off, and --viewpoint (the example is in its camera's frame) picks the second."""
+    from pathlib import Path
+
+    example = str(Path(__file__).resolve().parents[1] / "itnet/examples/chair_a.ply")
+    on = runner.invoke(app, ["pose", example, "--model", "chair"])
+    off = runner.invoke(app, ["pose", example, "--model", "chair", "--no-centre"])
+    assert on.exit_code == off.exit_code == 0, on.output + off.output
+    assert "centre-corrected" in on.stdout and "centre-corrected" not in off.stdout
+    seen = runner.invoke(
+        app, ["pose", example, "--model", "chair", "--viewpoint", "0,0,0", "--json"]
+    )
+    assert seen.exit_code == 0, seen.output
+    line = json.loads(seen.stdout)
+    assert line["centre"] is True and line["centre_viewpoint"] is True
+    bad = runner.invoke(app, ["pose", example, "--model", "chair", "--viewpoint", "0,0"])
+    assert bad.exit_code == 2 and "expected three numbers" in bad.output

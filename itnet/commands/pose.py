@@ -128,7 +128,8 @@ def pose(
                 f"{path}: {seen}rotation {float(rotation_angle_deg(t[:3, :3])):.1f} deg, translation "
                 f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}], {result['iterations']} iterations "
                 f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']}"
-                f"{', mirror-finished' if result.get('mirror') else ''})"
+                f"{', mirror-finished' if result.get('mirror') else ''}"
+                f"{', centre-corrected' if result.get('centre') else ''})"
             )
     if failed:
         raise typer.Exit(2)
