@@ -150,8 +150,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
     args = parser.parse_args()
     views = args.views or (4 if args.split == "val" else 5)
-    mirror = {"default": None, "on": True, "off": False}[args.mirror]
-    centre = {"default": None, "on": True, "off": False}[args.centre]
+    switch = {"default": None, "on": True, "off": False}  # the engine's default, always, never
+    mirror, centre = switch[args.mirror], switch[args.centre]
     baseline = json.loads(args.baseline.read_text()) if args.baseline else None
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.geometry import apply_rigid
+
 FEATURES = "quantiles-extremes-grid4-v1"
 QUANTILES = (5.0, 25.0, 50.0, 75.0, 95.0)
 GRID = 4  # cells a side of the occupancy grid
@@ -56,8 +58,7 @@ def centre_features(moved: NDArray, toward: NDArray | None = None) -> NDArray[np
 def sensor_direction(pose: NDArray, viewpoint: NDArray) -> NDArray[np.float64]:
     """The unit direction (3,) from the estimated object centre (the moved frame's origin) toward
     the sensor at ``viewpoint`` (3,, normalised input frame), for a pose (4, 4)."""
-    pose = np.asarray(pose, dtype=np.float64)
-    where = pose[:3, :3] @ np.asarray(viewpoint, dtype=np.float64) + pose[:3, 3]
+    where = apply_rigid(np.asarray(pose, dtype=np.float64), np.reshape(viewpoint, (1, 3)))[0]
     norm = float(np.linalg.norm(where))
     if not np.isfinite(norm) or norm < 1e-9:
         raise ValueError("the viewpoint lies on the object's estimated centre")
@@ -92,13 +93,18 @@ class CentreCorrection:
     def uses_viewpoint(self) -> bool:
         return self.features == FEATURES_VIEWPOINT
 
+    def predict(self, features: NDArray) -> NDArray[np.float64]:
+        """Features (..., F) -> where the object's centre lies in each moved cloud's frame
+        (..., 3), normalised units."""
+        z = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        return z @ self.weights[:-1] + self.weights[-1]
+
     def offset(self, moved: NDArray, toward: NDArray | None = None) -> NDArray[np.float64]:
         """Where the object's centre lies in the moved cloud's frame (3,), normalised units;
         ``toward`` (the sensor's direction, ``sensor_direction``) for a viewpoint correction."""
         if self.uses_viewpoint != (toward is not None):
             raise ValueError("a viewpoint correction needs the sensor's direction, a plain one not")
-        z = (centre_features(moved, toward) - self.mean) / self.scale
-        return z @ self.weights[:-1] + self.weights[-1]
+        return self.predict(centre_features(moved, toward))
 
     def to_dict(self) -> dict:
         return {
@@ -151,7 +157,7 @@ def centre_finished(
     the correction predicts lands on the origin; ``viewpoint`` (3,, normalised input frame): the
     sensor's position, for a viewpoint correction."""
     pose = np.asarray(pose, dtype=np.float64)
-    moved = np.asarray(points, dtype=np.float64) @ pose[:3, :3].T + pose[:3, 3]
+    moved = apply_rigid(pose, np.asarray(points, dtype=np.float64))
     toward = None if viewpoint is None else sensor_direction(pose, viewpoint)
     out = pose.copy()
     out[:3, 3] -= correction.offset(moved, toward)

@@ -93,6 +93,26 @@ def validation_scans(
     return cached_scan_set(shapes, views, seed + 7, scan or ScanConfig(), cache)
 
 
+def training_scans(
+    data: Path,
+    cat: Category,
+    views: int,
+    seed: int,
+    scan: ScanConfig,
+    cache: Path,
+    frame: str = "modelnet",
+    check_orientation: bool = True,
+    validation_fraction: float = 0.1,
+    split_seed: int = 0,
+) -> ScanSet:
+    """Fixed, seeded scans (cached) of a category's training shapes, without its validation
+    shapes (``validation_fraction``, split by ``split_seed`` as ``validation_scans`` splits):
+    for what is fitted on the training split after the network (``itnet centre-fit``)."""
+    files = split_files(data, cat.name, validation_fraction, split_seed)["train"]
+    shapes, _ = load_shapes(files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry)
+    return cached_scan_set(shapes, views, seed, scan, cache)
+
+
 def _turns(symmetry: str, size: int) -> NDArray[np.float32]:
     """A symmetry's turns as (size, 4, 4) homogeneous rotations, cycled to fill ``size``."""
     rotations = symmetry_group(symmetry, LOSS_YAW_SAMPLES)

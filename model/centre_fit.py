@@ -14,7 +14,6 @@ viewpoint correction (the sensor's direction as three more features).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +24,7 @@ from itnet.centre import (
     fit_centre_correction,
     sensor_direction,
 )
+from itnet.geometry import apply_rigid
 from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.data import ScanSet
 from itnet.model.evaluate import report
@@ -63,10 +63,10 @@ def served_centres(
         run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=ensemble, centre=False)
         last = run.run_to_end()
         pose_n = last.pose_normalized.astype(np.float64)
-        moved = run.points[0].astype(np.float64) @ pose_n[:3, :3].T + pose_n[:3, 3]
+        moved = apply_rigid(pose_n, run.points[0].astype(np.float64))
         norm = run.normalization
         centre = -truth[:3, :3].T @ truth[:3, 3]  # the object's centre in the input frame
-        offsets.append(pose_n[:3, :3] @ ((centre - norm.center) / norm.scale) + pose_n[:3, 3])
+        offsets.append(apply_rigid(pose_n, ((centre - norm.center) / norm.scale)[None])[0])
         features.append(centre_features(moved))
         ratio.append(norm.scale / float(radius))
         poses.append(last.pose)
@@ -107,8 +107,7 @@ def measure(served: ServedCentres, correction: CentreCorrection) -> dict[str, fl
     """Accuracy at (10 deg, 0.1 r) without and with the correction on the same runs (paired),
     and the median translation error of the scans whose rotation is right, before and after."""
     features = served.with_viewpoint() if correction.uses_viewpoint else served.features
-    z = (features - correction.mean) / correction.scale
-    predicted = z @ correction.weights[:-1] + correction.weights[-1]
+    predicted = correction.predict(features)
     after = np.linalg.norm(served.offsets - predicted, axis=1) * served.scale_over_radius
     before = served.translation
     right = served.rotation_deg < 10
@@ -142,14 +141,3 @@ def describe(
         for kind, r in results.items()
     ]
     return f"validation views, {runs}, without and with {what}: " + "; ".join(parts)
-
-
-def training_scans(data: Path, category, views: int, seed: int, scan, cache: Path) -> ScanSet:  # type: ignore[no-untyped-def]
-    """Seeded scans of the category's training shapes (not its validation shapes)."""
-    from itnet.model.data import cached_scan_set, load_shapes, split_files
-
-    files = split_files(data, category.name, 0.1, 0)["train"]
-    shapes, _ = load_shapes(
-        files, "modelnet", cache, True, category.quarter_turns, category.symmetry
-    )
-    return cached_scan_set(shapes, views, seed, scan, cache)

@@ -81,19 +81,28 @@ class LoadedModel:
 
     def __post_init__(self) -> None:
         self._slots = StepSlots(self.concurrent_steps)
-        # The card's centre correction, parsed once (a bad one fails the load, not a request).
-        data = self.card.centre_correction
-        self.centre: CentreCorrection | None = (
-            None if data is None else CentreCorrection.from_dict(data)
+        # The card's centre corrections, parsed once: a bad one fails the load, not a request.
+        self.centre = self._centre_correction("centre_correction", viewpoint=False)
+        self.centre_viewpoint = self._centre_correction(
+            "centre_correction_viewpoint", viewpoint=True
         )
-        data = self.card.centre_correction_viewpoint
-        self.centre_viewpoint: CentreCorrection | None = (
-            None if data is None else CentreCorrection.from_dict(data)
-        )
-        if self.centre_viewpoint is not None and not self.centre_viewpoint.uses_viewpoint:
-            raise ModelLoadError(f"{self.path}: centre_correction_viewpoint takes no viewpoint")
         self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
         self._high: tuple[float, float, float] | None = None  # (quantile ms, when, quantile)
+
+    def _centre_correction(self, field_name: str, viewpoint: bool) -> CentreCorrection | None:
+        """The card's ``field_name``, parsed and of the kind it must be (taking the sensor's
+        direction or not), or None where the card has none. Raises ModelLoadError."""
+        data = getattr(self.card, field_name)
+        if data is None:
+            return None
+        try:
+            correction = CentreCorrection.from_dict(data)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ModelLoadError(f"{self.path}: {field_name}: {err}") from None
+        if correction.uses_viewpoint != viewpoint:
+            needs = "takes the sensor's direction" if viewpoint else "takes no viewpoint"
+            raise ModelLoadError(f"{self.path}: {field_name} must be a correction that {needs}")
+        return correction
 
     @contextmanager
     def step_slot(self, timeout_s: float, deadline: float | None = None) -> Iterator[bool]:

@@ -185,3 +185,23 @@ def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
     assert given.result()["centre"] is True and given.result()["centre_viewpoint"] is True
     with pytest.raises(BadCloudError, match="no centre correction"):
         AnytimeRun(only, cloud(), budget_ms=50, centre=True)
+
+
+def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
+    tmp_path: Path, make_net, viewpoint_model
+) -> None:  # type: ignore[no-untyped-def]
+    """Checked at load, not at the first request: the plain field holding a viewpoint correction
+    (or the other way round), or a correction with the wrong shapes, is a ModelLoadError."""
+    from itnet.export.onnx_export import export_step
+    from itnet.service.runtime import ModelLoadError
+
+    card = viewpoint_model.card
+    swapped = card.model_copy(update={"centre_correction": card.centre_correction_viewpoint,
+                                      "centre_correction_viewpoint": card.centre_correction})  # fmt: skip
+    broken = card.model_copy(
+        update={"centre_correction": {**card.centre_correction, "weights": [[0.0, 0.0, 0.0]]}}
+    )
+    for name, bad in (("swapped", swapped), ("broken", broken)):
+        export_step(make_net(), bad, tmp_path / f"{name}.onnx")
+        with pytest.raises(ModelLoadError, match="centre_correction"):
+            load_model(tmp_path / f"{name}.onnx", threads=1)

@@ -49,7 +49,7 @@ def centre_fit(
     from itnet.export.onnx_export import save_with_card
     from itnet.model import centre_fit as fitting
     from itnet.model.categories import category
-    from itnet.model.category_set import validation_scans
+    from itnet.model.category_set import training_scans, validation_scans
     from itnet.model.scanner import VIEW_RULES, scan_config
     from itnet.service.runtime import ModelLoadError, load_model
 
@@ -63,7 +63,7 @@ def centre_fit(
     kinds = {kind: scan_config(VIEW_RULES[kind]) for kind in ("occluded", "paper")}
     served = []
     for i, (kind, scan) in enumerate(kinds.items()):
-        scans = fitting.training_scans(data, cat, views, seed + i, scan, cache)
+        scans = training_scans(data, cat, views, seed + i, scan, cache)
         served.append(fitting.served_centres(loaded, scans, cat.symmetry, ensemble))
         typer.echo(f"{kind}: {len(scans.clouds)} training scans posed", err=True)
     try:
