@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 
 
-def correct_at_last(path: Path, category: str, scanner: str, views: int, iterations: int,
-                    data: Path, cache: Path) -> np.ndarray:  # fmt: skip
-    """(S,) 0/1 per validation scan at the last iteration."""
-    from itnet.metrics import is_correct
+def last_poses(path: Path, category: str, scanner: str, views: int, iterations: int,
+               data: Path, cache: Path):  # fmt: skip
+    """A checkpoint's poses after ``iterations`` steps on a category's validation scans of one
+    view rule -> (poses (S, 4, 4), the scans, the Category)."""
     from itnet.model.categories import category as category_of
     from itnet.model.category_set import validation_scans
-    from itnet.model.evaluate import anytime_poses, report, torch_step
+    from itnet.model.evaluate import anytime_poses, torch_step
     from itnet.model.scanner import VIEW_RULES, scan_config
     from itnet.model.train import load_checkpoint
 
@@ -34,8 +34,17 @@ def correct_at_last(path: Path, category: str, scanner: str, views: int, iterati
         data, cat, views=views, scan=scan_config(VIEW_RULES[scanner]), cache=cache
     )
     points = state.get("config", {}).get("points", 256)
-    poses = anytime_poses(torch_step(net), scans, iterations, points)
-    _, rot, trans = report(poses, scans, cat.symmetry)
+    return anytime_poses(torch_step(net), scans, iterations, points)[:, -1], scans, cat
+
+
+def correct_at_last(path: Path, category: str, scanner: str, views: int, iterations: int,
+                    data: Path, cache: Path) -> np.ndarray:  # fmt: skip
+    """(S,) 0/1 per validation scan at the last iteration."""
+    from itnet.metrics import is_correct
+    from itnet.model.evaluate import report
+
+    poses, scans, cat = last_poses(path, category, scanner, views, iterations, data, cache)
+    _, rot, trans = report(poses[:, None], scans, cat.symmetry)
     return is_correct(rot[:, -1], trans[:, -1]).astype(float)
 
 
