@@ -18,6 +18,21 @@ from pathlib import Path
 import numpy as np
 
 
+def known_ups(poses: np.ndarray, error_deg: float, seed: int = 0) -> np.ndarray:
+    """Each scan's up direction in its own frame, as a caller would give it: the truth (the
+    canonical +y taken back by T_canonical_from_input (S, 4, 4)) tilted by ``error_deg`` about a
+    random horizontal axis (a gravity sensor's error) -> (S, 3) unit vectors."""
+    from itnet.geometry import axis_angle_to_matrix
+
+    truth = poses[:, :3, :3].transpose(0, 2, 1) @ np.array([0.0, 1.0, 0.0])  # R^T y
+    if error_deg == 0:
+        return truth
+    rng = np.random.default_rng(seed)
+    axes = np.cross(truth, rng.normal(size=truth.shape))  # normal to the true up
+    tilt = axis_angle_to_matrix(axes, np.full(len(truth), np.radians(error_deg)))
+    return np.einsum("sij,sj->si", tilt, truth)
+
+
 def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:
     """Where the misses are, % of all scans: near misses in rotation (10–20°), wrong basins
     (over 20°), and the centre over 0.1 r with the rotation right. (S,), (S,) -> shares."""
@@ -33,7 +48,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             views: int, cache: Path, data: Path, split: str = "test",
             points_per_step: int | None = None,
             mirror: bool | None = None, centre: bool | None = None,
-            baseline: dict | None = None, viewpoint: bool = False) -> dict:  # fmt: skip
+            baseline: dict | None = None, viewpoint: bool = False,
+            up_error_deg: float | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -49,10 +65,11 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         scans = validation_scans(data, cat, views, scan=config, cache=cache)
     else:
         scans, _ = test_scans(data, cat, views, 2024, config, cache)
+    ups = None if up_error_deg is None else known_ups(scans.poses, up_error_deg)
     out, first = {}, None
     for k in ensembles:
         poses, iterations, elapsed, mirrored, runs = [], [], [], [], []
-        for cloud in scans.clouds:
+        for i, cloud in enumerate(scans.clouds):
             run = AnytimeRun(
                 model,
                 cloud,
@@ -62,6 +79,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 mirror=mirror,
                 centre=centre,
                 viewpoint=[0.0, 0.0, 0.0] if viewpoint else None,  # the scanner's camera
+                up=None if ups is None else ups[i],
             )
             last = run.run_to_end()
             poses.append(last.pose)
@@ -140,6 +158,14 @@ def main() -> None:
         "camera is): the card's viewpoint correction finishes the centre",
     )
     parser.add_argument(
+        "--up",
+        type=float,
+        default=None,
+        metavar="ERROR_DEG",
+        help="give the engine each scan's up direction, tilted from the truth by ERROR_DEG "
+        "(0: exact; 2: a phone-grade gravity sensor): the poses are held upright",
+    )
+    parser.add_argument(
         "--baseline",
         type=Path,
         default=None,
@@ -163,6 +189,7 @@ def main() -> None:
         "mirror": args.mirror,
         "centre": args.centre,
         "viewpoint": args.viewpoint,
+        "up_error_deg": args.up,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -179,6 +206,7 @@ def main() -> None:
                 centre,
                 baseline,
                 args.viewpoint,
+                args.up,
             )
             for s in args.scanners
         },

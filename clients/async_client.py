@@ -114,9 +114,12 @@ class AsyncItnetClient:
         mirror: bool | None = None,
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
+        up: list[float] | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint)
+        fields = request_fields(
+            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up
+        )
         try:
             if binary:
                 reply = await self._http.post(
@@ -138,11 +141,12 @@ class AsyncItnetClient:
         mirror: bool | None = None,
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
+        up: list[float] | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint),
+            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up),
         )
         try:
             url = websocket_url(self.base_url)

@@ -112,13 +112,17 @@ class ItnetClient:
         mirror: bool | None = None,
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
+        up: list[float] | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
         point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
         cloud's size; ``mirror`` (default: the model's) finishes the pose by the category's mirror
         symmetry or not, ``centre`` (default: the model's) its object centre by the model's centre
-        correction or not. Raises ItnetRequestError (refused), ItnetConnectionError."""
-        fields = request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint)
+        correction or not; ``up`` (x, y, z), which way is up in the cloud, holds the pose upright.
+        Raises ItnetRequestError (refused), ItnetConnectionError."""
+        fields = request_fields(
+            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up
+        )
         try:
             if binary:
                 reply = self._http.post(
@@ -140,11 +144,12 @@ class ItnetClient:
         mirror: bool | None = None,
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
+        up: list[float] | None = None,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint),
+            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up),
         )
         try:
             url = websocket_url(self.base_url)

@@ -118,9 +118,11 @@ def request_fields(
     mirror: bool | None = None,
     centre: bool | None = None,
     viewpoint: list[float] | None = None,
+    up: list[float] | None = None,
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations, units, mirror, centre and viewpoint
-    only when given; the viewpoint as 'x,y,z', which a binary request's query also takes)."""
+    """The request's non-point fields (max_iterations, units, mirror, centre, viewpoint and up
+    only when given; the viewpoint and up as 'x,y,z', which a binary request's query also
+    takes)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
@@ -132,6 +134,8 @@ def request_fields(
         out["centre"] = centre
     if viewpoint is not None:
         out["viewpoint"] = ",".join(repr(float(v)) for v in viewpoint)
+    if up is not None:
+        out["up"] = ",".join(repr(float(v)) for v in up)
     return out
 
 

@@ -72,6 +72,15 @@ class ModelCard(BaseModel):
     centre_evaluation: str = Field(
         "", description="the centre correction's measured effect as served: without and with"
     )
+    requires_up: bool = Field(
+        False,
+        description="the model is measured, and served, only with the up direction given: a "
+        "request without 'up' is refused (a category whose partial views leave its tilt "
+        "ambiguous: a box on its side)",
+    )
+    up_evaluation: str = Field(
+        "", description="how the model does with the up direction given, as served"
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",
@@ -175,6 +184,31 @@ def describe_ensemble(report: dict, k: int) -> str:
     return (
         f"{k} runs fused, within {report['budget_ms']:g} ms, on the {report['split']} views, at "
         f"(10 deg, 0.1 radius): " + ", ".join(parts) + f" [{report['machine']}]"
+    )
+
+
+def describe_up(report: dict, k: int) -> str:
+    """The card's ``up_evaluation`` line from ``benchmarks.bench_ensemble``'s JSON of a run with
+    ``--up``: K runs (the card's default) on each kind of view it measured, the up direction
+    given with the report's error. Raises ValueError where the report was not made with the up
+    direction or lacks K."""
+    error = report.get("up_error_deg")
+    if error is None:
+        raise ValueError("the report was made without --up")
+    kinds = [name for name, rows in report.items() if isinstance(rows, dict) and str(k) in rows]
+    if not kinds:
+        raise ValueError(f"the report does not measure {k} runs")
+    runs = "one run" if k == 1 else f"{k} runs fused"
+    parts = [
+        f"{kind} {report[kind][str(k)]['accuracy']:.1f}% ± {report[kind][str(k)]['stderr']:.1f} "
+        f"({report[kind][str(k)]['scans']} scans)"
+        for kind in kinds
+    ]
+    return (
+        f"{runs}, the up direction given (tilted {error:g} deg from the truth), within "
+        f"{report['budget_ms']:g} ms, on the {report['split']} views, at (10 deg, 0.1 radius): "
+        + ", ".join(parts)
+        + f" [{report['machine']}]"
     )
 
 

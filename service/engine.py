@@ -44,6 +44,7 @@ from itnet.preprocess import (
     pose_from_normalized,
 )
 from itnet.service.runtime import LoadedModel
+from itnet.upright import held_upright, unit_up, upright_starts
 
 STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
 # Larger coordinates overflow the normalisation's squares (1e200 ** 2 is inf in float64) and
@@ -174,6 +175,13 @@ def _viewpoint(viewpoint: ArrayLike) -> NDArray[np.float64]:
     return point
 
 
+def _up(up: ArrayLike) -> NDArray[np.float64]:
+    try:
+        return unit_up(np.asarray(up, dtype=np.float64).reshape(-1))
+    except (TypeError, ValueError) as err:
+        raise BadCloudError(str(err)) from None
+
+
 def _rotations(starts: ArrayLike) -> NDArray[np.float32]:
     """Starting rotations (3, 3) or (B, 3, 3) -> (B, 3, 3), checked."""
     r = np.asarray(starts, dtype=np.float64)
@@ -208,6 +216,7 @@ class AnytimeRun(Iterator[Estimate]):
         mirror: bool | None = None,
         centre: bool | None = None,
         viewpoint: ArrayLike | None = None,
+        up: ArrayLike | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -293,7 +302,20 @@ class AnytimeRun(Iterator[Estimate]):
         # what the fusion needs: on validation views (chair, table, toilet; docs/ensemble.md)
         # K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
         self.ensemble = ensemble
-        if ensemble > 1:
+        # Which way is up in the cloud (itnet.upright): the runs start stood up, yaw turns
+        # 360/K apart, and every step's pose is stood back up, so only yaw and position remain.
+        self.up = None if up is None else _up(up)
+        if self.up is None and model.card.requires_up:
+            raise BadCloudError(
+                f"model {model.card.name!r} needs 'up', which way is up in the cloud ([x, y, z]; "
+                "'x,y,z' in a query): its poses are measured, and served, only with it (GET "
+                "/v1/models: 'requires_up')"
+            )
+        if self.up is not None and starts is not None:
+            raise BadCloudError("up cannot be combined with starts")
+        if self.up is not None:
+            starts = upright_starts(self.up, ensemble)
+        elif ensemble > 1:
             starts = viewing_axis_turns(ensemble)
         # Where the iterations begin: the identity, or ``starts`` (3x3 or Bx3x3), rotations of
         # the cloud about its centroid (IT-Net from several initial guesses: itnet.alignment.pipeline).
@@ -362,6 +384,10 @@ class AnytimeRun(Iterator[Estimate]):
             start = time.perf_counter()
             # Move the cloud by the pose so far, predict the update, compose: inside the graph.
             self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
+            if self.up is not None:
+                self.pose_normalized = held_upright(self.pose_normalized, self.up).astype(
+                    np.float32
+                )
             self._last_step_ms = (time.perf_counter() - start) * 1e3
         self.model.record_step_ms(self._last_step_ms / self._load)
         self.iteration += 1
@@ -422,6 +448,8 @@ class AnytimeRun(Iterator[Estimate]):
                 break
             start = time.perf_counter()
             pose = mirror_finished(points, pose, [plane])
+            if self.up is not None:  # a mirror plane's refinement may tilt it
+                pose = held_upright(pose, self.up)
             self.model.record_mirror_ms((time.perf_counter() - start) * 1e3)
             self.mirror_planes.append(plane)
         if self.mirror_planes:
@@ -510,4 +538,5 @@ class AnytimeRun(Iterator[Estimate]):
                 if self.centre and self.viewpoint is not None
                 else {}
             ),
+            **({"up": [round(float(v), 6) for v in self.up]} if self.up is not None else {}),
         }

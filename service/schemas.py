@@ -84,6 +84,15 @@ class EstimateParams(BaseModel):
         "has that correction (GET /v1/models: 'centre_viewpoint'); the pose does not otherwise "
         "depend on it",
     )
+    up: Annotated[list[float] | None, BeforeValidator(_split_commas)] = Field(
+        default=None,
+        min_length=3,
+        max_length=3,
+        description="which way is up in the cloud, [x, y, z] (against gravity: an IMU's or a "
+        "floor plane's; 'x,y,z' in a binary request's query): the pose is then held upright, "
+        "its canonical +y on this direction, and only the turn about it and the position are "
+        "estimated (a box on its side or upside down is ruled out). Any length; not zero",
+    )
     units: Unit | None = Field(
         default=None,
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
@@ -165,6 +174,11 @@ class EstimateResponse(Pose):
         description="where the request gave a viewpoint: true if the correction that goes by "
         "the sensor's direction finished the centre (false: the model has none, or no step ran)",
     )
+    up: list[float] | None = Field(
+        None,
+        description="where the request gave 'up': that direction, unit length, in the cloud's "
+        "frame; the pose maps it onto the canonical +y",
+    )
 
 
 class ModelInfo(BaseModel):
@@ -216,6 +230,12 @@ class ModelInfo(BaseModel):
         "'viewpoint' (the sensor's position)",
     )
     centre_evaluation: str = Field("", description="the corrections' measured effect, one run")
+    requires_up: bool = Field(
+        False,
+        description="requests must give 'up' (which way is up in the cloud): the model is "
+        "measured and served only with it",
+    )
+    up_evaluation: str = Field("", description="how the model does with 'up' given")
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
 

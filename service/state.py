@@ -199,6 +199,7 @@ class ServiceState:
                 mirror=params.mirror,
                 centre=params.centre,
                 viewpoint=params.viewpoint,
+                up=params.up,
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

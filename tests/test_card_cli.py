@@ -104,3 +104,26 @@ def test_describe_mirror_needs_the_same_scans():
     other["paper"]["1"]["scans"] = 41
     with pytest.raises(ValueError, match="different scans"):
         describe_mirror(bench_report(70.0), other)
+
+
+def test_card_requires_up_only_with_its_measurement(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    unmeasured = runner.invoke(app, ["card", str(path), "--requires-up"])
+    assert unmeasured.exit_code == 2 and "--up-report" in unmeasured.output
+    without_up = bench_report(60.0)
+    (tmp_path / "plain.json").write_text(json.dumps(without_up))
+    refused = runner.invoke(app, ["card", str(path), "--requires-up", "--up-report",
+                                  str(tmp_path / "plain.json")])  # fmt: skip
+    assert refused.exit_code == 2 and "without --up" in refused.output
+    assert load_model(path, warm_up=False).card.requires_up is False  # nothing was written
+    up = {**bench_report(81.5), "up_error_deg": 2.0}
+    up["paper"]["1"]["stderr"] = 1.9
+    (tmp_path / "up.json").write_text(json.dumps(up))
+    result = runner.invoke(app, ["card", str(path), "--requires-up", "--up-report",
+                                 str(tmp_path / "up.json")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    card = load_model(path, warm_up=False).card
+    assert card.requires_up is True
+    assert card.up_evaluation.startswith("one run, the up direction given (tilted 2 deg")
+    assert "paper 81.5% ± 1.9 (40 scans)" in card.up_evaluation

@@ -87,3 +87,22 @@ def test_pose_says_when_the_shipped_chairs_centre_was_corrected():
     assert line["centre"] is True and line["centre_viewpoint"] is True
     bad = runner.invoke(app, ["pose", example, "--model", "chair", "--viewpoint", "0,0"])
     assert bad.exit_code == 2 and "expected three numbers" in bad.output
+
+
+def test_pose_holds_the_shipped_chair_upright_with_up():
+    """--up: the line says 'held upright' and the pose takes that direction onto +y; a bad one
+    is a usage error (three numbers) or the file's error (the zero vector)."""
+    from pathlib import Path
+
+    example = str(Path(__file__).resolve().parents[1] / "itnet/examples/chair_a.ply")
+    up = [0.1, -1.0, 0.2]
+    held = runner.invoke(app, ["pose", example, "--model", "chair", "--up", "0.1,-1,0.2"])
+    assert held.exit_code == 0 and "held upright" in held.stdout, held.output
+    line = runner.invoke(app, ["pose", example, "--model", "chair", "--up", "0.1,-1,0.2", "--json"])
+    result = json.loads(line.stdout)
+    rotation = np.asarray(result["T_canonical_from_input"])[:3, :3]
+    np.testing.assert_allclose(rotation @ (np.array(up) / np.linalg.norm(up)), [0, 1, 0], atol=1e-4)
+    bad = runner.invoke(app, ["pose", example, "--model", "chair", "--up", "0,1"])
+    assert bad.exit_code == 2 and "expected three numbers" in bad.output
+    zero = runner.invoke(app, ["pose", example, "--model", "chair", "--up", "0,0,0"])
+    assert zero.exit_code == 2 and "zero" in zero.output

@@ -40,13 +40,24 @@ def card(
         help="`benchmarks.bench_ensemble` JSON measuring that many runs against one: recorded as "
         "the card's ensemble_evaluation.",
     ),
+    requires_up: bool | None = typer.Option(
+        None,
+        "--requires-up/--no-requires-up",
+        help="Serve the model only to requests that give 'up' (which way is up in the cloud); "
+        "needs --up-report.",
+    ),
+    up_report: Path | None = typer.Option(
+        None,
+        help="`benchmarks.bench_ensemble --up` JSON of the card's default runs: recorded as the "
+        "card's up_evaluation.",
+    ),
     out: Path | None = typer.Option(None, help="Write here instead of changing MODEL in place."),
 ) -> None:
     """Print the card (JSON); with options, write the changed card into the model file."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model_card import ModelCard, describe_mirror
+    from itnet.model_card import ModelCard, describe_mirror, describe_up
     from itnet.service.runtime import ModelLoadError, load_any
 
     try:
@@ -80,6 +91,16 @@ def card(
             )
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-mirror: {err}") from None
+    if up_report is not None:
+        k = int(update.get("recommended_ensemble", current.recommended_ensemble))  # type: ignore[call-overload]
+        try:
+            update["up_evaluation"] = describe_up(json.loads(up_report.read_text()), k)
+        except (KeyError, ValueError) as err:
+            raise typer.BadParameter(f"--up-report: {err}") from None
+    if requires_up is not None:
+        if requires_up and not (up_report or current.up_evaluation):
+            raise typer.BadParameter("--requires-up needs its measurement: --up-report")
+        update["requires_up"] = requires_up
     if not planes:
         update["mirror_fused"] = False  # no planes: nothing to finish fused runs by
     changed = current.model_copy(update=update)

@@ -40,7 +40,7 @@ def models(
         typer.echo(json.dumps(reply.model_dump()))
         return
     rows = [
-        ("name", "category", "symmetry", "mirror", "centre", "precision", "points", "runs",
+        ("name", "category", "symmetry", "mirror", "centre", "up", "precision", "points", "runs",
          "accuracy", "step", ""),
     ]  # fmt: skip
     for info in reply.models:
@@ -51,6 +51,7 @@ def models(
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
                 _centre(info.centre, info.centre_viewpoint),
+                "needed" if info.requires_up else "-",
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
@@ -72,7 +73,8 @@ def models(
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
         "the final pose's object centre is finished by the card's correction (+vp: another for "
-        "requests that give the sensor's position); "
+        "requests that give the sensor's position); up: 'needed' where a request must say which "
+        "way is up in its cloud (--up); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 

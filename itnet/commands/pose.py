@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from itnet.service.engine import AnytimeRun
 
 
-def check_viewpoint(value: str | None) -> list[float] | None:
+def check_xyz(value: str | None) -> list[float] | None:
     """'x,y,z' -> [x, y, z] (three finite numbers), or a usage error."""
     if value is None:
         return None
@@ -69,7 +69,14 @@ def pose(
         help="Where the sensor was, 'x,y,z' in the cloud's frame and units ('0,0,0' for a depth "
         "camera's cloud in its own frame): the centre correction then also goes by the "
         "direction toward it, where the model has that correction.",
-        callback=check_viewpoint,
+        callback=check_xyz,
+    ),
+    up: str | None = typer.Option(
+        None,
+        help="Which way is up in the cloud, 'x,y,z' (against gravity: an IMU's, or a floor's "
+        "normal; '0,-1,0' for a camera whose image y points down, held level): the pose is held "
+        "upright and only its turn about up and its position are estimated.",
+        callback=check_xyz,
     ),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
@@ -93,10 +100,11 @@ def pose(
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
                 ensemble=ensemble, units=units, mirror=mirror, centre=centre, viewpoint=viewpoint,
+                up=up,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
-            mirror=mirror, centre=centre, viewpoint=viewpoint,
+            mirror=mirror, centre=centre, viewpoint=viewpoint, up=up,
         )  # fmt: skip
 
     failed = False
@@ -129,7 +137,8 @@ def pose(
                 f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}], {result['iterations']} iterations "
                 f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']}"
                 f"{', mirror-finished' if result.get('mirror') else ''}"
-                f"{', centre-corrected' if result.get('centre') else ''})"
+                f"{', centre-corrected' if result.get('centre') else ''}"
+                f"{', held upright' if result.get('up') else ''})"
             )
     if failed:
         raise typer.Exit(2)

@@ -4,7 +4,7 @@
 //   /?example=chair_a&model=chair&budget_ms=50&run=1          (opens the example and runs it)
 //   /?tab=align&a=chair_a&b=chair_b&refine=1&run=1            (aligns an example pair)
 // Other keys: max_iterations, ensemble (K runs from turned starts, fused), units (the cloud's unit,
-// for model auto), play_ms (0: show iterations
+// for model auto), up (which way is up in the cloud, x,y,z), play_ms (0: show iterations
 // as they arrive). When a run ends, its
 // final JSON is written into #result.
 
@@ -37,6 +37,7 @@ function saveUrl(extra = {}) {
           example: state.clouds.main?.example ?? null,
           ensemble: $('ensemble').value || null,
           units: $('units').value || null,
+          up: $('up').value.trim() || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
       : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
@@ -85,6 +86,7 @@ function showModel() {
     + `${info.precision}, ${info.points} points, trained with ${info.trained_iterations} iterations; `
     + (accuracy === undefined ? '' : `${(100 * accuracy).toFixed(1)}% correct at ${info.recommended_iterations} iterations (one run); `)
     + (runs > 1 ? `${runs} runs fused by default, as many as the budget holds; ` : '')
+    + (info.requires_up ? 'needs the up direction (Up: x,y,z); ' : '')
     + `one step ${info.step_ms.toFixed(2)} ms here.`;
 }
 
@@ -117,6 +119,8 @@ function poseRequest() {
   const body = request();
   if ($('ensemble').value) body.ensemble = Number($('ensemble').value);
   if ($('units').value) body.units = $('units').value;
+  const up = $('up').value.trim();
+  if (up) body.up = up.split(',').map(Number);
   return body;
 }
 
@@ -260,6 +264,7 @@ async function main() {
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
   if (['1', '4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
   if (['m', 'cm', 'mm', 'in', 'ft'].includes(params.get('units'))) $('units').value = params.get('units');
+  if (params.get('up')) $('up').value = params.get('up');
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;
   setTab(params.get('tab') === 'align' ? 'align' : 'pose');
@@ -267,7 +272,7 @@ async function main() {
 
   document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
   $('model').addEventListener('change', () => { showModel(); saveUrl(); });
-  for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
+  for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'up', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
   const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');

@@ -92,7 +92,9 @@ def test_openapi_documents_both_bodies_with_examples(client: TestClient) -> None
     content = post["requestBody"]["content"]
     assert set(content) == {"application/json", "application/octet-stream"}
     assert len(content["application/json"]["example"]["points"]) >= 32
-    assert {p["name"] for p in post["parameters"]} == {"budget_ms", "max_iterations", "model"}
+    assert {p["name"] for p in post["parameters"]} == {
+        "budget_ms", "max_iterations", "model", "viewpoint", "up",
+    }  # fmt: skip
     assert {"200", "400", "404", "413", "415", "422", "503"} <= set(post["responses"])
     assert "/v1/models" in spec["paths"] and "/readyz" in spec["paths"]
     assert client.get("/docs").status_code == 200

@@ -101,6 +101,24 @@ def test_the_unit_control_lets_auto_count_the_size(live_server, browser_page):
     assert "size_m" not in plain and plain["size_used"] is False and "units=" not in page.url
 
 
+def test_the_up_control_holds_the_pose_upright_as_the_api_does(live_server, browser_page):
+    page = browser_page
+    page.goto(f"{live_server.url}/?example=chair_a&model=chair&up=0.1,-1,0.2&budget_ms=5000"
+              "&max_iterations=3&play_ms=0&run=1")  # fmt: skip
+    shown = result(page)
+    assert page.input_value("#up") == "0.1,-1,0.2" and "up=0.1" in page.url
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="chair",
+                   up=[0.1, -1, 0.2], budget_ms=5000, max_iterations=3)  # fmt: skip
+    assert np.allclose(shown["up"], api["up"]) and shown["iterations"] == 3
+    assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
+    # Cleared: the request carries no up, the reply none, the URL forgets it.
+    page.fill("#up", "")
+    page.dispatch_event("#up", "change")
+    page.click("#run")
+    free = result(page)
+    assert "up" not in free and "up=" not in page.url
+
+
 def test_a_dropped_file_is_read_by_the_server_and_a_bad_one_is_refused(
     live_server, browser_page, tmp_path
 ):

@@ -46,19 +46,23 @@ def test_models_table_shows_the_shipped_cards():
     table = runner.invoke(app, ["models"])
     assert table.exit_code == 0, table.output
     header, *rows = table.stdout.splitlines()
-    assert header.split() == ["name", "category", "symmetry", "mirror", "centre", "precision",
-                              "points", "runs", "accuracy", "step"]  # fmt: skip
+    assert header.split() == ["name", "category", "symmetry", "mirror", "centre", "up",
+                              "precision", "points", "runs", "accuracy", "step"]  # fmt: skip
     for name in ("chair", "bed"):  # the bed's card recommends 8 runs fused (session 19)
         row = next(r for r in rows if r.startswith(f"{name} "))
         card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
         accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
         assert card.mirror_planes == ["x"]  # left-right symmetric; front and back differ
         centre = centre_column(card)
-        assert row.split()[:8] == [name, card.category, card.symmetry, "x", centre,
+        assert row.split()[:9] == [name, card.category, card.symmetry, "x", centre, "-",
                                    card.precision, str(card.points),
                                    str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
+    # the night stand is served only with the up direction (session 22): its row says so
+    night = next(r for r in rows if r.startswith("night_stand "))
+    assert night.split()[5] == "needed"
+    assert load_model(SHIPPED / "night_stand.onnx", warm_up=False).card.requires_up
     bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
     assert bed.recommended_ensemble == 8 and "8 runs fused, within 50 ms" in bed.ensemble_evaluation
     assert (
@@ -68,14 +72,14 @@ def test_models_table_shows_the_shipped_cards():
     # the bathtub (session 19): 8 runs fused within the default 50 ms; two mirror planes
     row = next(r for r in rows if r.startswith("bathtub "))
     tub = load_model(SHIPPED / "bathtub.onnx", warm_up=False).card
-    assert row.split()[:8] == ["bathtub", "bathtub", "yaw180", "x,z",
-                               centre_column(tub), "int8", "256", "8"]  # fmt: skip
+    assert row.split()[:9] == ["bathtub", "bathtub", "yaw180", "x,z",
+                               centre_column(tub), "-", "int8", "256", "8"]  # fmt: skip
     assert "8 runs fused, within 50 ms" in tub.ensemble_evaluation
     # the sofa (session 20): 8 runs fused, finished by its left-right mirror too
     row = next(r for r in rows if r.startswith("sofa "))
     sofa = load_model(SHIPPED / "sofa.onnx", warm_up=False).card
-    assert row.split()[:8] == ["sofa", "sofa", "none", "x",
-                               centre_column(sofa), "int8", "256", "8"]  # fmt: skip
+    assert row.split()[:9] == ["sofa", "sofa", "none", "x",
+                               centre_column(sofa), "-", "int8", "256", "8"]  # fmt: skip
     assert sofa.mirror_fused and "8 runs fused, within 50 ms" in sofa.ensemble_evaluation
 
 

@@ -36,6 +36,10 @@ _QUERY = [
      "description": "binary bodies only: iteration cap (default: the model's)"},
     {"name": "model", "in": "query", "required": False, "schema": {"type": "string"},
      "description": "binary bodies only: model name (default: 'chair' or the only model)"},
+    {"name": "viewpoint", "in": "query", "required": False, "schema": {"type": "string"},
+     "description": "binary bodies only: the sensor's position, 'x,y,z'"},
+    {"name": "up", "in": "query", "required": False, "schema": {"type": "string"},
+     "description": "binary bodies only: which way is up in the cloud, 'x,y,z'"},
 ]  # fmt: skip
 
 OPENAPI_EXTRA = {

@@ -33,6 +33,8 @@ async def models(state: StateDep) -> ModelsResponse:
             centre=m.centre is not None,
             centre_viewpoint=m.centre_viewpoint is not None,
             centre_evaluation=m.card.centre_evaluation,
+            requires_up=m.card.requires_up,
+            up_evaluation=m.card.up_evaluation,
             accuracy=m.card.accuracy,
             evaluation=m.card.evaluation,
             normalization=m.card.normalization,

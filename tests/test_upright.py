@@ -1,0 +1,113 @@
+"""Poses held upright (itnet.upright) and the engine's ``up``: the pose takes the given up
+direction onto the canonical +y, the object's centre stays, and bad or conflicting input is
+refused."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from itnet.geometry import apply_rigid, invert_rigid, random_rotation
+from itnet.service.engine import AnytimeRun, BadCloudError
+from itnet.service.runtime import load_model
+from itnet.upright import UP, held_upright, rotation_onto, unit_up, upright_starts
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model_dir):
+    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
+
+
+def test_rotation_onto_takes_one_direction_onto_another(rng) -> None:
+    a = rng.normal(size=(50, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = rng.normal(size=(50, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    r = rotation_onto(a, b)
+    np.testing.assert_allclose(np.einsum("sij,sj->si", r, a), b, atol=1e-9)
+    np.testing.assert_allclose(
+        r @ np.swapaxes(r, 1, 2), np.broadcast_to(np.eye(3), r.shape), atol=1e-9
+    )
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-9)
+    # the least rotation: its angle is the angle between the two
+    angle = np.degrees(np.arccos(np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    np.testing.assert_allclose(angle, np.degrees(np.arccos(np.sum(a * b, axis=1))), atol=1e-6)
+
+
+@pytest.mark.parametrize("a", [UP, -UP, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])])
+def test_rotation_onto_handles_parallel_and_opposite_directions(a) -> None:
+    r = rotation_onto(a, UP)
+    np.testing.assert_allclose(r @ a, UP, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-9)
+
+
+def test_held_upright_takes_up_onto_y_and_keeps_the_centre(rng) -> None:
+    up = unit_up(rng.normal(size=3))
+    poses = np.tile(np.eye(4), (20, 1, 1))
+    poses[:, :3, :3] = random_rotation(rng, 20)
+    poses[:, :3, 3] = rng.normal(size=(20, 3))
+    held = held_upright(poses, up)
+    np.testing.assert_allclose(held[:, :3, :3] @ up, np.tile(UP, (20, 1)), atol=1e-9)
+    centres = invert_rigid(poses)[:, :3, 3]  # where each pose puts the canonical origin
+    np.testing.assert_allclose(invert_rigid(held)[:, :3, 3], centres, atol=1e-9)
+    np.testing.assert_allclose(held_upright(held, up), held, atol=1e-9)  # already upright
+
+
+def test_upright_starts_stand_the_cloud_up_at_turns_about_y(rng) -> None:
+    up = unit_up([0.3, -1.0, 0.2])
+    starts = upright_starts(up, 4)
+    np.testing.assert_allclose(starts @ up, np.tile(UP, (4, 1)), atol=1e-9)
+    # consecutive starts differ by a quarter turn about +y
+    turn = starts[1] @ starts[0].T
+    np.testing.assert_allclose(turn @ UP, UP, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arccos((np.trace(turn) - 1) / 2)), 90.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [[0, 0, 0], [1, 2], [np.nan, 1, 0], [np.inf, 0, 0]])
+def test_unit_up_refuses_what_is_not_a_direction(bad) -> None:
+    with pytest.raises(ValueError, match="up"):
+        unit_up(bad)
+
+
+@pytest.mark.parametrize("ensemble", [1, 4])
+def test_engine_holds_every_estimate_upright(model, rng, ensemble) -> None:
+    cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1] + [1.0, 2.0, 3.0]
+    up = [0.2, -0.9, 0.1]  # a camera whose image y points down, tilted
+    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble, up=up)
+    estimates = list(run)
+    assert len(estimates) == 5
+    for e in estimates:
+        np.testing.assert_allclose(e.pose[:3, :3] @ unit_up(up), UP, atol=1e-4)
+    result = run.result()
+    np.testing.assert_allclose(result["up"], unit_up(up), atol=1e-6)
+    final = np.asarray(result["T_canonical_from_input"])
+    np.testing.assert_allclose(final[:3, :3] @ unit_up(up), UP, atol=1e-4)
+    # without up the tiny network's poses tilt freely
+    free = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble)
+    tilt = free.run_to_end().pose[:3, :3] @ unit_up(up)
+    assert np.degrees(np.arccos(np.clip(tilt @ UP, -1, 1))) > 1.0
+    assert "up" not in free.result()
+
+
+def test_engine_refuses_bad_or_conflicting_up(model, rng) -> None:
+    cloud = rng.normal(size=(300, 3))
+    with pytest.raises(BadCloudError, match="zero"):
+        AnytimeRun(model, cloud, up=[0, 0, 0])
+    with pytest.raises(BadCloudError, match="three finite"):
+        AnytimeRun(model, cloud, up=[0, 1])
+    with pytest.raises(BadCloudError, match="starts"):
+        AnytimeRun(model, cloud, up=[0, 1, 0], starts=np.eye(3))
+
+
+def test_a_model_that_requires_up_refuses_a_request_without_it(model, rng) -> None:
+    needs = copy.copy(model)
+    needs.card = model.card.model_copy(update={"requires_up": True})
+    cloud = rng.normal(size=(300, 3))
+    with pytest.raises(BadCloudError, match="needs 'up'"):
+        AnytimeRun(needs, cloud)
+    run = AnytimeRun(needs, cloud, up=[0, 0, 1], budget_ms=10_000, max_iterations=3)
+    pose = run.run_to_end().pose
+    np.testing.assert_allclose(pose[:3, :3] @ [0, 0, 1], UP, atol=1e-4)
+    assert np.isfinite(apply_rigid(pose, cloud)).all()
