@@ -81,6 +81,13 @@ class ModelCard(BaseModel):
     up_evaluation: str = Field(
         "", description="how the model does with the up direction given, as served"
     )
+    up_free_steps: int = Field(
+        0,
+        ge=0,
+        description="with the up direction given, the first this many steps run free (from the "
+        "usual starts) and only the later ones, and the final pose, are held upright: for a "
+        "category whose network passes through tilted poses on its way to the right one",
+    )
     inputs: dict[str, str] = {
         "points": "float32 [B, N, 3], normalised cloud",
         "pose": "float32 [B, 4, 4], pose so far (normalised frame)",

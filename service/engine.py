@@ -313,7 +313,9 @@ class AnytimeRun(Iterator[Estimate]):
             )
         if self.up is not None and starts is not None:
             raise BadCloudError("up cannot be combined with starts")
-        if self.up is not None:
+        # the card's free steps: the first ones from the usual starts, not held (the sofa's)
+        self.up_free = model.card.up_free_steps if self.up is not None else 0
+        if self.up is not None and self.up_free == 0:
             starts = upright_starts(self.up, ensemble)
         elif ensemble > 1:
             starts = viewing_axis_turns(ensemble)
@@ -384,7 +386,7 @@ class AnytimeRun(Iterator[Estimate]):
             start = time.perf_counter()
             # Move the cloud by the pose so far, predict the update, compose: inside the graph.
             self.pose_normalized, delta = self.model.step(self.points, self.pose_normalized)
-            if self.up is not None:
+            if self.up is not None and self.iteration >= self.up_free:
                 self.pose_normalized = held_upright(self.pose_normalized, self.up).astype(
                     np.float32
                 )
@@ -405,7 +407,16 @@ class AnytimeRun(Iterator[Estimate]):
 
     def _finish(self) -> None:
         """After the last step (once): finish ``last`` by the card's mirror planes, then by its
-        centre correction; none after a cancel or before any step."""
+        centre correction; none after a cancel or before any step. A run that stopped within
+        the card's free steps is stood up first."""
+        if (
+            self.up is not None
+            and 0 < self.iteration <= self.up_free
+            and self.mirror_planes is None
+            and self.centred is None
+            and self.stopped_by != "cancelled"
+        ):
+            self.last = self._moved_to(held_upright(self.last.pose_normalized, self.up))
         self._finish_mirror()
         if not self.centre or self.centred is not None:
             return

@@ -111,3 +111,24 @@ def test_a_model_that_requires_up_refuses_a_request_without_it(model, rng) -> No
     pose = run.run_to_end().pose
     np.testing.assert_allclose(pose[:3, :3] @ [0, 0, 1], UP, atol=1e-4)
     assert np.isfinite(apply_rigid(pose, cloud)).all()
+
+
+def test_free_steps_run_unheld_and_the_final_pose_is_still_upright(model, rng) -> None:
+    free = copy.copy(model)
+    free.card = model.card.model_copy(update={"up_free_steps": 2})
+    cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1]
+    up = unit_up([0.3, 1.0, -0.2])
+
+    def tilt(pose: np.ndarray) -> float:
+        return float(np.degrees(np.arccos(np.clip((pose[:3, :3] @ up) @ UP, -1, 1))))
+
+    run = AnytimeRun(free, cloud, budget_ms=10_000, max_iterations=4, up=up, mirror=False)
+    estimates = list(run)
+    assert tilt(estimates[0].pose) > 1.0 and tilt(estimates[1].pose) > 1.0  # free
+    assert tilt(estimates[2].pose) < 1e-2 and tilt(estimates[3].pose) < 1e-2  # held
+    # a run that stops within the free steps is stood up at the end
+    short = AnytimeRun(free, cloud, budget_ms=10_000, max_iterations=1, up=up, mirror=False)
+    (only,) = list(short)
+    assert tilt(only.pose) > 1.0  # the step itself ran free
+    assert tilt(short.run_to_end().pose) < 1e-2  # and the finish stood it up
+    assert tilt(np.asarray(short.result()["T_canonical_from_input"])) < 1e-2

@@ -51,6 +51,12 @@ def card(
         help="`benchmarks.bench_ensemble --up` JSON of the card's default runs: recorded as the "
         "card's up_evaluation.",
     ),
+    up_free_steps: int | None = typer.Option(
+        None,
+        min=0,
+        help="With the up direction given, run this many steps free before holding the pose "
+        "upright.",
+    ),
     out: Path | None = typer.Option(None, help="Write here instead of changing MODEL in place."),
 ) -> None:
     """Print the card (JSON); with options, write the changed card into the model file."""
@@ -97,6 +103,8 @@ def card(
             update["up_evaluation"] = describe_up(json.loads(up_report.read_text()), k)
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--up-report: {err}") from None
+    if up_free_steps is not None:
+        update["up_free_steps"] = up_free_steps
     if requires_up is not None:
         if requires_up and not (up_report or current.up_evaluation):
             raise typer.BadParameter("--requires-up needs its measurement: --up-report")
