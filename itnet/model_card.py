@@ -172,17 +172,23 @@ def parse_card(text: str) -> ModelCard | ClassifierCard:
     return ModelCard.model_validate_json(text)
 
 
+def _kinds_measuring(report: dict, k: int) -> list[str]:
+    """The kinds of view (occluded, paper, ...) a ``benchmarks.bench_ensemble`` JSON measured
+    with K runs; ValueError where none."""
+    kinds = [name for name, rows in report.items() if isinstance(rows, dict) and str(k) in rows]
+    if not kinds:
+        raise ValueError(f"the report does not measure {k} runs")
+    return kinds
+
+
 def describe_ensemble(report: dict, k: int) -> str:
     """The card's ``ensemble_evaluation`` line from ``benchmarks.bench_ensemble``'s JSON: K runs
     against one on each kind of view it measured. Raises KeyError/ValueError where the report
     lacks K or a single run."""
     if k < 2:
         raise ValueError(f"an ensemble is more than one run, got {k}")
-    kinds = [name for name, rows in report.items() if isinstance(rows, dict) and str(k) in rows]
-    if not kinds:
-        raise ValueError(f"the report does not measure {k} runs")
     parts = []
-    for kind in kinds:
+    for kind in _kinds_measuring(report, k):
         one, many = report[kind]["1"], report[kind][str(k)]
         parts.append(
             f"{kind} {many['accuracy']:.1f}% (one run {one['accuracy']:.1f}%, "
@@ -202,14 +208,11 @@ def describe_up(report: dict, k: int) -> str:
     error = report.get("up_error_deg")
     if error is None:
         raise ValueError("the report was made without --up")
-    kinds = [name for name, rows in report.items() if isinstance(rows, dict) and str(k) in rows]
-    if not kinds:
-        raise ValueError(f"the report does not measure {k} runs")
     runs = "one run" if k == 1 else f"{k} runs fused"
     parts = [
         f"{kind} {report[kind][str(k)]['accuracy']:.1f}% ± {report[kind][str(k)]['stderr']:.1f} "
         f"({report[kind][str(k)]['scans']} scans)"
-        for kind in kinds
+        for kind in _kinds_measuring(report, k)
     ]
     return (
         f"{runs}, the up direction given (tilted {error:g} deg from the truth), within "

@@ -66,6 +66,13 @@ def test_scans(
     files = split_files(data, cat.name, 0.1, 0)["test"]
     if not files:
         raise ValueError(f"{data}: no test shapes of {cat.name}")
+    return _scans_of(files, cat, views, seed, scan, cache, frame, check_orientation)
+
+
+def _scans_of(files: list[Path], cat: Category, views: int, seed: int, scan: ScanConfig,
+              cache: Path, frame: str, check_orientation: bool) -> tuple[ScanSet, dict]:  # fmt: skip
+    """Seeded scans (cached) of the shapes in ``files``, in the category's frame and
+    orientation-checked as training does -> (scans, orientation-check counts)."""
     shapes, orientation = load_shapes(
         files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry
     )
@@ -109,8 +116,7 @@ def training_scans(
     shapes (``validation_fraction``, split by ``split_seed`` as ``validation_scans`` splits):
     for what is fitted on the training split after the network (``itnet centre-fit``)."""
     files = split_files(data, cat.name, validation_fraction, split_seed)["train"]
-    shapes, _ = load_shapes(files, frame, cache, check_orientation, cat.quarter_turns, cat.symmetry)
-    return cached_scan_set(shapes, views, seed, scan, cache)
+    return _scans_of(files, cat, views, seed, scan, cache, frame, check_orientation)[0]
 
 
 def _turns(symmetry: str, size: int) -> NDArray[np.float32]:

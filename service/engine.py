@@ -295,6 +295,7 @@ class AnytimeRun(Iterator[Estimate]):
         self.centre = bool(centre)
         self.centred: bool | None = None  # once finished: whether the correction moved the pose
         self.centred_by_viewpoint = False  # once finished: the viewpoint correction did it
+        self._finished = False  # _finish ran
         # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
         # from the identity), each on its own random subset of the cloud (normalised as a
         # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
@@ -409,13 +410,11 @@ class AnytimeRun(Iterator[Estimate]):
         """After the last step (once): finish ``last`` by the card's mirror planes, then by its
         centre correction; none after a cancel or before any step. A run that stopped within
         the card's free steps is stood up first."""
-        if (
-            self.up is not None
-            and 0 < self.iteration <= self.up_free
-            and self.mirror_planes is None
-            and self.centred is None
-            and self.stopped_by != "cancelled"
-        ):
+        if self._finished:  # a second StopIteration (iterating a finished run) changes nothing
+            return
+        self._finished = True
+        free = 0 < self.iteration <= self.up_free and self.stopped_by != "cancelled"
+        if self.up is not None and free:
             self.last = self._moved_to(held_upright(self.last.pose_normalized, self.up))
         self._finish_mirror()
         if not self.centre or self.centred is not None:

@@ -32,6 +32,13 @@ def _split_commas(value: object) -> object:
     return value.split(",") if isinstance(value, str) else value
 
 
+# Three numbers, [x, y, z] in JSON or 'x,y,z' in a binary request's query (viewpoint, up).
+Xyz = Annotated[
+    Annotated[list[float], Field(min_length=3, max_length=3)] | None,
+    BeforeValidator(_split_commas),
+]
+
+
 class EstimateParams(BaseModel):
     """How long and with which model to estimate. Query string of a binary request."""
 
@@ -74,20 +81,16 @@ class EstimateParams(BaseModel):
         "(itnet.centre, a fraction of a millisecond); default: where the model's card has one "
         "(GET /v1/models: 'centre'); true for a model without it is refused",
     )
-    viewpoint: Annotated[list[float] | None, BeforeValidator(_split_commas)] = Field(
+    viewpoint: Xyz = Field(
         default=None,
-        min_length=3,
-        max_length=3,
         description="where the sensor was, [x, y, z] in the cloud's frame and units ('x,y,z' in "
         "a binary request's query): [0, 0, 0] for a depth camera's cloud in its own frame. The "
         "centre correction then also goes by the direction toward the sensor, where the model "
         "has that correction (GET /v1/models: 'centre_viewpoint'); the pose does not otherwise "
         "depend on it",
     )
-    up: Annotated[list[float] | None, BeforeValidator(_split_commas)] = Field(
+    up: Xyz = Field(
         default=None,
-        min_length=3,
-        max_length=3,
         description="which way is up in the cloud, [x, y, z] (against gravity: an IMU's or a "
         "floor plane's; 'x,y,z' in a binary request's query): the pose is then held upright, "
         "its canonical +y on this direction, and only the turn about it and the position are "

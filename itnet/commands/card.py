@@ -98,7 +98,7 @@ def card(
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-mirror: {err}") from None
     if up_report is not None:
-        k = int(update.get("recommended_ensemble", current.recommended_ensemble))  # type: ignore[call-overload]
+        k = current.recommended_ensemble if recommended_ensemble is None else recommended_ensemble
         try:
             update["up_evaluation"] = describe_up(json.loads(up_report.read_text()), k)
         except (KeyError, ValueError) as err:
