@@ -1,14 +1,21 @@
 """Benchmark: itnet-align against registration baselines on pairs of partial scans.
 
     .venv/bin/python -m benchmarks.bench_align --pairs 100
+    .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align --refine" \
+        "itnet-align --refine --up"        # each scan's up given, tilted 2 deg from the truth
+    .venv/bin/python -m benchmarks.bench_align --model night_stand --up 2 \
+        --data ../shared/data/modelnet10/night_stand/test
 
-Pairs: two partial scans of the same held-out object (ModelNet10 *test* chairs, mapped to the
-canonical frame by ``itnet.model.shapes``, radius 1), each from an independent random viewpoint
+Pairs: two partial scans of the same held-out object (ModelNet10 *test* chairs, or the model's
+category, mapped to the canonical frame by ``itnet.model.shapes`` and the category's turn,
+radius 1), each from an independent random viewpoint
 (full SO(3), ``itnet.model.scanner``), in its own camera frame; seeded, so every method sees the
 same pairs. Truth: T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a of the scans.
 Metric (SPEC.md, ``itnet.metrics.alignment_errors``): rotation error and the distance between
 where the estimate and the truth put A's centroid, over the object radius; success at
-(10 deg, 0.1). Writes align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the
+(10 deg, 0.1). ``--up ERROR_DEG`` adds the itnet-align variants given each scan's up direction
+(``--up-a``/``--up-b``), the truth tilted by that error as a gravity sensor's would be; a model
+whose card requires up runs only those. Writes align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the
 README's table is ``--out docs``, so a trial run never overwrites it).
 """
 
@@ -31,9 +38,11 @@ from itnet.alignment.estimators import in_process_estimator
 from itnet.alignment.hypotheses import category_symmetry, relative_pose
 from itnet.alignment.pipeline import AlignOptions, PoseEstimator, align_clouds
 from itnet.metrics import alignment_errors, is_correct
+from itnet.model import categories
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import list_shape_files, load_shape
 from itnet.service.runtime import LoadedModel, default_model_dir, load_models
+from itnet.upright import tilted
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,6 +56,7 @@ class Pair:
     truth: NDArray[np.float64]
     radius: float
     name: str
+    ups: tuple[NDArray[np.float64], NDArray[np.float64]]  # each scan's true up, in its frame
 
 
 @dataclass
@@ -62,9 +72,11 @@ class Outcome:
         return is_correct(np.array(self.rotation_deg), np.array(self.translation))
 
 
-def make_pairs(folder: Path, count: int, seed: int) -> list[Pair]:
-    """``count`` scan pairs cycling over the shapes in ``folder`` (ModelNet frame)."""
-    shapes = [load_shape(p, "modelnet") for p in list_shape_files(folder)]
+def make_pairs(folder: Path, count: int, seed: int, category: str = "chair") -> list[Pair]:
+    """``count`` scan pairs cycling over the shapes in ``folder`` (ModelNet frame, turned into
+    ``category``'s canonical frame)."""
+    turns = categories.category(category).quarter_turns
+    shapes = [load_shape(p, "modelnet", turns) for p in list_shape_files(folder)]
     rng = np.random.default_rng(seed)
     config = ScanConfig()
     pairs = []
@@ -72,14 +84,24 @@ def make_pairs(folder: Path, count: int, seed: int) -> list[Pair]:
         shape = shapes[i % len(shapes)]
         a, pose_a = scan_shape(shape.points, rng, config)
         b, pose_b = scan_shape(shape.points, rng, config)
-        pairs.append(Pair(a, b, relative_pose(pose_a, pose_b), 1.0, shape.name))
+        ups = (pose_a[1, :3], pose_b[1, :3])  # R^T e_y: the canonical +y in each camera frame
+        pairs.append(Pair(a, b, relative_pose(pose_a, pose_b), 1.0, shape.name, ups))
     return pairs
 
 
+def given_ups(pairs: list[Pair], error_deg: float, seed: int) -> None:
+    """Each pair's ups as a gravity sensor would give them: tilted by ``error_deg``."""
+    rng = np.random.default_rng(seed)
+    for pair in pairs:
+        pair.ups = tuple(tilted(np.stack(pair.ups), error_deg, rng))  # type: ignore[assignment]
+
+
 def itnet_methods(
-    model_name: str, model_dir: Path | None, budget_ms: float
+    model_name: str, model_dir: Path | None, budget_ms: float, with_up: bool = False
 ) -> tuple[dict[str, Callable], LoadedModel]:
-    """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info)."""
+    """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info);
+    ``with_up``: also each with ``--up`` (it then takes the pair's ups; only those where the
+    model requires up)."""
     model = load_models(model_dir or default_model_dir())[model_name]
     estimate = in_process_estimator(model, budget_ms)
     symmetry = category_symmetry(model.card.category, model.card.symmetry)
@@ -94,18 +116,25 @@ def itnet_methods(
         ),
     }
 
-    def method(estimate: PoseEstimator, options: AlignOptions) -> Callable:
-        def align(a: NDArray, b: NDArray) -> tuple[NDArray, dict]:
-            result = align_clouds(a, b, estimate, options)
+    def method(estimate: PoseEstimator, options: AlignOptions, up: bool) -> Callable:
+        def align(a: NDArray, b: NDArray, ups: tuple | None = None) -> tuple[NDArray, dict]:
+            result = align_clouds(a, b, estimate, options, *(ups if up else (None, None)))
             chosen = result.hypotheses[result.chosen].source
             info = {**result.confidence, "hypothesis": chosen, "iterations": result.iterations,
                     "considered": result.considered,
                     **{f"{k}_ms": v for k, v in result.timings_ms.items()}}  # fmt: skip
             return result.T_b_from_a, info
 
+        align.uses_up = up  # type: ignore[attr-defined]
         return align
 
-    return {name: method(estimate, options) for name, options in variants.items()}, model
+    out = {}
+    for name, options in variants.items():
+        if not model.card.requires_up:
+            out[name] = method(estimate, options, False)
+        if with_up or model.card.requires_up:
+            out[f"{name} --up"] = method(estimate, options, True)
+    return out, model
 
 
 def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float) -> dict:
@@ -113,7 +142,7 @@ def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float)
     hits all methods alike), after one warm-up call each; a method stops once it has spent
     ``seconds``. Returns {name: Outcome}."""
     for method in methods.values():
-        method(pairs[0].a, pairs[0].b)
+        method(pairs[0].a, pairs[0].b, **_ups(method, pairs[0]))
     outcomes = {name: Outcome() for name in methods}
     for pair in pairs:
         for name, method in methods.items():
@@ -121,7 +150,7 @@ def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float)
             if sum(out.ms) / 1e3 > seconds:
                 continue
             start = time.perf_counter()
-            reply = method(pair.a, pair.b)
+            reply = method(pair.a, pair.b, **_ups(method, pair))
             out.ms.append((time.perf_counter() - start) * 1e3)
             estimate, info = reply if isinstance(reply, tuple) else (reply, {})
             rot, trans = alignment_errors(estimate, pair.truth, pair.a.mean(0), pair.radius)
@@ -129,6 +158,11 @@ def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float)
             out.translation.append(float(trans))
             out.info.append(info)
     return outcomes
+
+
+def _ups(method: Callable, pair: Pair) -> dict:
+    """The pair's ups for a method that takes them (itnet-align --up), else nothing."""
+    return {"ups": pair.ups} if getattr(method, "uses_up", False) else {}
 
 
 def _without_notes(argv: list[str]) -> list[str]:
@@ -156,6 +190,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "align",
                         help="where the report goes; docs for the README's")  # fmt: skip
     parser.add_argument("--note", action="append", default=[], help="a line for the report")
+    parser.add_argument("--up", type=float, default=None, metavar="ERROR_DEG",
+                        help="add itnet-align given each scan's up, tilted by ERROR_DEG")  # fmt: skip
     parser.add_argument(
         "--from-json",
         type=Path,
@@ -170,8 +206,9 @@ def main() -> None:
         write_report(results, saved["meta"], args.out / "align_benchmark")
         return
 
-    pairs = make_pairs(args.data, args.pairs, args.seed)
-    methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms)
+    methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms, args.up is not None)
+    pairs = make_pairs(args.data, args.pairs, args.seed, model.card.category or "chair")
+    given_ups(pairs, 2.0 if args.up is None else args.up, args.seed + 1)
     methods.update(baselines.available())
     if args.only:
         methods = {name: m for name, m in methods.items() if name in args.only}
@@ -190,6 +227,7 @@ def main() -> None:
         f"{modified}; trained {model.card.training.get('steps', '?')} steps, validation "
         f"accuracy {model.card.training.get('validation', '?')})",
         "budget_ms": args.budget_ms,
+        "up_error_deg": args.up,
         "command": " ".join(["python -m benchmarks.bench_align", *_without_notes(sys.argv[1:])]),
         "notes": args.note,
         "points": [int(np.median([len(p.a) for p in pairs])),

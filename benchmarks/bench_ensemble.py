@@ -22,15 +22,12 @@ def known_ups(poses: np.ndarray, error_deg: float, seed: int = 0) -> np.ndarray:
     """Each scan's up direction in its own frame, as a caller would give it: the truth (the
     canonical +y taken back by T_canonical_from_input (S, 4, 4)) tilted by ``error_deg`` about a
     random horizontal axis (a gravity sensor's error) -> (S, 3) unit vectors."""
-    from itnet.geometry import axis_angle_to_matrix
+    from itnet.upright import tilted
 
     truth = poses[:, :3, :3].transpose(0, 2, 1) @ np.array([0.0, 1.0, 0.0])  # R^T y
     if error_deg == 0:
         return truth
-    rng = np.random.default_rng(seed)
-    axes = np.cross(truth, rng.normal(size=truth.shape))  # normal to the true up
-    tilt = axis_angle_to_matrix(axes, np.full(len(truth), np.radians(error_deg)))
-    return np.einsum("sij,sj->si", tilt, truth)
+    return tilted(truth, error_deg, np.random.default_rng(seed))
 
 
 def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:

@@ -59,9 +59,34 @@ def held_upright(poses: ArrayLike, up: ArrayLike) -> FloatArray:
     return out
 
 
+def turns_about(up: ArrayLike, count: int) -> FloatArray:
+    """``count`` rotations (count x3x3) of a cloud about its ``up`` (3,, unit), 360/count
+    degrees apart (the first: the identity): a turned cloud keeps its up, so each turn is a
+    start that a run held upright can begin from (alignment's starts with up);
+    ``upright_starts(up, n) == stand @ turns_about(up, n)``."""
+    stand = rotation_onto(np.asarray(up, dtype=np.float64), UP)
+    return stand.T @ upright_starts(up, count)
+
+
 def upright_starts(up: ArrayLike, count: int) -> FloatArray:
     """``count`` starting rotations (count x3x3) that take ``up`` (3,, unit) onto +y, turned
     about +y 360/count degrees apart (the first: the least rotation alone)."""
     stand = rotation_onto(np.asarray(up, dtype=np.float64), UP)
     yaws = axis_angle_to_matrix(UP, 2 * np.pi * np.arange(count) / count)
     return yaws @ stand
+
+
+def tilted(ups: ArrayLike, error_deg: ArrayLike, rng: np.random.Generator) -> FloatArray:
+    """Unit directions (S, 3) -> each turned by ``error_deg`` (scalar or (S,)) about a random
+    axis normal to it: an up direction as a gravity sensor with that error would give it."""
+    ups = np.asarray(ups, dtype=np.float64)
+    angles = np.broadcast_to(np.radians(np.asarray(error_deg, dtype=np.float64)), ups.shape[:1])
+    axes = np.cross(ups, rng.normal(size=ups.shape))  # normal to each up
+    return np.einsum("sij,sj->si", axis_angle_to_matrix(axes, angles), ups)
+
+
+def levelled(points: ArrayLike, up: ArrayLike) -> FloatArray:
+    """A cloud (N, 3) and its up direction (3,, unit) -> the cloud turned about its origin by
+    the least rotation that takes ``up`` onto +y: the object stands, its yaw is left as it was."""
+    stand = rotation_onto(np.asarray(up, dtype=np.float64), UP)
+    return np.asarray(points, dtype=np.float64) @ stand.T

@@ -4,13 +4,16 @@
     .venv/bin/python scripts/make_examples.py --seed 39 --name chair_quarter   # a symmetric case
     .venv/bin/python scripts/make_examples.py --category table --radius 0.8 --name table \
         --shape ../shared/data/modelnet10/table/test/table_0400.pcd
+    .venv/bin/python scripts/make_examples.py --category night_stand --radius 0.4 \
+        --name night_stand --shape ../shared/data/modelnet10/night_stand/test/night_stand_0201.pcd
 
 The object is a ModelNet10 *test* shape (never trained on), mapped to its category's canonical
 frame (``itnet.model.shapes`` and the category's turn, ``itnet.model.categories``), given a real size (bounding-sphere radius ``--radius`` metres) and
 scanned twice by the project's virtual depth camera (``itnet.model.scanner``) from seeded random
 viewpoints. Each scan is in its own camera frame (metres), as a depth camera would deliver it.
-Writes NAME_a.ply, NAME_b.ply (binary float32) and NAME_truth.json (the true T_b_from_a and
-both true T_canonical_from_input, for checking ``itnet-align``'s answer); NAME is ``--name``.
+Writes NAME_a.ply, NAME_b.ply (binary float32) and NAME_truth.json (the true T_b_from_a, both
+true T_canonical_from_input and each scan's up direction, for checking ``itnet-align``'s
+answer); NAME is ``--name``.
 """
 
 from __future__ import annotations
@@ -68,6 +71,10 @@ def main() -> None:
         "T_b_from_a": relative_pose(pose_a, pose_b).tolist(),
         "T_canonical_from_a": pose_a.tolist(),
         "T_canonical_from_b": pose_b.tolist(),
+        # which way is up in each scan (the canonical +y in its camera frame, R^T e_y): what a
+        # level-sensing camera would give as ``--up-a`` / ``--up-b``
+        "up_a": pose_a[1, :3].tolist(),
+        "up_b": pose_b[1, :3].tolist(),
         "note": "canonical frame scaled to metres (bounding-sphere radius radius_m)",
     }
     (args.out / f"{args.name}_truth.json").write_text(json.dumps(truth, indent=2) + "\n")

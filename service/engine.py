@@ -312,11 +312,14 @@ class AnytimeRun(Iterator[Estimate]):
                 "'x,y,z' in a query): its poses are measured, and served, only with it (GET "
                 "/v1/models: 'requires_up')"
             )
-        if self.up is not None and starts is not None:
-            raise BadCloudError("up cannot be combined with starts")
         # the card's free steps: the first ones from the usual starts, not held (the sofa's)
         self.up_free = model.card.up_free_steps if self.up is not None else 0
-        if self.up is not None and self.up_free == 0:
+        if self.up is not None and starts is not None:
+            # the caller's starts (alignment's turns about up), each then stood up as a single
+            # run's start would be: exactly what a request with the turned cloud gets
+            if self.up_free == 0:
+                starts = upright_starts(self.up, 1)[0] @ _rotations(starts)
+        elif self.up is not None and self.up_free == 0:
             starts = upright_starts(self.up, ensemble)
         elif ensemble > 1:
             starts = viewing_axis_turns(ensemble)

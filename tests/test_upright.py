@@ -12,7 +12,16 @@ import pytest
 from itnet.geometry import apply_rigid, invert_rigid, random_rotation
 from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.runtime import load_model
-from itnet.upright import UP, held_upright, rotation_onto, unit_up, upright_starts
+from itnet.upright import (
+    UP,
+    held_upright,
+    levelled,
+    rotation_onto,
+    tilted,
+    turns_about,
+    unit_up,
+    upright_starts,
+)
 
 
 @pytest.fixture(scope="module")
@@ -97,8 +106,46 @@ def test_engine_refuses_bad_or_conflicting_up(model, rng) -> None:
         AnytimeRun(model, cloud, up=[0, 0, 0])
     with pytest.raises(BadCloudError, match="three finite"):
         AnytimeRun(model, cloud, up=[0, 1])
-    with pytest.raises(BadCloudError, match="starts"):
-        AnytimeRun(model, cloud, up=[0, 1, 0], starts=np.eye(3))
+
+
+def test_turns_about_up_keep_up_and_compose_into_the_upright_starts(rng) -> None:
+    up = unit_up([0.3, -1.0, 0.2])
+    turns = turns_about(up, 4)
+    np.testing.assert_allclose(turns[0], np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(turns @ up, np.tile(up, (4, 1)), atol=1e-9)
+    stand = rotation_onto(up, UP)
+    np.testing.assert_allclose(stand @ turns, upright_starts(up, 4), atol=1e-9)
+
+
+def test_tilted_ups_are_off_by_the_error_and_levelled_clouds_stand(rng) -> None:
+    ups = rng.normal(size=(30, 3))
+    ups /= np.linalg.norm(ups, axis=1, keepdims=True)
+    off = tilted(ups, 2.0, rng)
+    np.testing.assert_allclose(np.linalg.norm(off, axis=1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arccos(np.sum(ups * off, axis=1))), 2.0, atol=1e-6)
+    cloud = rng.normal(size=(50, 3))
+    flat = levelled(cloud, ups[0])
+    np.testing.assert_allclose(levelled(ups[0][None], ups[0])[0], UP, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(flat, axis=1), np.linalg.norm(cloud, axis=1))
+
+
+def test_runs_from_turns_about_up_stand_up_as_requests_for_the_turned_cloud_do(model, rng) -> None:
+    """Alignment's starts with up: each turn of the cloud about its up, then stood up, is what a
+    single request with the turned cloud begins from; every run is held upright."""
+    cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1]
+    up = unit_up([0.2, -0.9, 0.1])
+    turns = turns_about(up, 3)
+    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=3, starts=turns, up=up,
+                     points_per_step=400)  # fmt: skip
+    run.run_to_end()
+    poses = run.poses()
+    np.testing.assert_allclose(poses[:, :3, :3] @ up, np.tile(UP, (3, 1)), atol=1e-4)
+    for k, turn in enumerate(turns):
+        alone = AnytimeRun(model, cloud @ turn.T, budget_ms=10_000, max_iterations=3, up=turn @ up,
+                           mirror=False, centre=False)  # fmt: skip
+        pose = alone.run_to_end().pose.copy()
+        pose[:3, :3] = pose[:3, :3] @ turn  # back into the cloud's frame
+        np.testing.assert_allclose(pose[:3, :3], poses[k][:3, :3], atol=1e-3)
 
 
 def test_a_model_that_requires_up_refuses_a_request_without_it(model, rng) -> None:

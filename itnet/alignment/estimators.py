@@ -5,7 +5,8 @@ T_canonical_from_input, 4x4 in the cloud's units, per start), so the alignment c
 care where the network runs. ``starts`` (B, 3, 3) are the rotations IT-Net begins from (None:
 the identity only); ``iterations`` caps each run (None: the estimator's own cap, else the
 model's recommendation); ``subset``: each run sees its own seeded random subset of that many
-points (None: the model's point count).
+points (None: the model's point count); ``up``: which way is up in the cloud (None: not known),
+each run then held upright by the engine.
 """
 
 from __future__ import annotations
@@ -37,11 +38,12 @@ def in_process_estimator(
         starts: NDArray | None = None,
         iterations: int | None = None,
         subset: int | None = None,
+        up: NDArray | None = None,
     ) -> list[PoseEstimate]:
         # Every start in one run: the copies of the cloud go through each step as one batch.
         cap = max_iterations if iterations is None else iterations
         run = AnytimeRun(model, points, budget_ms=budget_ms, max_iterations=cap, seed=seed,
-                         starts=starts, points_per_step=subset)  # fmt: skip
+                         starts=starts, points_per_step=subset, up=up)  # fmt: skip
         run.run_to_end()
         elapsed, stopped = run.elapsed_ms(), str(run.stopped_by)
         return [PoseEstimate(pose, run.iteration, elapsed, stopped) for pose in run.poses()]
@@ -54,9 +56,10 @@ def client_estimator(
 ) -> PoseEstimator:
     """IT-Net through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on the wire).
 
-    The HTTP API always starts at the identity, so each start is a request of its own: the cloud
-    (its subset) turned by it here (about the origin: the service recentres it anyway), the
-    turn composed back into the pose.
+    The HTTP API always starts at the identity (stood up, with ``up``), so each start is a
+    request of its own: the cloud (its subset) and its up turned by it here (about the origin:
+    the service recentres it anyway), the turn composed back into the pose; the engine does the
+    same with the turns in-process.
     Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
 
     def estimate(
@@ -64,6 +67,7 @@ def client_estimator(
         starts: NDArray | None = None,
         iterations: int | None = None,
         subset: int | None = None,
+        up: NDArray | None = None,
     ) -> list[PoseEstimate]:
         out, cloud, rng = [], np.asarray(points), np.random.default_rng(0)
         for turn in np.eye(3)[None] if starts is None else np.asarray(starts).reshape(-1, 3, 3):
@@ -77,6 +81,7 @@ def client_estimator(
                 binary=True,
                 mirror=False,  # as in-process: a hypothesis' pose is the network's,
                 centre=False,  # not finished by the mirror or the centre correction
+                up=None if up is None else turn @ np.asarray(up, dtype=np.float64),
             )
             back = rigid_from_rotation_translation(turn, np.zeros(3))
             out.append(PoseEstimate(reply.T_canonical_from_input @ back, reply.iterations,

@@ -18,6 +18,12 @@ model was trained at: as many pairs aligned, for less); in-process, the starts g
 step as one batch. ``docs/align.md`` has the measurements behind the defaults (starts,
 iterations per run, candidates).
 
+Where the caller knows which way is up in a cloud (``up_a``, ``up_b``: gravity from an IMU, a
+floor's normal), its runs start from turns about that direction instead, 360/starts degrees apart
+and untilted, and each pose is held upright (``itnet.upright``): only yaw and position are left
+to estimate, and the hypotheses keep both clouds' ups together. Models whose card requires up
+(the night stand) align only this way.
+
 The pose estimator is passed in (a callable), so this module does no I/O and loads no model: the
 CLI gives it an in-process ``AnytimeRun`` or an HTTP client, the benchmark the same.
 """
@@ -42,6 +48,7 @@ from itnet.alignment.hypotheses import (
 from itnet.alignment.overlap import Cloud, overlap, sample
 from itnet.geometry import rotation_angle_deg, viewing_axis_turns
 from itnet.preprocess import estimate_normalization
+from itnet.upright import turns_about, unit_up
 
 
 @dataclass(frozen=True)
@@ -62,7 +69,8 @@ class PoseEstimate:
 class PoseEstimator(Protocol):
     """IT-Net on one cloud (N, 3) from each rotation of ``starts`` (B, 3, 3; None: the identity
     alone), for at most ``iterations`` steps (None: the estimator's default), each run on its own
-    random subset of ``subset`` points (None: the model's count) -> B PoseEstimates."""
+    random subset of ``subset`` points (None: the model's count), held upright by ``up`` (3,;
+    None: free) -> B PoseEstimates."""
 
     def __call__(
         self,
@@ -70,6 +78,7 @@ class PoseEstimator(Protocol):
         starts: NDArray | None = ...,
         iterations: int | None = ...,
         subset: int | None = ...,
+        up: NDArray | None = ...,
     ) -> list[PoseEstimate]: ...
 
 
@@ -169,11 +178,14 @@ def starting_turns(count: int, tilt_deg: float = START_TILT_DEG) -> NDArray[np.f
     return viewing_axis_turns(count, tilt_deg)
 
 
-def _runs(estimate: PoseEstimator, points: NDArray, options: AlignOptions, name: str) -> list:
-    """IT-Net from every starting turn, each run on its own subset of ``options.points``."""
+def _runs(
+    estimate: PoseEstimator, points: NDArray, options: AlignOptions, name: str, up: NDArray | None
+) -> list:
+    """IT-Net from every starting turn (about ``up`` where it is given), each run on its own
+    subset of ``options.points``."""
+    turns = starting_turns(options.starts) if up is None else turns_about(up, options.starts)
     try:
-        runs = estimate(points, starting_turns(options.starts), options.run_iterations(),
-                        options.points)  # fmt: skip
+        runs = estimate(points, turns, options.run_iterations(), options.points, up=up)
     except Exception as err:  # the estimator's own errors, labelled with the cloud they concern
         raise CloudEstimateError(name, err) from err
     if len(runs) != options.starts:
@@ -184,9 +196,16 @@ def _runs(estimate: PoseEstimator, points: NDArray, options: AlignOptions, name:
 
 
 def align_clouds(
-    points_a: ArrayLike, points_b: ArrayLike, estimate: PoseEstimator, options: AlignOptions
+    points_a: ArrayLike,
+    points_b: ArrayLike,
+    estimate: PoseEstimator,
+    options: AlignOptions,
+    up_a: ArrayLike | None = None,
+    up_b: ArrayLike | None = None,
 ) -> Alignment:
     """Cloud A (N, 3) and B (M, 3), each in its own frame and unit-consistent -> Alignment.
+    ``up_a``, ``up_b`` (3,, any length): which way is up in each cloud, where known (see the
+    module); ValueError for one that is not a direction.
 
     ``estimate`` maps a cloud (K, 3) and starting rotations to one IT-Net PoseEstimate per
     start (``PoseEstimator``); what it raises comes back as CloudEstimateError (``__cause__``:
@@ -196,10 +215,11 @@ def align_clouds(
     if options.starts < 1 or options.candidates < 1 or options.points < 3:
         raise ValueError("starts and candidates must be >= 1, points >= 3")
     start = time.perf_counter()
+    ups = [None if up is None else unit_up(up) for up in (up_a, up_b)]
     a = np.asarray(points_a, dtype=np.float64)
     b = np.asarray(points_b, dtype=np.float64)
-    runs_a = _runs(estimate, a, options, "A")
-    runs_b = _runs(estimate, b, options, "B")
+    runs_a = _runs(estimate, a, options, "A", ups[0])
+    runs_b = _runs(estimate, b, options, "B", ups[1])
     t_itnet = time.perf_counter()
 
     scale = estimate_normalization(b).scale

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -10,6 +11,19 @@ UNITS_HELP = (
     "The clouds' unit, if known: m, cm, mm, in or ft. With --model auto the cloud's size then "
     "counts toward its category as well as its form (a night stand is smaller than a dresser)."
 )
+
+
+def check_xyz(value: str | None) -> list[float] | None:
+    """typer callback: 'x,y,z' -> [x, y, z] (three finite numbers), or a usage error."""
+    if value is None:
+        return None
+    try:
+        point = [float(v) for v in value.split(",")]
+    except ValueError:
+        point = []
+    if len(point) != 3 or not all(math.isfinite(v) for v in point):
+        raise typer.BadParameter(f"expected three numbers 'x,y,z', got {value!r}")
+    return point
 
 
 def check_units(value: str | None) -> str | None:

@@ -14,7 +14,7 @@ from typing import NoReturn
 
 import typer
 
-from itnet.commands import UNITS_HELP, check_units
+from itnet.commands import UNITS_HELP, check_units, check_xyz
 
 SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
 LOW_CONFIDENCE = 0.3
@@ -59,6 +59,20 @@ def align(
     finalists: int = typer.Option(
         4, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
     ),
+    up: str | None = typer.Option(
+        None,
+        help="Which way is up in both clouds, 'x,y,z' (scans from a sensor held level, e.g. "
+        "'0,-1,0' for a camera whose image y points down): each pose is held upright, only its "
+        "turn about up and its position are estimated. Needed by models that require up "
+        "(`itnet models`).",
+        callback=check_xyz,
+    ),
+    up_a: str | None = typer.Option(
+        None, help="Which way is up in cloud A, 'x,y,z' (overrides --up for A).", callback=check_xyz
+    ),
+    up_b: str | None = typer.Option(
+        None, help="Which way is up in cloud B, 'x,y,z' (overrides --up for B).", callback=check_xyz
+    ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
@@ -90,7 +104,16 @@ def align(
         refine = False
     if model == "auto":
         model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units)
-    estimate, (category, declared), close = _estimator(server, model, model_dir, budget_ms)
+    estimate, (category, declared, requires_up), close = _estimator(
+        server, model, model_dir, budget_ms
+    )
+    ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
+    if requires_up and None in ups.values():
+        close()
+        _fail(
+            f"model {model!r} needs which way is up in both clouds: give --up x,y,z (both), or "
+            "--up-a and --up-b (its poses are measured, and served, only with it)"
+        )
     options = AlignOptions(
         starts=starts,
         iterations=max_iterations,
@@ -100,7 +123,9 @@ def align(
         finalists=finalists,
     )
     try:
-        result = align_clouds(points_a, points_b, estimate, options)
+        result = align_clouds(points_a, points_b, estimate, options, **ups)
+    except ValueError as err:  # an up that is not a direction (the zero vector)
+        _fail(str(err))
     except CloudEstimateError as err:
         path = cloud_a if err.cloud == "A" else cloud_b
         _fail(f"{path}: {err.__cause__}", code=_exit_code(err.__cause__))
@@ -112,6 +137,7 @@ def align(
     if as_json:
         reply = {"cloud_a": str(cloud_a), "cloud_b": str(cloud_b), "model": model,
                  "symmetry": options.symmetry, **result.to_dict(),
+                 **{k: v for k, v in ups.items() if v is not None},
                  "output": None if output is None else str(output)}  # fmt: skip
         typer.echo(json.dumps(reply))
     else:
@@ -182,8 +208,8 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units) -> str:
 
 
 def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]
-    """(pose estimator, (the model's category, its declared symmetry), a close function) for
-    in-process or --server."""
+    """(pose estimator, (the model's category, its declared symmetry, whether it requires up), a
+    close function) for in-process or --server."""
     from itnet.alignment.estimators import client_estimator, in_process_estimator
 
     if server is None:
@@ -191,7 +217,8 @@ def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-
 
         loaded = get_model(model, model_dir)
         estimate = in_process_estimator(loaded, budget_ms)
-        return estimate, (loaded.card.category, loaded.card.symmetry), lambda: None
+        card = loaded.card
+        return estimate, (card.category, card.symmetry, card.requires_up), lambda: None
 
     from itnet.clients import ItnetClient, ItnetClientError
 
@@ -208,9 +235,9 @@ def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-
     )
 
 
-def _category(listed: object, model: str) -> tuple[str, str]:
-    """The category and symmetry of ``model`` in a ``GET /v1/models`` reply ('' and 'none' when
-    it does not say)."""
+def _category(listed: object, model: str) -> tuple[str, str, bool]:
+    """The category, symmetry and ``requires_up`` of ``model`` in a ``GET /v1/models`` reply
+    ('', 'none' and False when it does not say)."""
     entries = listed.get("models", listed) if isinstance(listed, dict) else listed
     if isinstance(entries, dict):
         entries = [
@@ -218,8 +245,9 @@ def _category(listed: object, model: str) -> tuple[str, str]:
         ]
     for entry in entries if isinstance(entries, list) else []:
         if isinstance(entry, dict) and entry.get("name") == model:
-            return str(entry.get("category", "")), str(entry.get("symmetry", "none"))
-    return "", "none"
+            category, symmetry = str(entry.get("category", "")), str(entry.get("symmetry", "none"))
+            return category, symmetry, bool(entry.get("requires_up", False))
+    return "", "none", False
 
 
 def _print_summary(result) -> None:  # type: ignore[no-untyped-def]

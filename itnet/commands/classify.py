@@ -220,6 +220,12 @@ def classify_train(
         help="Stretch each training shape along its axes by factors drawn log-uniformly in "
         "[1/S, S] before it is scanned (1: off): more shapes than the dataset has.",
     ),
+    upright: float | None = typer.Option(
+        None,
+        min=0.0,
+        help="Upright views: each levelled by its up direction with up to DEG degrees of error "
+        "(validation and test: 2); the classifier for requests that give up. Default: full SO(3).",
+    ),
     init_seed: int | None = typer.Option(
         None,
         help="Seed of the initialisation and the batches (default: the split's, 0): another "
@@ -252,6 +258,7 @@ def classify_train(
         balanced=balanced,
         up_weight=up_weight,
         stretch=stretch,
+        upright=upright,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,

@@ -3,33 +3,19 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
-from itnet.commands import UNITS_HELP, check_units
+from itnet.commands import UNITS_HELP, check_units, check_xyz
 
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
     from itnet.service.engine import AnytimeRun
-
-
-def check_xyz(value: str | None) -> list[float] | None:
-    """'x,y,z' -> [x, y, z] (three finite numbers), or a usage error."""
-    if value is None:
-        return None
-    try:
-        point = [float(v) for v in value.split(",")]
-    except ValueError:
-        point = []
-    if len(point) != 3 or not all(math.isfinite(v) for v in point):
-        raise typer.BadParameter(f"expected three numbers 'x,y,z', got {value!r}")
-    return point
 
 
 def pose(

@@ -8,6 +8,10 @@
   validation and test views are fixed and cached.
 * Every view is normalised as the runtime does (``itnet.preprocess``) and resampled to a fixed
   point count (repeats do not change a max-pooled feature).
+* Upright views (``upright`` set): each view is levelled by its up direction as a caller with a
+  gravity sensor would give it (the truth tilted by a few degrees, ``itnet.upright``), so the
+  classifier sees standing objects with only their yaw unknown, as the service does for a
+  request that gives ``up``.
 """
 
 from __future__ import annotations
@@ -22,8 +26,10 @@ from itnet.model.data import cached_scan_set, load_shapes, split_files
 from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_of
 from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
+from itnet.upright import levelled, tilted
 
 SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
+UPRIGHT_EVAL_DEG = 2.0  # the up direction's error in upright validation and test views
 
 
 def class_names(data: Path) -> list[str]:
@@ -71,6 +77,7 @@ def training_batch(
     configs: list[ScanConfig],
     balanced: bool = False,
     stretch: float = 1.0,
+    upright: float | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray[np.float32]]:
     """Fresh random views -> (points (B, points, 3), labels (B,), up (B, 3)): ``up`` is the
     shape's up axis (the canonical +y; ModelNet10's shapes all stand upright in their files) as
@@ -79,7 +86,9 @@ def training_batch(
     ``balanced``: each view's class is drawn uniformly, then one of its shapes (ModelNet10's
     training split has 106 bathtubs and 889 chairs, its test split 50-100 shapes of every
     class). ``stretch`` > 1: each shape is first stretched along its axes by factors drawn
-    log-uniformly in [1/stretch, stretch] (``shapes.stretched``)."""
+    log-uniformly in [1/stretch, stretch] (``shapes.stretched``). ``upright`` (degrees): each
+    view levelled by its up direction tilted by an error drawn uniformly in [0, upright] (the
+    returned ``up`` is then the true up in the levelled view, near +y)."""
     if balanced:
         classes = np.unique(data.labels)
         index = np.array(
@@ -97,19 +106,32 @@ def training_batch(
         cloud, canonical_from_view = scan_of(shape, rng, config)
         x[b] = normalised_view(cloud, points, rng)  # a shift and a scale: directions keep
         up[b] = canonical_from_view[1, :3]  # R^T e_y: the canonical +y in the view's frame
+        if upright is not None:
+            given = tilted(up[b : b + 1], rng.uniform(0.0, upright), rng)[0]
+            x[b], up[b] = levelled(x[b], given), levelled(up[b : b + 1], given)[0]
     return x, data.labels[index], up
 
 
 def fixed_views(
-    data: LabelledShapes, views: int, points: int, seed: int, cache: Path
+    data: LabelledShapes,
+    views: int,
+    points: int,
+    seed: int,
+    cache: Path,
+    upright: float | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
     """``views`` fixed views per shape (half occluded, half the paper's; at least one each)
-    -> (points (V, points, 3), labels (V,)). The scans are cached."""
+    -> (points (V, points, 3), labels (V,)). The scans are cached. ``upright`` (degrees): each
+    view levelled by its up direction tilted by exactly that error, in a seeded direction."""
     per_config = max(1, views // 2)
     xs, ys = [], []
     rng = np.random.default_rng(seed + 11)
     for k, overrides in enumerate(SCAN_MIX):
         scans = cached_scan_set(data.shapes, per_config, seed + k, scan_config(overrides), cache)
-        xs += [normalised_view(c, points, rng) for c in scans.clouds]
+        clouds = [normalised_view(c, points, rng) for c in scans.clouds]
+        if upright is not None:
+            ups = tilted(scans.poses[:, 1, :3], upright, np.random.default_rng(seed + 17 + k))
+            clouds = [levelled(c, u).astype(np.float32) for c, u in zip(clouds, ups, strict=True)]
+        xs += clouds
         ys.append(np.repeat(data.labels, per_config))
     return np.stack(xs), np.concatenate(ys)

@@ -20,6 +20,7 @@ from pydantic import BaseModel
 
 from itnet.model.classify.data import (
     SCAN_MIX,
+    UPRIGHT_EVAL_DEG,
     LabelledShapes,
     class_names,
     fixed_views,
@@ -81,6 +82,10 @@ class ClassifyConfig(BaseModel):
     up_weight: float = 0.0
     # > 1: each training shape stretched along its axes by up to this factor (``data.py``)
     stretch: float = 1.0
+    # not None: upright views (``data.py``), levelled by an up direction with up to this many
+    # degrees of error in training, exactly ``UPRIGHT_EVAL_DEG`` in validation and test; the
+    # classifier for requests that give ``up``
+    upright: float | None = None
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -121,7 +126,10 @@ def run_views(
     """A run's fixed 'val' or 'test' views (the same every time: seeded, cached) -> (points
     (V, N, 3), labels (V,))."""
     views, seed = {"val": (config.val_views, 7), "test": (config.test_views, 13)}[split]
-    return fixed_views(splits[split], views, config.points, config.seed + seed, config.cache)
+    upright = None if config.upright is None else UPRIGHT_EVAL_DEG
+    return fixed_views(
+        splits[split], views, config.points, config.seed + seed, config.cache, upright
+    )
 
 
 @torch.no_grad()
@@ -202,6 +210,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
             scan_configs,
             config.balanced,
             config.stretch,
+            config.upright,
         )
 
     with Prefetcher(make_batch, config.data_workers) as prefetch:  # forks before CUDA starts

@@ -28,6 +28,7 @@ export async function runAlign({ view, a, b, request, truth, elements }) {
     `hypothesis ${reply.hypothesis} of ${reply.considered}, ${reply.refined ? 'refined by ICP' : 'no ICP'}`,
     `${reply.iterations} IT-Net iterations, ${reply.elapsed_ms.toFixed(1)} ms on the server`,
   ];
+  if (reply.up_a) parts.push('both poses held upright by each scan\'s up direction');
   if (truth) parts.push(`error against the example's truth: ${angleDeg(reply.T_b_from_a, truth).toFixed(2)}°`);
   elements.summary.textContent = parts.join(' · ');
   return reply;

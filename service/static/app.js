@@ -32,12 +32,12 @@ function saveUrl(extra = {}) {
     model: $('model').value,
     budget_ms: $('budget').value,
     max_iterations: $('max-iterations').value || null,
+    up: $('up').value.trim() || null,
     ...(tab === 'pose'
       ? {
           example: state.clouds.main?.example ?? null,
           ensemble: $('ensemble').value || null,
           units: $('units').value || null,
-          up: $('up').value.trim() || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
       : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
@@ -219,6 +219,11 @@ async function runAlignTab() {
   saveUrl({ run: '1' });
   const pair = state.pairs.find((p) => p.a === a.example && p.b === b.example);
   const body = { ...request(), refine: $('refine').checked ? null : false };
+  // Which way is up: for a model that needs it, an example pair's scans say it for each (a
+  // level-sensing camera's); otherwise the Up field's, for both clouds, when given.
+  const up = $('up').value.trim() ? $('up').value.trim().split(',').map(Number) : null;
+  if (modelInfo($('model').value)?.requires_up && pair?.up_a) Object.assign(body, { up_a: pair.up_a, up_b: pair.up_b });
+  else if (up) Object.assign(body, { up_a: up, up_b: up });
   try {
     const reply = await runAlign({ view, a: a.points, b: b.points, request: body, truth: pair?.T_b_from_a,
       elements: { pose: $('pose'), summary: $('align-summary') } });

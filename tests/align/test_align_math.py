@@ -183,7 +183,7 @@ def fake_estimator(clouds_and_poses, calls):
     """An estimator that knows each cloud's pose: the same answer from every start (as a perfect
     IT-Net would give). It recognises a subset of a cloud by its first point."""
 
-    def estimate(points, starts=None, iterations=None, subset=None):
+    def estimate(points, starts=None, iterations=None, subset=None, up=None):
         calls.append(len(points))
         for cloud, pose in clouds_and_poses:
             if len(points) >= 3 and (cloud == points[0]).all(axis=1).any():
@@ -235,7 +235,7 @@ def test_align_clouds_names_the_cloud_that_failed(rng):
 def test_align_clouds_runs_every_start_of_a_cloud_in_one_call(rng):
     calls: list[tuple] = []
 
-    def estimate(points, starts=None, iterations=None, subset=None):
+    def estimate(points, starts=None, iterations=None, subset=None, up=None):
         calls.append((len(points), np.asarray(starts), iterations, subset))
         return [PoseEstimate(np.eye(4), iterations or 10, 0.1, "budget")] * len(starts)
 
@@ -258,3 +258,22 @@ def test_align_clouds_runs_every_start_of_a_cloud_in_one_call(rng):
     assert one.iterations == 20  # the estimator's own default
     with pytest.raises(ValueError, match="starts and candidates"):
         align_clouds(a, b, estimate, AlignOptions(starts=0))
+
+
+def test_with_up_the_starts_turn_about_each_clouds_up_and_the_estimator_gets_it(rng):
+    from itnet.upright import turns_about, unit_up
+
+    calls: list[tuple] = []
+
+    def estimate(points, starts=None, iterations=None, subset=None, up=None):
+        calls.append((np.asarray(starts), up))
+        return [PoseEstimate(np.eye(4), iterations or 10, 0.1, "budget")] * len(starts)
+
+    a, b = rng.normal(size=(300, 3)), rng.normal(size=(50, 3))
+    align_clouds(a, b, estimate, AlignOptions(symmetry="none"), up_a=[0, 0, 3], up_b=None)
+    (turns_a, up_a), (turns_b, up_b) = calls
+    assert np.allclose(up_a, [0, 0, 1]) and up_b is None
+    assert np.allclose(turns_a, turns_about(unit_up([0, 0, 1]), 4))  # untilted, about up
+    assert np.allclose(turns_b, starting_turns(4))
+    with pytest.raises(ValueError, match="zero vector"):
+        align_clouds(a, b, estimate, AlignOptions(), up_a=[0, 0, 0])

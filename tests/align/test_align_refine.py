@@ -89,7 +89,7 @@ def _misread_lopsided_object(rng):
     a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
     misread = symmetry_rotations("yaw180")[0] @ small_motion(4.0, [0, 0, 0]) @ t_ca
 
-    def estimate(points, starts=None, iterations=None, subset=None):
+    def estimate(points, starts=None, iterations=None, subset=None, up=None):
         pose = misread if (a == points[0]).all(axis=1).any() else t_cb
         return [PoseEstimate(pose, 3, 1.0, "max_iterations")] * len(starts)
 
@@ -143,7 +143,7 @@ def test_dense_clouds_in_millimetres_align(rng):
     a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj[::-1])
     misread = symmetry_rotations("yaw180")[0] @ small_motion(4.0, [0, 0, 0]) @ t_ca
 
-    def estimate(points, starts=None, iterations=None, subset=None):
+    def estimate(points, starts=None, iterations=None, subset=None, up=None):
         pose = misread if points is a else t_cb
         return [PoseEstimate(pose, 3, 1.0, "max_iterations")] * len(starts)
 

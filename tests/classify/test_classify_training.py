@@ -192,6 +192,43 @@ def test_batches_carry_each_views_up_axis() -> None:
     assert np.abs(up @ up.T - np.eye(16)).max() > 0.5  # the views are turned differently
 
 
+def test_upright_views_stand_the_rod_along_y_within_the_sensor_error() -> None:
+    """``upright``: every view levelled by its up direction with up to that error; the rod
+    then stands along +y in every view, and the batch's ``up`` is the true up, near +y."""
+    from itnet.model.classify.data import LabelledShapes, training_batch
+    from itnet.model.scanner import scan_config
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(5)
+    rod = Shape("rod", SHAPES["rod"](rng, 600))
+    data = LabelledShapes([rod], np.array([0]))
+    x, _, up = training_batch(
+        data, 16, 128, np.random.default_rng(1), [scan_config({})], upright=5.0
+    )
+    off = np.degrees(np.arccos(np.clip(up[:, 1], -1, 1)))
+    assert off.max() <= 5.0 + 1e-3 and off.max() > 0.5  # tilted by the drawn error
+    for view in x:
+        _, _, vt = np.linalg.svd(view - view.mean(0), full_matrices=False)
+        assert abs(vt[0][1]) > 0.95  # standing along y
+
+
+def test_fixed_upright_views_are_levelled_by_a_two_degree_off_up(tmp_path: Path) -> None:
+    from itnet.model.classify.data import UPRIGHT_EVAL_DEG, LabelledShapes, fixed_views
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(2)
+    rod = Shape("rod", SHAPES["rod"](rng, 600))
+    data = LabelledShapes([rod], np.array([0]))
+    free, _ = fixed_views(data, 8, 128, 3, tmp_path)
+    stood, labels = fixed_views(data, 8, 128, 3, tmp_path, upright=UPRIGHT_EVAL_DEG)
+    assert stood.shape == free.shape == (8, 128, 3) and (labels == 0).all()
+    axes = [np.linalg.svd(v - v.mean(0), full_matrices=False)[2][0] for v in stood]
+    tilt = np.degrees(np.arccos(np.clip(np.abs([a[1] for a in axes]), 0, 1)))
+    assert tilt.max() < UPRIGHT_EVAL_DEG + 1.5  # the rod's axis: the error, and the scan's noise
+    free_axes = [np.linalg.svd(v - v.mean(0), full_matrices=False)[2][0] for v in free]
+    assert min(abs(a[1]) for a in free_axes) < 0.9  # unlevelled views lie every which way
+
+
 def test_up_term_is_zero_standing_and_two_upside_down() -> None:
     """The up-axis term of an untrained IT-Net (identity pose): 1 - u_y, times the weight;
     absent without ``up`` or with weight 0."""

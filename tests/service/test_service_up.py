@@ -99,3 +99,25 @@ def test_the_clients_send_up(client: TestClient, make_cloud) -> None:  # type: i
     assert fields["up"] == "0.1,-1.0,0.3"
     reply = client.post("/v1/estimate", json={"points": make_cloud().tolist(), **fields})
     assert reply.status_code == 200 and _upright(reply.json(), TILTED_UP)
+
+
+def test_alignment_runs_with_up_through_the_service_match_the_in_process_runs(
+    client: TestClient, make_cloud
+) -> None:  # type: ignore[no-untyped-def]
+    """itnet-align --server with up: each turn about up is a request of its own, with the turned
+    cloud and its up; the in-process engine begins the same runs from the same turns."""
+    from itnet.alignment.estimators import client_estimator, in_process_estimator
+    from itnet.clients import ItnetClient
+    from itnet.upright import turns_about
+
+    http = ItnetClient("http://testserver")
+    http._http = client  # the app in-process: TestClient is an httpx.Client
+    model = client.app.state.service.models["tiny"]  # type: ignore[attr-defined]
+    cloud, up = make_cloud().astype(np.float64), unit_up(TILTED_UP)
+    turns = turns_about(up, 3)
+    remote = client_estimator(http, "tiny", budget_ms=5000, max_iterations=3)(cloud, turns, up=up)
+    local = in_process_estimator(model, budget_ms=5000, max_iterations=3)(cloud, turns, up=up)
+    assert len(remote) == len(local) == 3
+    for r, here in zip(remote, local, strict=True):
+        assert np.allclose(r.T_canonical_from_input, here.T_canonical_from_input, atol=1e-4)
+        assert np.allclose(r.T_canonical_from_input[:3, :3] @ up, UP, atol=1e-4)

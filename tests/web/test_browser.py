@@ -162,6 +162,27 @@ def test_the_alignment_tab_moves_a_onto_b(live_server, browser_page):
     assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
 
 
+def test_a_model_that_needs_up_aligns_an_example_pair_by_its_scans_ups(live_server, browser_page):
+    """The night stand requires up: the page sends the example pair's ups (each scan's, as a
+    level-sensing camera gives them), says so, and agrees with the API given the same."""
+    pytest.importorskip("open3d")
+    page = browser_page
+    page.goto(f"{live_server.url}/?tab=align&a=night_stand_a&b=night_stand_b&model=night_stand"
+              "&budget_ms=5000&run=1")  # fmt: skip
+    shown = result(page)
+    known = json.loads((EXAMPLES / "night_stand_truth.json").read_text())
+    assert np.allclose(shown["up_a"], known["up_a"]) and np.allclose(shown["up_b"], known["up_b"])
+    assert "held upright by each scan's up" in page.text_content("#align-summary")
+    t = np.array(shown["T_b_from_a"])
+    assert rotation_error_deg(t[:3, :3], np.array(known["T_b_from_a"])[:3, :3]) < 5.0
+    body = {"points_a": read_cloud(EXAMPLES / "night_stand_a.ply").tolist(),
+            "points_b": read_cloud(EXAMPLES / "night_stand_b.ply").tolist(),
+            "model": "night_stand", "budget_ms": 5000, "up_a": known["up_a"],
+            "up_b": known["up_b"]}  # fmt: skip
+    api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
+    assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
+
+
 def test_auto_is_offered_when_the_server_has_a_classifier(live_server, browser_page):
     auto = httpx.get(f"{live_server.url}/v1/models").json().get("auto")
     if auto is None:

@@ -105,9 +105,28 @@ def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_mo
     assert got["iterations"] == want.iterations == 48  # 4 starts x 6 iterations, both clouds
 
 
+def test_align_with_each_clouds_up_holds_both_poses_upright(client):
+    from itnet.upright import unit_up
+
+    a, b = read_cloud(EXAMPLES / "chair_a.ply"), read_cloud(EXAMPLES / "chair_b.ply")
+    ups = {"up_a": [0.1, -1.0, 0.2], "up_b": [0.0, 0.0, 2.0]}
+    body = {"points_a": a.tolist(), "points_b": b.tolist(), "refine": False, "budget_ms": 2000}
+    reply = client.post("/v1/align", json=body | ups)
+    assert reply.status_code == 200, reply.text
+    got = reply.json()
+    for cloud in "ab":
+        pose = np.array(got[f"T_canonical_from_{cloud}"]["T_canonical_from_input"])
+        assert np.allclose(pose[:3, :3] @ unit_up(ups[f"up_{cloud}"]), [0, 1, 0], atol=1e-4)
+        assert got[f"up_{cloud}"] == ups[f"up_{cloud}"]
+    t = np.array(got["T_b_from_a"])
+    assert np.allclose(t[:3, :3] @ unit_up(ups["up_a"]), unit_up(ups["up_b"]), atol=1e-3)
+
+
 @pytest.mark.parametrize(
     ("change", "status", "says"),
     [
+        ({"up_a": [0, 0, 0]}, 422, "zero vector"),
+        ({"up_b": [0, 1]}, 422, "up_b"),
         ({"points_a": [[0, 0, 0]] * 5}, 422, "cloud A: 5 points is too few"),
         ({"points_b": [[1, 1, 1]] * 64}, 422, "cloud B:"),  # degenerate: all points equal
         ({"budget_ms": 60_000}, 422, "over the limit"),

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from itnet.service.api.deps import BodyDep, StateDep
 from itnet.service.engine import BadCloudError, validate_cloud
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
-from itnet.service.schemas import ErrorResponse, Point
+from itnet.service.schemas import ErrorResponse, Point, Xyz
 from itnet.service.state import ServiceState
 
 router = APIRouter(prefix="/v1", tags=["align"])
@@ -52,6 +52,12 @@ class AlignRequest(BaseModel):
     refine: bool | None = Field(
         default=None, description="ICP after IT-Net (default: when open3d is installed)"
     )
+    up_a: Xyz = Field(
+        default=None,
+        description="which way is up in cloud A, [x, y, z] (against gravity): its poses are held "
+        "upright and its runs start from turns about it. Needed by models that require up",
+    )
+    up_b: Xyz = Field(default=None, description="which way is up in cloud B, [x, y, z]")
 
 
 @router.post(
@@ -131,8 +137,12 @@ def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
         refine=refine,
     )
     estimate = in_process_estimator(model, request.budget_ms)
+    ups = {"up_a": request.up_a, "up_b": request.up_b}
     try:
-        result = align_clouds(clouds[0], clouds[1], estimate, options)
+        result = align_clouds(clouds[0], clouds[1], estimate, options, **ups)
+    except ValueError as err:  # an up that is not a direction (the zero vector)
+        raise ServiceError(422, "invalid_request", str(err)) from None
     except CloudEstimateError as err:
         raise ServiceError(422, "bad_cloud", f"cloud {err.cloud}: {err.__cause__}") from None
-    return {"model": model.card.name, "symmetry": options.symmetry, **result.to_dict()}
+    reply = {"model": model.card.name, "symmetry": options.symmetry, **result.to_dict()}
+    return reply | {k: list(v) for k, v in ups.items() if v is not None}

@@ -53,9 +53,10 @@ def _catalogue() -> dict[str, Any]:
         pair = truth.name.removesuffix("_truth.json")
         if f"{pair}_a" in clouds and f"{pair}_b" in clouds:
             known = json.loads(truth.read_text())
+            ups = {k: known[k] for k in ("up_a", "up_b") if k in known}  # each scan's up
             pairs.append({"name": pair, "a": f"{pair}_a", "b": f"{pair}_b",
                           "T_b_from_a": known["T_b_from_a"],
-                          "source": known.get("source", "")})  # fmt: skip
+                          "source": known.get("source", ""), **ups})  # fmt: skip
     return {"clouds": clouds, "pairs": pairs}
 
 
