@@ -10,6 +10,13 @@ as ``itnet classify-size-prior`` measures it).
 
     python -m benchmarks.classify_tta --split val              # where the choice is made
     python -m benchmarks.classify_tta --split test --only 4:turns   # then the choice, once
+
+With ``--upright UPRIGHT.onnx`` (an upright classifier, ``itnet classify-train --upright``), each
+view also has its up direction, the truth tilted ``--up-error`` degrees (2) in a seeded
+direction, as a gravity sensor gives it, and two more modes: ``upright`` (that classifier on the
+view levelled by its up, its K looks turned about +y, as the service classifies a request that
+gives ``up``) and ``both`` (the K turned looks of the classifier for any orientation and the K
+levelled looks of the upright one, all averaged).
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from itnet.preprocess import cap_points, estimate_normalization
 from itnet.service.recognition import mean_log_probability, turned_looks
 from itnet.service.runtime import LoadedClassifier, load_any
 from itnet.size_prior import with_size
+from itnet.upright import tilted
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,6 +50,8 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=ROOT / "cache")
     parser.add_argument("--model", type=Path, default=ROOT / "itnet/models/classifier.onnx")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--upright", type=Path, default=None, help="an upright classifier")
+    parser.add_argument("--up-error", type=float, default=2.0, help="degrees off the true up")
     args = parser.parse_args()
 
     classifier = load_any(args.model, threads=2)
@@ -53,17 +63,25 @@ def main() -> None:
     shapes = load_splits(args.data, classes, 0.1, 0, args.cache)[args.split]
     rng = np.random.default_rng(2024 if args.split == "test" else 7)
     configs = [scan_config(overrides) for overrides in SCAN_MIX]
-    clouds, labels, metres = [], [], []
+    clouds, labels, metres, ups = [], [], [], []
     radii = source_radii(args.data, classes, args.split)  # ModelNet's units, read as inches
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
         for v in range(args.views):
-            cloud, _ = scan_of(shape, rng, configs[v % len(configs)])
+            cloud, canonical_from_view = scan_of(shape, rng, configs[v % len(configs)])
+            ups.append(canonical_from_view[1, :3])  # R^T e_y: the true up in the view
             norm = estimate_normalization(cloud)
             clouds.append(norm.apply(cloud))
             labels.append(int(label))
             metres.append(norm.scale * radius * INCH_M)
     prior = classifier.card.size_prior
     y = np.array(labels)
+    given = tilted(np.array(ups), args.up_error, np.random.default_rng(99))
+    upright = None
+    if args.upright is not None:
+        upright = load_any(args.upright, threads=2)
+        if not isinstance(upright, LoadedClassifier) or not upright.card.upright:
+            raise SystemExit(f"{args.upright} is not an upright classifier")
+        upright.warm_up()
     sizes = [len(c) for c in clouds]
     print(f"{len(clouds)} {args.split} views; points a view: median {int(np.median(sizes))}, "
           f"10th percentile {int(np.percentile(sizes, 10))}", flush=True)  # fmt: skip
@@ -80,6 +98,22 @@ def main() -> None:
         hits, sized, ms = [], [], []
         for i, cloud in enumerate(clouds):
             rng = np.random.default_rng(i)
+            if mode in ("upright", "both"):
+                if upright is None:
+                    raise SystemExit(f"{k}:{mode} needs --upright")
+                # drawn in the service's order (service/recognition.py classify_together)
+                x = turned_looks(cloud, k, points, rng) if mode == "both" else None
+                stood = turned_looks(cloud, k, upright.card.points, rng, given[i])
+                start = time.perf_counter()
+                probs = upright.probabilities(stood)
+                if x is not None:
+                    probs = np.concatenate([classifier.probabilities(x), probs])
+                ms.append((time.perf_counter() - start) * 1e3)
+                score = mean_log_probability(probs)
+                hits.append(int(score.argmax()) == y[i])
+                if prior is not None:
+                    sized.append(int(with_size(score, prior, metres[i]).argmax()) == y[i])
+                continue
             if mode == "turns":
                 x = turned_looks(cloud, k, points, rng)
             elif mode == "mirrored":  # the turned looks, every second one reflected in x
@@ -114,7 +148,9 @@ def main() -> None:
         results[f"{k}:{mode}"] = row
         print(f"K={k} {mode:8s} {row}", flush=True)
     if args.out is not None:
-        meta = {"split": args.split, "views": len(clouds), "model": str(args.model)}
+        meta = {"split": args.split, "views": len(clouds), "model": str(args.model),
+                "upright": None if upright is None else str(args.upright),
+                "up_error_deg": args.up_error}  # fmt: skip
         args.out.write_text(json.dumps({**meta, "results": results}, indent=1))
         print(f"wrote {args.out}")
 

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from torch import Tensor, nn
 
 from itnet.export.onnx_export import save_with_card
+from itnet.model.classify.data import UPRIGHT_EVAL_DEG
 from itnet.model.classify.network import Classifier, PointNetHead
 from itnet.model.network import ExportableStep, _folded, _folded_mlp
 from itnet.model_card import ClassifierCard
@@ -130,10 +131,16 @@ class GraphScores:
     test_labels: NDArray[np.int64]
 
 
-def score_graph(model: LoadedClassifier, run: Path) -> GraphScores:
+def score_graph(
+    model: LoadedClassifier, run: Path, beside: LoadedClassifier | None = None
+) -> GraphScores:
     """Run an exported graph over the run's fixed validation and test views, one view per call
-    as the service runs it (an int8 graph quantises its activations with one scale per call)."""
+    as the service runs it (an int8 graph quantises its activations with one scale per call).
+    ``beside`` (an upright run's graph): served fused with this classifier for any orientation
+    (``service/recognition.py``), so each view's probabilities are the two's, averaged in the
+    log domain, ``beside`` seeing the same points unlevelled."""
     from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
+    from itnet.service.recognition import mean_log_probability
 
     config = ClassifyConfig.model_validate_json((run / "config.json").read_text())
     _, splits = run_splits(config)
@@ -141,15 +148,27 @@ def score_graph(model: LoadedClassifier, run: Path) -> GraphScores:
     for split in ("val", "test"):
         x, y = run_views(config, splits, split)
         probs = np.concatenate([model.probabilities(x[i : i + 1]) for i in range(len(x))])
+        if beside is not None:
+            free, labels = run_views(config.model_copy(update={"upright": None}), splits, split)
+            assert (labels == y).all()
+            other = np.concatenate([beside.probabilities(free[i : i + 1]) for i in range(len(x))])
+            fused = mean_log_probability([other, probs])
+            probs = np.exp(fused - fused.max(1, keepdims=True))
+            probs /= probs.sum(1, keepdims=True)
         scored += [probs.astype(np.float64), y]
     return GraphScores(*scored)
 
 
 def card_from_run(
-    run: Path, scores: GraphScores, points: int | None = None, target: float = 0.95
+    run: Path,
+    scores: GraphScores,
+    points: int | None = None,
+    target: float = 0.95,
+    beside: str | None = None,
 ) -> ClassifierCard:
     """The card of a finished run's exported graph: classes and training from the run, test
-    accuracy and the unsure threshold (chosen on the validation views) from ``scores``."""
+    accuracy and the unsure threshold (chosen on the validation views) from ``scores``
+    (``beside``: the name of the classifier they were fused with, see :func:`score_graph`)."""
     from itnet.model.classify.train import metrics
 
     result = json.loads((run / "result.json").read_text())
@@ -158,16 +177,25 @@ def card_from_run(
     val = metrics(scores.val_probs, scores.val_labels, result["classes"])
     correct = scores.val_probs.argmax(1) == scores.val_labels
     threshold = choose_threshold(list(scores.val_probs.max(1)), list(correct), target)
+    upright = config.get("upright") is not None  # trained on levelled views
+    views = (
+        f"levelled by their up direction {UPRIGHT_EVAL_DEG:g} deg off the truth (yaw free)"
+        if upright
+        else "full SO(3)"
+    )
+    if beside is not None:  # what the accuracy and the threshold are of
+        views += f"; fused with {beside} on the unlevelled view, as served"
     return ClassifierCard(
         classes=result["classes"],
         points=points or trained_points(run),
         transformer=result["variant"],
         threshold=threshold,
+        upright=upright,
         accuracy=round(test["accuracy"], 4),
         mean_class_accuracy=round(test["mean_class_accuracy"], 4),
         evaluation=(
-            f"{test['scans']} partial views (half occluded, half the paper's z-buffer; full "
-            f"SO(3), noise) of the ModelNet10 test split, {config['points']} points, measured "
+            f"{test['scans']} partial views (half occluded, half the paper's z-buffer; {views}, "
+            f"noise) of the ModelNet10 test split, {config['points']} points, measured "
             f"on this graph one view per call; standard error "
             f"{100 * test['standard_error']:.1f} points; threshold: the lowest at which "
             f"{100 * target:.0f}% of the validation views above it are right"

@@ -155,6 +155,11 @@ class ClassifierCard(BaseModel):
     size_prior: SizePrior | None = Field(
         None, description="class sizes, used when a request gives its cloud's unit"
     )
+    upright: bool = Field(
+        False,
+        description="trained on views levelled by their up direction (only yaw free): serves "
+        "requests that say which way is up, beside the classifier for any orientation",
+    )
 
 
 def parse_card(text: str) -> ModelCard | ClassifierCard:

@@ -16,6 +16,12 @@ One place for the logic; the HTTP route and the WebSocket (through ``ServiceStat
 * Unsure: when the top probability is below the card's ``threshold`` (chosen on validation views,
   see docs/classification.md), the pose model still runs, and the reply says ``unsure: true``
   beside the candidates, so a client can decide.
+* Which way is up: a request that says it (``up``) is also classified by the upright classifier
+  where one is loaded (``LoadedClassifier.upright``, a card with ``upright``): the cloud levelled
+  (its up turned onto +y about its centroid), as that classifier was trained (levelled views,
+  only their yaw free), its looks turned about +y; its log-probabilities are averaged with the
+  other classifier's, whose errors differ (docs/classification.md). The upright card's threshold
+  and accuracy are the pair's. Without an upright classifier the up does not enter.
 * Several looks: a request in the accuracy mode (``ensemble: K``) is also classified K times, on
   its own random subset each and turned 360/K degrees about the cloud's z axis (so the
   canonicaliser starts from K poses, as the pose ensemble's runs do), the log-probabilities
@@ -38,6 +44,7 @@ from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_clo
 from itnet.service.errors import ServiceError
 from itnet.service.runtime import LoadedClassifier, LoadedModel
 from itnet.size_prior import metres_per_unit, with_size
+from itnet.upright import UP, levelled, unit_up, upright_starts
 
 AUTO = "auto"
 MAX_LOOKS = 16  # as many as the pose ensemble's runs
@@ -60,6 +67,7 @@ class Recognition:
     size_m: float | None = None  # the clouds' RMS radius in metres (mean), when the unit is known
     size_used: bool = False  # whether that size entered the probabilities (the card's prior)
     looks: int = 1  # inputs per cloud whose log-probabilities were averaged (turned subsets)
+    upright: bool = False  # the upright classifier also saw the clouds, levelled by their up
 
     @property
     def category(self) -> str:
@@ -87,17 +95,26 @@ class Recognition:
             **({} if self.size_m is None else {"size_m": round(self.size_m, 6)}),
             "size_used": self.size_used,
             **({"classify_looks": self.looks} if self.looks > 1 else {}),
+            **({"classified_upright": True} if self.upright else {}),
         }
 
 
 def turned_looks(
-    normalized: NDArray, looks: int, points: int, rng: np.random.Generator
+    normalized: NDArray,
+    looks: int,
+    points: int,
+    rng: np.random.Generator,
+    up: NDArray | None = None,
 ) -> NDArray[np.float32]:
     """A normalised cloud (N, 3) -> (looks, points, 3): own random subsets (at most ``points``
-    each), the k-th turned 360k/looks degrees about z; one look is the plain capped cloud."""
+    each), the k-th turned 360k/looks degrees about z; one look is the plain capped cloud.
+    ``up`` (3,, unit): the cloud levelled first (up onto +y), the turns about +y instead."""
+    if up is not None:
+        normalized = levelled(normalized, up)
     x = np.stack([cap_points(normalized, points, rng) for _ in range(looks)]).astype(np.float32)
     if looks > 1:
-        x = np.einsum("kij,knj->kni", viewing_axis_turns(looks).astype(np.float32), x)
+        turns = viewing_axis_turns(looks) if up is None else upright_starts(UP, looks)
+        x = np.einsum("kij,knj->kni", turns.astype(np.float32), x)
     return x
 
 
@@ -115,11 +132,14 @@ def classify(
     seed: int = 0,
     units: str | None = None,
     looks: int = 1,
+    up: ArrayLike | None = None,
 ) -> Recognition:
     """A cloud (N, 3), any unit -> its Recognition. ``units``: the cloud's unit, if known (its
-    size then counts, see the module); ``looks``: inputs averaged (see the module). Raises
-    BadCloudError for a bad cloud, unit or look count."""
-    return classify_together(classifier, [points], top, limits, seed, units, looks)
+    size then counts, see the module); ``looks``: inputs averaged; ``up``: which way is up in
+    the cloud, if known (see the module). Raises BadCloudError for a bad cloud, unit, look
+    count or up."""
+    ups = None if up is None else [up]
+    return classify_together(classifier, [points], top, limits, seed, units, looks, ups)
 
 
 def classify_together(
@@ -130,14 +150,29 @@ def classify_together(
     seed: int = 0,
     units: str | None = None,
     looks: int = 1,
+    ups: list[ArrayLike | None] | None = None,
 ) -> Recognition:
     """Several clouds of one object (e.g. the two clouds of an alignment) -> one Recognition:
     the product of the per-cloud probabilities (each the mean over ``looks`` turned subsets in
     the log domain, with its size's likelihood when ``units`` is given and the card has a size
-    prior), renormalised. Raises BadCloudError."""
+    prior), renormalised. ``ups``: each cloud's up direction, where known; when every cloud has
+    one and an upright classifier is loaded, it also classifies them levelled (see the module).
+    Raises BadCloudError."""
     start = time.perf_counter()
     if not 1 <= looks <= MAX_LOOKS:
         raise BadCloudError(f"looks must be in [1, {MAX_LOOKS}], got {looks}")
+    levels: list[NDArray | None] = [None] * len(clouds)
+    if ups is not None and len(ups) != len(clouds):
+        raise BadCloudError(f"{len(ups)} up directions for {len(clouds)} clouds")
+    upright = classifier.upright
+    if ups is not None and upright is not None and all(u is not None for u in ups):
+        try:
+            levels = [unit_up(np.asarray(u, dtype=np.float64).reshape(-1)) for u in ups]
+        except ValueError as err:
+            raise BadCloudError(str(err)) from None
+    else:
+        upright = None
+    card = classifier.card if upright is None else upright.card  # the threshold, the prior
     try:
         to_metres = None if units is None else metres_per_unit(units)
     except ValueError as err:
@@ -145,7 +180,7 @@ def classify_together(
     prior = classifier.card.size_prior if to_metres is not None else None
     log_probs = np.zeros(len(classifier.card.classes))
     sizes = []
-    for points in clouds:
+    for points, up in zip(clouds, levels, strict=True):
         cloud = validate_cloud(points, limits)
         try:
             norm = estimate_normalization(cloud)
@@ -153,7 +188,11 @@ def classify_together(
             raise BadCloudError(str(err)) from None
         rng = np.random.default_rng(seed)
         x = turned_looks(norm.apply(cloud), looks, classifier.card.points, rng)
-        own = mean_log_probability(classifier.probabilities(x))
+        probs = classifier.probabilities(x)
+        if upright is not None:
+            stood = turned_looks(norm.apply(cloud), looks, upright.card.points, rng, up)
+            probs = np.concatenate([probs, upright.probabilities(stood)])
+        own = mean_log_probability(probs)
         if to_metres is not None:
             sizes.append(norm.scale * to_metres)
             own = own if prior is None else with_size(own, prior, sizes[-1])
@@ -164,9 +203,8 @@ def classify_together(
     candidates = [Candidate(classifier.card.classes[i], float(probs[i])) for i in order]
     elapsed_ms = (time.perf_counter() - start) * 1e3
     size = float(np.mean(sizes)) if sizes else None
-    return Recognition(
-        candidates, classifier.card.threshold, elapsed_ms, size, prior is not None, looks
-    )
+    return Recognition(candidates, card.threshold, elapsed_ms, size, prior is not None, looks,
+                       upright is not None)  # fmt: skip
 
 
 def pose_model_for(category: str, models: dict[str, LoadedModel]) -> LoadedModel | None:
@@ -184,8 +222,10 @@ def recognise(
     limits: Limits = Limits(),
     units: str | None = None,
     looks: int = 1,
+    up: ArrayLike | None = None,
 ) -> tuple[Recognition, LoadedModel]:
-    """Classify a cloud (``looks`` times, see the module) and pick its pose model. Raises
+    """Classify a cloud (``looks`` times, levelled by ``up`` where given and an upright
+    classifier is loaded; see the module) and pick its pose model. Raises
     ServiceError: 422 ``no_classifier`` when none is loaded, 422 ``bad_cloud``, 422
     ``no_pose_model`` when the category has no model."""
     if classifier is None:
@@ -196,7 +236,7 @@ def recognise(
             f"({', '.join(sorted(models))})",
         )
     try:
-        recognition = classify(classifier, points, limits=limits, units=units, looks=looks)
+        recognition = classify(classifier, points, limits=limits, units=units, looks=looks, up=up)
     except BadCloudError as err:
         raise ServiceError(422, "bad_cloud", str(err)) from None
     model = pose_model_for(recognition.category, models)
@@ -239,10 +279,12 @@ def auto_run(
 ) -> RecognisedRun:
     """Classify, then set up the category model's run on one clock (``started``, default now):
     the classification's time counts against ``budget_ms``; an ``ensemble`` of K asked for
-    also classifies with K looks. Raises ServiceError (see :func:`recognise`) or BadCloudError."""
+    also classifies with K looks, and an ``up`` levels the cloud for the upright classifier. Raises ServiceError (see :func:`recognise`) or BadCloudError."""
     started = time.perf_counter() if started is None else started
     looks = kwargs.get("ensemble") or 1
-    recognition, model = recognise(classifier, models, points, units=units, looks=looks)
+    recognition, model = recognise(
+        classifier, models, points, units=units, looks=looks, up=kwargs.get("up")
+    )
     return RecognisedRun(
         recognition,
         model,

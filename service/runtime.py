@@ -227,6 +227,9 @@ class LoadedClassifier:
     card: ClassifierCard
     path: Path
     session: ort.InferenceSession
+    # the upright classifier (its card's ``upright``) beside this one, for clouds whose up is
+    # known (``itnet.service.recognition``); None: those are classified by this one
+    upright: LoadedClassifier | None = None
 
     def probabilities(self, points: NDArray[np.float32]) -> NDArray[np.float32]:
         """Normalised points (B, N, 3) float32 -> probabilities (B, C), classes as card.classes."""
@@ -302,26 +305,51 @@ def load_models(
 def load_all(
     directory: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
 ) -> tuple[dict[str, LoadedModel], LoadedClassifier | None]:
-    """(pose models by card name, the category classifier or None) of a directory. Raises
-    ModelLoadError if there is no pose model, or more than one classifier."""
+    """(pose models by card name, the category classifier or None) of a directory; an upright
+    classifier rides on the other as its ``upright``. Raises ModelLoadError if there is no pose
+    model, or more than one classifier of a kind."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
     loaded = [load_any(p, threads, warm_up, concurrent_steps) for p in paths]
     models = {m.card.name: m for m in loaded if isinstance(m, LoadedModel)}
-    classifiers = [m for m in loaded if isinstance(m, LoadedClassifier)]
     if not models:
         raise ModelLoadError(f"{directory}: no .onnx models found")
-    if len(classifiers) > 1:
-        names = ", ".join(c.path.name for c in classifiers)
-        raise ModelLoadError(f"{directory}: more than one classifier ({names})")
-    return models, (classifiers[0] if classifiers else None)
+    return models, _paired([m for m in loaded if isinstance(m, LoadedClassifier)], directory)
+
+
+def _paired(classifiers: list[LoadedClassifier], directory: Path) -> LoadedClassifier | None:
+    """A directory's classifiers -> the one for any orientation, with the upright one (if any)
+    beside it; None without classifiers. Raises ModelLoadError for two of a kind, or an upright
+    classifier alone (a cloud without up would have nothing to classify it)."""
+    kinds: dict[bool, LoadedClassifier] = {}
+    for c in classifiers:
+        if c.card.upright in kinds:
+            kind = "upright classifier" if c.card.upright else "classifier"
+            names = f"{kinds[c.card.upright].path.name}, {c.path.name}"
+            raise ModelLoadError(f"{directory}: more than one {kind} ({names})")
+        kinds[c.card.upright] = c
+    if True in kinds and False not in kinds:
+        raise ModelLoadError(
+            f"{directory}: an upright classifier ({kinds[True].path.name}) serves only beside "
+            "the classifier for any orientation, and there is none"
+        )
+    if True in kinds and kinds[True].card.classes != kinds[False].card.classes:
+        raise ModelLoadError(
+            f"{directory}: the upright classifier's classes ({kinds[True].card.classes}) are not "
+            f"the other's ({kinds[False].card.classes})"
+        )
+    if False in kinds:
+        kinds[False].upright = kinds.get(True)
+    return kinds.get(False)
 
 
 def load_classifier(
     directory: Path, threads: int = 2, warm_up: bool = True, skip: frozenset[Path] = frozenset()
 ) -> LoadedClassifier | None:
-    """The category classifier of a directory, or None. Files in ``skip`` (pose models already
-    loaded) are not opened again; other pose steps are opened, read and dropped."""
+    """The category classifier of a directory (with its upright partner, if any), or None.
+    Files in ``skip`` (pose models already loaded) are not opened again; other pose steps are
+    opened, read and dropped. Raises ModelLoadError as :func:`load_all`."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
+    found = []
     for path in paths:
         if path.resolve() in skip:
             continue
@@ -329,5 +357,5 @@ def load_classifier(
         if isinstance(loaded, LoadedClassifier):
             if warm_up:
                 loaded.warm_up()
-            return loaded
-    return None
+            found.append(loaded)
+    return _paired(found, directory)

@@ -243,6 +243,16 @@ class ModelInfo(BaseModel):
     default: bool = Field(description="used when a request names no model")
 
 
+class UprightClassifierInfo(BaseModel):
+    """The upright classifier: clouds levelled by the request's ``up``, only their yaw free."""
+
+    threshold: float
+    accuracy: float
+    mean_class_accuracy: float
+    evaluation: str
+    sizes: str | None = None
+
+
 class AutoInfo(BaseModel):
     """The category classifier behind ``model: "auto"``."""
 
@@ -259,6 +269,11 @@ class AutoInfo(BaseModel):
         None,
         description="how the classifier does with the size too, when a request gives its "
         "'units' (null: it has no size prior, and the unit is not used)",
+    )
+    upright: UprightClassifierInfo | None = Field(
+        None,
+        description="the classifier for requests that give 'up' (null: none loaded; the up "
+        "then does not enter the classification)",
     )
 
 

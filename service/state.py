@@ -179,7 +179,7 @@ class ServiceState:
                 raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
             recognition, model = recognise(
                 self.classifier, self.models, points, limits.engine_limits(), params.units,
-                looks=params.ensemble or 1,
+                looks=params.ensemble or 1, up=params.up,
             )  # fmt: skip
         model.relax_step_ms()  # a step-time estimate inflated by a past burst must not stick
         iterations = params.max_iterations or min(

@@ -102,12 +102,12 @@ def align(
             _fail(str(err), code=1)
         typer.echo(f"note: no ICP refinement: {err}", err=True)
         refine = False
+    ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
     if model == "auto":
-        model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units)
+        model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups)
     estimate, (category, declared, requires_up), close = _estimator(
         server, model, model_dir, budget_ms
     )
-    ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
     if requires_up and None in ups.values():
         close()
         _fail(
@@ -167,18 +167,20 @@ def _exit_code(cause: BaseException | None) -> int:
     return 1
 
 
-def _auto_model(server, model_dir, points_a, points_b, budget_ms, units) -> str:  # type: ignore[no-untyped-def]
+def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) -> str:  # type: ignore[no-untyped-def]
     """The pose model for ``--model auto``: in-process, both clouds classified together (one
-    object); with ``--server``, the service's ``model: "auto"`` on cloud A. Says which on
-    stderr; fails (exit 2) when the category has no model."""
+    object; levelled by their ups where both are given); with ``--server``, the service's
+    ``model: "auto"`` on cloud A (with A's up). Says which on stderr; fails (exit 2) when the
+    category has no model."""
     if server is not None:
         from itnet.clients import ItnetClient, ItnetClientError
 
         with ItnetClient(server) as client:
             try:
                 reply = client.estimate(
-                    points_a, budget_ms, max_iterations=1, model="auto", units=units
-                ).raw
+                    points_a, budget_ms, max_iterations=1, model="auto", units=units,
+                    up=ups["up_a"],
+                ).raw  # fmt: skip
             except ItnetClientError as err:
                 _fail(f"model auto at {server}: {err}", code=_exit_code(err))
         chosen = str(reply["model"])
@@ -191,8 +193,9 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units) -> str:
 
         try:
             recognition = classify_together(
-                get_classifier(model_dir), [points_a, points_b], units=units
-            )
+                get_classifier(model_dir), [points_a, points_b], units=units,
+                ups=[ups["up_a"], ups["up_b"]],
+            )  # fmt: skip
         except BadCloudError as err:
             _fail(str(err))
         loaded = pose_model_for(recognition.category, all_models(model_dir))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from itnet.commands import UNITS_HELP, check_units
+from itnet.commands import UNITS_HELP, check_units, check_xyz
 
 
 def classify(
@@ -24,6 +24,12 @@ def classify(
         help="Classify K turned random subsets of each cloud and average them "
         "(more accurate, about K times the time).",
     ),
+    up: str | None = typer.Option(
+        None,
+        help="Which way is up in the clouds, 'x,y,z' (gravity): each is classified levelled, by "
+        "the upright classifier where one is installed.",
+        callback=check_xyz,
+    ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
@@ -36,7 +42,9 @@ def classify(
     failed = False
     for path in files:
         try:
-            result = recognise(classifier, read_cloud(path), top=top, units=units, looks=looks)
+            result = recognise(
+                classifier, read_cloud(path), top=top, units=units, looks=looks, up=up
+            )
         except (CloudReadError, BadCloudError) as err:
             message = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
             typer.echo(f"error: {message}", err=True)
@@ -47,6 +55,7 @@ def classify(
         else:
             others = ", ".join(f"{c.category} {c.probability:.3f}" for c in result.candidates[1:])
             unsure = " (unsure)" if result.unsure else ""
+            unsure += " (upright)" if result.upright else ""
             typer.echo(
                 f"{path}: {result.category} {result.probability:.3f}{unsure}"
                 + (f"; then {others}" if others else "")
@@ -111,7 +120,10 @@ def classify_experiment(
 
 def classify_export(
     run: Path = typer.Argument(..., help="A finished run folder (best.pt, result.json)."),
-    out: Path = typer.Option(Path("itnet/models/classifier.onnx"), help="Output .onnx file."),
+    out: Path = typer.Option(
+        Path("itnet/models/classifier.onnx"),
+        help="Output .onnx file (an upright run's: itnet/models/classifier_upright.onnx).",
+    ),
     points: int | None = typer.Option(None, help="Points per cloud at serving (default: trained)."),
     int8: bool = typer.Option(
         False, "--int8", help="Quantise the per-point layers to int8 (faster on 2 cores)."
@@ -126,6 +138,11 @@ def classify_export(
         None,
         help="Also copy the run's best torch weights here, without optimiser state "
         "(what a later fine-tune starts from: classify-train --init-from).",
+    ),
+    beside: Path = typer.Option(
+        Path("itnet/models/classifier.onnx"),
+        help="An upright run's graph is served fused with this classifier for any orientation: "
+        "its card's accuracy and threshold are measured so.",
     ),
 ) -> None:
     """Export a run's best classifier (canonicaliser included) to one ONNX graph, check it
@@ -156,6 +173,7 @@ def classify_export(
         classes=result["classes"],
         points=points or trained_points(run),
         transformer=result["variant"],
+        upright=json.loads((run / "config.json").read_text()).get("upright") is not None,
     )
     with tempfile.TemporaryDirectory() as tmp:
         graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx")
@@ -170,10 +188,18 @@ def classify_export(
     with torch.no_grad():
         expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
     diff = float(np.abs(loaded.probabilities(x) - expected).max())
-    scores = score_graph(loaded, run)
-    card = card_from_run(run, scores, points, target).model_copy(
-        update={"precision": loaded.card.precision}
-    )
+    partner = None
+    if loaded.card.upright:
+        partner = load_any(beside, warm_up=False)
+        if not isinstance(partner, LoadedClassifier) or partner.card.upright:
+            typer.echo(
+                f"error: --beside {beside} is not a classifier for any orientation", err=True
+            )
+            raise typer.Exit(2)
+    scores = score_graph(loaded, run, partner)
+    card = card_from_run(
+        run, scores, points, target, None if partner is None else beside.name
+    ).model_copy(update={"precision": loaded.card.precision})
     save_with_card(onnx.load(str(out)), card, out)
     typer.echo(
         f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {card.precision}): "

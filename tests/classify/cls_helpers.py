@@ -31,12 +31,17 @@ def fixed_answer_classifier(logits: list[float]):  # type: ignore[no-untyped-def
 
 
 def export_fixed(
-    folder: Path, logits: list[float], threshold: float = 0.5, size_prior: Any = None
+    folder: Path,
+    logits: list[float],
+    threshold: float = 0.5,
+    size_prior: Any = None,
+    upright: bool = False,
 ) -> Path:
+    """classifier.onnx (``upright``: classifier_upright.onnx, its card upright) in ``folder``."""
     from itnet.export.classifier_export import export_classifier
     from itnet.model_card import ClassifierCard
 
-    card = ClassifierCard(
-        classes=CLASSES, points=128, threshold=threshold, accuracy=0.9, size_prior=size_prior
-    )
-    return export_classifier(fixed_answer_classifier(logits), card, folder / "classifier.onnx")
+    card = ClassifierCard(classes=CLASSES, points=128, threshold=threshold, accuracy=0.9,
+                          size_prior=size_prior, upright=upright)  # fmt: skip
+    name = "classifier_upright.onnx" if upright else "classifier.onnx"
+    return export_classifier(fixed_answer_classifier(logits), card, folder / name)

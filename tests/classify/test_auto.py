@@ -175,6 +175,7 @@ class _LooksRecorder:
         self.card = ClassifierCard(classes=["chair", "table"], accuracy=0.9, threshold=0.5,
                                    points=64)  # fmt: skip
         self.batches: list[np.ndarray] = []
+        self.upright = None  # no upright classifier beside it
 
     def probabilities(self, x: np.ndarray) -> np.ndarray:
         self.batches.append(x)

@@ -314,3 +314,49 @@ def test_init_seed_trains_another_network_on_the_same_split(
     assert not np.allclose(losses[None], losses[1])
     np.testing.assert_array_equal(views[None][0], views[1][0])
     np.testing.assert_array_equal(views[None][1], views[1][1])
+
+
+def test_an_upright_run_exports_an_upright_card_measured_fused_with_the_other(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """``--upright``: the run trains and validates on levelled views; its export is an upright
+    classifier whose card's accuracy is the pair's as served (fused with ``--beside``), which
+    the service then loads beside the other."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.export.classifier_export import score_graph
+    from itnet.service.runtime import load_all, load_any
+
+    free = tiny_run(three_classes, tmp_path / "free", steps=10, eval_every=10)
+    train(free)
+    upright = tiny_run(three_classes, tmp_path / "up", steps=10, eval_every=10, upright=5.0)
+    train(upright)
+    models = tmp_path / "models"
+    runner = CliRunner()
+    exported = runner.invoke(
+        app, ["classify-export", str(free.out), "--out", str(models / "classifier.onnx")]
+    )
+    assert exported.exit_code == 0, exported.output
+    beside = models / "classifier.onnx"
+    out = models / "classifier_upright.onnx"
+    exported = runner.invoke(
+        app, ["classify-export", str(upright.out), "--out", str(out), "--beside", str(beside)]
+    )
+    assert exported.exit_code == 0, exported.output
+    graph, partner = load_any(out, warm_up=False), load_any(beside, warm_up=False)
+    assert graph.card.upright and "fused with classifier.onnx" in graph.card.evaluation
+    alone, fused = score_graph(graph, upright.out), score_graph(graph, upright.out, partner)
+    measured = float((fused.test_probs.argmax(1) == fused.test_labels).mean())
+    assert graph.card.accuracy == pytest.approx(measured, abs=1e-4)
+    assert not np.allclose(alone.test_probs, fused.test_probs)  # the partner took part
+    np.testing.assert_allclose(fused.test_probs.sum(1), 1.0, atol=1e-6)
+    # the service's loader pairs them (a pose model beside, as every model folder has)
+    from itnet.export.onnx_export import export_step
+    from itnet.model.network import ITNet
+    from itnet.model_card import ModelCard
+
+    export_step(ITNet(), ModelCard(name="rod", category="rod", points=64), models / "rod.onnx")
+    _, classifier = load_all(models, warm_up=False)
+    assert classifier is not None and classifier.upright is not None
+    assert classifier.upright.card.upright and not classifier.card.upright

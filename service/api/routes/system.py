@@ -7,7 +7,15 @@ from fastapi.responses import JSONResponse
 
 from itnet.service.api.deps import StateDep
 from itnet.service.recognition import pose_model_for
-from itnet.service.schemas import AutoInfo, Health, ModelInfo, ModelsResponse, Readiness
+from itnet.service.runtime import LoadedClassifier
+from itnet.service.schemas import (
+    AutoInfo,
+    Health,
+    ModelInfo,
+    ModelsResponse,
+    Readiness,
+    UprightClassifierInfo,
+)
 
 router = APIRouter(tags=["system"])
 
@@ -58,6 +66,7 @@ async def models(state: StateDep) -> ModelsResponse:
             evaluation=card.evaluation,
             models={c: None if m is None else m.card.name for c, m in picks.items()},
             sizes=None if card.size_prior is None else card.size_prior.evaluation,
+            upright=_upright_info(state.classifier.upright),
         )
     return ModelsResponse(models=infos, default_model=default if state.ready else None, auto=auto)
 
@@ -86,3 +95,16 @@ async def readyz(state: StateDep) -> JSONResponse:
 )
 async def metrics(state: StateDep) -> Response:
     return Response(state.metrics.render(), media_type=state.metrics.content_type)
+
+
+def _upright_info(classifier: LoadedClassifier | None) -> UprightClassifierInfo | None:
+    if classifier is None:
+        return None
+    card = classifier.card
+    return UprightClassifierInfo(
+        threshold=card.threshold,
+        accuracy=card.accuracy,
+        mean_class_accuracy=card.mean_class_accuracy,
+        evaluation=card.evaluation,
+        sizes=None if card.size_prior is None else card.size_prior.evaluation,
+    )
