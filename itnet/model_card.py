@@ -177,6 +177,22 @@ def parse_card(text: str) -> ModelCard | ClassifierCard:
     return ModelCard.model_validate_json(text)
 
 
+def describe_anytime(report: dict) -> tuple[dict[str, float], str]:
+    """An ``itnet eval`` report.json -> (the card's ``accuracy`` per iteration, its
+    ``evaluation``): what was measured, on how many scans, with the up direction if given."""
+    accuracy = {str(k): v for k, v in zip(report["iterations"], report["accuracy"], strict=True)}
+    up = report.get("up_error_deg")
+    held = (
+        "" if up is None else f", the up direction given ({up:g} deg off the truth), held upright"
+    )
+    evaluation = (
+        f"{report['scans']} partial scans ({report['views']} random "
+        f"{report.get('scanner', 'occluded')} views, full SO(3), random units{held}) of the "
+        f"{report['category']} test split, {report['points']} points"
+    )
+    return accuracy, evaluation
+
+
 def _kinds_measuring(report: dict, k: int) -> list[str]:
     """The kinds of view (occluded, paper, ...) a ``benchmarks.bench_ensemble`` JSON measured
     with K runs; ValueError where none."""

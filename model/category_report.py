@@ -59,8 +59,10 @@ def table(reports: dict[str, dict[str, dict]], k: int = SHOWN_ITERATION) -> str:
         i = occ["iterations"].index(k)
         o = occ.get("orientation", {})
         kept = f"{o.get('kept', '?')} / {o.get('turned', '?')} / {o.get('dropped', '?')}"
+        up = occ.get("up_error_deg")  # measured with the up direction given (held upright)
+        shown = name if up is None else f"{name}, up given ({up:g}° off)"
         lines.append(
-            f"| {name} | {occ.get('symmetry', 'none')} | {kept} | {occ['scans']} | "
+            f"| {shown} | {occ.get('symmetry', 'none')} | {kept} | {occ['scans']} | "
             f"{_accuracy_cell(occ, i)} | "
             f"{100 * occ['rotation_accuracy'][i]:.1f} | {100 * occ['translation_accuracy'][i]:.1f} | "
             f"{occ['median_rotation_deg'][i]:.1f} | {occ['median_translation'][i]:.3f} | "
@@ -87,8 +89,10 @@ def plot(reports: dict[str, dict[str, dict]], path: Path) -> Path:
             if scanner not in by:
                 continue
             rep = by[scanner]
+            up = ", up given" if rep.get("up_error_deg") is not None else ""
             ax.plot(rep["iterations"], [100 * a for a in rep["accuracy"]], "o-", ms=2.5,
-                    color=colours(c % 10), label=f"{name} ({rep.get('symmetry', 'none')})")  # fmt: skip
+                    color=colours(c % 10),
+                    label=f"{name} ({rep.get('symmetry', 'none')}{up})")  # fmt: skip
         ax.axvline(5, color="grey", lw=0.8)
         ax.text(5.2, 2, "trained iterations", color="grey", fontsize=8)
         ax.set(xlabel="iterations", title=f"{scanner} views", ylim=(0, 100))

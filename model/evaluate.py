@@ -17,6 +17,7 @@ from itnet.metrics import is_correct, pose_errors
 from itnet.model.data import ScanSet
 from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
 from itnet.symmetry import symmetric_rotation_error_deg
+from itnet.upright import UP, held_upright, rotation_onto
 
 # (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
 StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]
@@ -38,19 +39,34 @@ class AnytimeReport(BaseModel):
 
 
 def anytime_poses(
-    step: StepFn, scans: ScanSet, iterations: int, points: int, seed: int = 0, batch: int = 50
+    step: StepFn,
+    scans: ScanSet,
+    iterations: int,
+    points: int,
+    seed: int = 0,
+    batch: int = 50,
+    ups: NDArray | None = None,
+    free_steps: int = 0,
 ) -> NDArray[np.float64]:
-    """Poses T_canonical_from_input (S, iterations + 1, 4, 4), in the scans' own units."""
+    """Poses T_canonical_from_input (S, iterations + 1, 4, 4), in the scans' own units.
+    ``ups`` (S, 3): each scan's up direction as a caller gives it; the run is then held upright
+    as the service holds it (``itnet.upright``; stood up from the start, or after the card's
+    ``free_steps``)."""
     rng = np.random.default_rng(seed)
     norms = [estimate_normalization(c) for c in scans.clouds]
     inputs = np.stack([resample(n.apply(c), points, rng) for n, c in zip(norms, scans.clouds)])
     out = np.empty((len(inputs), iterations + 1, 4, 4))
     for start in range(0, len(inputs), batch):
         x = inputs[start : start + batch]
+        up = None if ups is None else np.asarray(ups[start : start + batch], dtype=np.float64)
         pose = np.tile(np.eye(4, dtype=np.float32), (len(x), 1, 1))
+        if up is not None and free_steps == 0:
+            pose[:, :3, :3] = rotation_onto(up, UP)
         trail = [pose]
-        for _ in range(iterations):
+        for k in range(iterations):
             pose = step(x, pose)
+            if up is not None and k >= free_steps:
+                pose = np.stack([held_upright(p, u) for p, u in zip(pose, up)]).astype(np.float32)
             trail.append(pose)
         out[start : start + len(x)] = np.stack(trail, axis=1)
     for i, norm in enumerate(norms):

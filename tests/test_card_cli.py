@@ -127,3 +127,19 @@ def test_card_requires_up_only_with_its_measurement(tiny_model_dir, tmp_path):
     assert card.requires_up is True
     assert card.up_evaluation.startswith("one run, the up direction given (tilted 2 deg")
     assert "paper 81.5% ± 1.9 (40 scans)" in card.up_evaluation
+
+
+def test_card_records_an_eval_report_as_its_accuracy_per_iteration(tiny_model_dir, tmp_path):
+    """`itnet card --report` writes an `itnet eval` report's curve into an installed model's
+    card, as `itnet export --report` does; a report measured with up says so."""
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    rep = {"iterations": [0, 1, 2], "accuracy": [0.0, 0.25, 0.5], "scans": 40, "views": 5,
+           "scanner": "occluded", "category": "chair", "points": 256, "up_error_deg": 2.0}  # fmt: skip
+    (tmp_path / "report.json").write_text(json.dumps(rep))
+    result = runner.invoke(app, ["card", str(path), "--report", str(tmp_path / "report.json")])
+    assert result.exit_code == 0, result.output
+    card = load_model(path, warm_up=False).card
+    assert card.accuracy == {"0": 0.0, "1": 0.25, "2": 0.5}
+    assert card.evaluation.startswith("40 partial scans (5 random occluded views")
+    assert "the up direction given (2 deg off the truth), held upright" in card.evaluation

@@ -179,3 +179,28 @@ def test_free_steps_run_unheld_and_the_final_pose_is_still_upright(model, rng) -
     assert tilt(only.pose) > 1.0  # the step itself ran free
     assert tilt(short.run_to_end().pose) < 1e-2  # and the finish stood it up
     assert tilt(np.asarray(short.result()["T_canonical_from_input"])) < 1e-2
+
+
+@pytest.mark.parametrize("free_steps", [0, 2])
+def test_the_evaluation_holds_each_run_upright_as_the_service_does(model, rng, free_steps) -> None:
+    """``itnet eval --up``: each scan's run stood up (after the free steps) by its given up, the
+    same poses as the engine's single run with that up."""
+    from itnet.model.data import ScanSet
+    from itnet.model.evaluate import anytime_poses
+
+    clouds = [rng.normal(size=(256, 3)) * [0.3, 0.2, 0.1] + rng.normal(size=3) for _ in range(3)]
+    ups = np.stack([unit_up(rng.normal(size=3)) for _ in clouds])
+    scans = ScanSet(clouds, np.tile(np.eye(4), (3, 1, 1)), np.ones(3), ["a", "b", "c"])
+    step = lambda x, p: model.step(x, p)[0]  # noqa: E731
+    poses = anytime_poses(step, scans, 4, 256, batch=1, ups=ups, free_steps=free_steps)
+    for s, up in enumerate(ups):
+        tilt = np.degrees(np.arccos(np.clip(poses[s, :, :3, :3] @ up @ UP, -1, 1)))
+        assert (tilt[max(1, free_steps + 1) :] < 0.05).all()  # float32 poses
+        if free_steps:
+            assert tilt[1] > 1.0  # the free steps ran unheld
+    free = copy.copy(model)
+    free.card = model.card.model_copy(update={"up_free_steps": free_steps})
+    run = AnytimeRun(free, clouds[0], budget_ms=10_000, max_iterations=4, up=ups[0],
+                     mirror=False, centre=False)  # fmt: skip
+    served = [e.pose for e in run]
+    np.testing.assert_allclose(poses[0, 1:], np.stack(served), atol=1e-3)

@@ -57,13 +57,18 @@ def card(
         help="With the up direction given, run this many steps free before holding the pose "
         "upright.",
     ),
+    report: Path | None = typer.Option(
+        None,
+        help="report.json of `itnet eval` to record as the card's accuracy per iteration "
+        "(as `itnet export --report`).",
+    ),
     out: Path | None = typer.Option(None, help="Write here instead of changing MODEL in place."),
 ) -> None:
     """Print the card (JSON); with options, write the changed card into the model file."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model_card import ModelCard, describe_mirror, describe_up
+    from itnet.model_card import ModelCard, describe_anytime, describe_mirror, describe_up
     from itnet.service.runtime import ModelLoadError, load_any
 
     try:
@@ -97,6 +102,8 @@ def card(
             )
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-mirror: {err}") from None
+    if report is not None:
+        update["accuracy"], update["evaluation"] = describe_anytime(json.loads(report.read_text()))
     if up_report is not None:
         k = current.recommended_ensemble if recommended_ensemble is None else recommended_ensemble
         try:

@@ -40,6 +40,14 @@ def evaluate(
         True, help="Turn back or drop test shapes turned about up, as training does."
     ),
     cache: Path = typer.Option(Path("cache")),
+    up: float | None = typer.Option(
+        None,
+        min=0.0,
+        metavar="ERROR_DEG",
+        help="Give each run its scan's up direction, tilted ERROR_DEG degrees from the truth (a "
+        "gravity sensor's error), and hold it upright as the service does (a model that "
+        "requires up is measured so).",
+    ),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
 
@@ -80,7 +88,14 @@ def evaluate(
     except ValueError as err:
         raise typer.BadParameter(str(err)) from None
     scans, orientation = test_scans(data, cat, views, seed, config, cache, frame, check_orientation)
-    poses = anytime_poses(step, scans, iterations, points, batch=batch)
+    ups, free = None, 0
+    if up is not None:  # each scan's true up, tilted as a gravity sensor's would be
+        from itnet.upright import tilted
+
+        truth = scans.poses[:, 1, :3]  # R^T e_y: the canonical +y in each scan's frame
+        ups = tilted(truth, up, np.random.default_rng(seed + 1)) if up else truth
+        free = 0 if onnx is None else model.card.up_free_steps
+    poses = anytime_poses(step, scans, iterations, points, batch=batch, ups=ups, free_steps=free)
     rep, rot, trans = report(poses, scans, cat.symmetry)
     out.mkdir(parents=True, exist_ok=True)
     summary = {
@@ -92,6 +107,7 @@ def evaluate(
         "scanner": scanner,
         "seed": seed,
         "points": points,
+        **({} if up is None else {"up_error_deg": up, "up_free_steps": free}),
         **rep.model_dump(),
     }
     (out / "report.json").write_text(json.dumps(summary, indent=1))

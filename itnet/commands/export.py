@@ -62,7 +62,7 @@ def export(
     from itnet.export.quantize import quantize_point_layers
     from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
-    from itnet.model_card import ModelCard
+    from itnet.model_card import ModelCard, describe_anytime
     from itnet.service.runtime import load_model
 
     net, state = load_checkpoint(checkpoint)
@@ -75,13 +75,7 @@ def export(
     points = int(config["points"]) if points is None else points
     accuracy, evaluation = {}, ""
     if report is not None:
-        rep = json.loads(report.read_text())
-        accuracy = {str(k): v for k, v in zip(rep["iterations"], rep["accuracy"])}
-        evaluation = (
-            f"{rep['scans']} partial scans ({rep['views']} random {rep.get('scanner', 'occluded')} "
-            f"views, full SO(3), random units) of the {rep['category']} test split, "
-            f"{rep['points']} points"
-        )
+        accuracy, evaluation = describe_anytime(json.loads(report.read_text()))
     ensemble_text = ensemble_evaluation(recommended_ensemble, ensemble_report)
     name = name or cat.name  # a mug model is served as 'mug', not 'chair'
     out = out or Path("itnet/models") / f"{name}.onnx"

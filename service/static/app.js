@@ -164,7 +164,8 @@ function onMessage(message) {
   } else if (message.category) {  // model 'auto': the classifier's answer comes first
     const p = message.category_probability;
     const size = message.size_used ? `, size ${message.size_m.toFixed(2)} m counted` : '';
-    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}${size}, model ${message.model ?? '?'}`);
+    const upright = message.classified_upright ? ', levelled by up' : '';
+    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}${size}${upright}, model ${message.model ?? '?'}`);
     const chosen = modelInfo(message.model ?? message.category);
     if (chosen) view.setSymmetry(chosen.symmetry);
   }
