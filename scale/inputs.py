@@ -45,10 +45,12 @@ def _is_cloud(path: Path) -> bool:
     return path.is_file() and path.suffix.lower() in SUFFIXES
 
 
-def read_manifest(path: Path) -> list[tuple[str, str]]:
-    """A manifest of pairs -> [(a, b), ...]: CSV with a header naming columns ``a`` and ``b``,
-    or JSON Lines (``.jsonl``) of objects with keys ``a`` and ``b``. Relative paths are taken
-    relative to the manifest's folder. Raises InputError saying what is wrong."""
+def read_manifest(path: Path) -> list[tuple[str, str, str, str]]:
+    """A manifest of pairs -> [(a, b, up_a, up_b), ...]: CSV with a header naming columns ``a``
+    and ``b``, or JSON Lines (``.jsonl``) of objects with keys ``a`` and ``b``. Optional
+    ``up_a``, ``up_b``: which way is up in each cloud, 'x,y,z' (JSON Lines: also [x, y, z]),
+    given back as 'x,y,z' ('' where absent). Relative paths are taken relative to the
+    manifest's folder. Raises InputError saying what is wrong."""
     if not path.is_file():
         raise InputError(f"{path}: no such manifest")
     rows: list[dict[str, str]]
@@ -65,10 +67,30 @@ def read_manifest(path: Path) -> list[tuple[str, str]]:
     for number, row in enumerate(rows, start=1):
         if not isinstance(row, dict) or not row.get("a") or not row.get("b"):
             raise InputError(f"{path}: row {number} has no 'a' and 'b' (got {row!r:.80})")
-        pairs.append((_beside(path, str(row["a"])), _beside(path, str(row["b"]))))
+        ups = [_up(path, number, row.get(key)) for key in ("up_a", "up_b")]
+        pairs.append((_beside(path, str(row["a"])), _beside(path, str(row["b"])), *ups))
     if not pairs:
         raise InputError(f"{path}: no pairs")
     return list(dict.fromkeys(pairs))
+
+
+def _up(manifest: Path, number: int, value: object) -> str:
+    """A row's up direction -> 'x,y,z' ('' where none); InputError unless it is three finite
+    numbers, not all zero."""
+    from itnet.upright import unit_up
+
+    if value is None or value == "":
+        return ""
+    try:
+        parts = value.split(",") if isinstance(value, str) else list(value)  # type: ignore[call-overload]
+        numbers = [float(v) for v in parts]
+    except (TypeError, ValueError):
+        numbers = []  # not numbers: unit_up says what an up must be
+    try:
+        unit_up(numbers)
+    except ValueError as err:
+        raise InputError(f"{manifest}: row {number}: {err} (got {value!r:.60})") from None
+    return ",".join(str(v) for v in numbers)
 
 
 def _beside(manifest: Path, name: str) -> str:

@@ -66,8 +66,9 @@ class PoseWorker:
 
 
 class AlignWorker:
-    """``{"cloud_a": [...], "cloud_b": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet align --json`` row
-    a pair (without ``output``: the batch writes no moved clouds)."""
+    """``{"cloud_a": [...], "cloud_b": [...]}`` (and ``up_a``, ``up_b``: 'x,y,z' or '') ->
+    ``{"row": [json, ...]}``, one ``itnet align --json`` row a pair (without ``output``: the
+    batch writes no moved clouds)."""
 
     def __init__(
         self, model: str, model_dir: str | None, threads: int, budget_ms: float,
@@ -90,13 +91,16 @@ class AlignWorker:
         from itnet.cloud_io import CloudReadError, read_cloud
 
         rows = []
-        for a, b in zip(batch["cloud_a"], batch["cloud_b"]):
+        for i, (a, b) in enumerate(zip(batch["cloud_a"], batch["cloud_b"])):
             fields = {"cloud_a": str(a), "cloud_b": str(b)}
+            # which way is up in each cloud ('x,y,z', '' where the manifest does not say)
+            given = {k: str(batch[k][i]) if k in batch else "" for k in ("up_a", "up_b")}
+            ups = {k: [float(v) for v in u.split(",")] if u else None for k, u in given.items()}
             try:
                 points_a, points_b = read_cloud(str(a)), read_cloud(str(b))
-                result = align_clouds(points_a, points_b, self.estimate, self.options)
+                result = align_clouds(points_a, points_b, self.estimate, self.options, **ups)
                 row = {**fields, "model": self.name, "symmetry": self.options.symmetry,
-                       **result.to_dict()}  # fmt: skip
+                       **result.to_dict(), **{k: u for k, u in ups.items() if u is not None}}  # fmt: skip
             except CloudReadError as err:
                 row = _error_row(fields, self.name, err)
             except CloudEstimateError as err:

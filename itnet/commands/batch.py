@@ -70,7 +70,12 @@ def pose(
 
 @app.command("align")
 def align(
-    manifest: Path = typer.Argument(..., help="Pairs: CSV with columns a,b, or .jsonl {a, b}."),
+    manifest: Path = typer.Argument(
+        ...,
+        help="Pairs: CSV with columns a,b, or .jsonl {a, b}; optional up_a, up_b ('x,y,z': which "
+        "way is up in each cloud, as itnet align --up-a/--up-b; a model that requires up needs "
+        "them).",
+    ),
     output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
     workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
     ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
@@ -118,7 +123,7 @@ def align(
                "refine": refine, "candidates": candidates, "finalists": finalists}  # fmt: skip
     args = {"model": model, "model_dir": _dir(model_dir), "budget_ms": budget_ms,
             "options": options}  # fmt: skip
-    items = [{"cloud_a": a, "cloud_b": b} for a, b in pairs]
+    items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
     _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,
          batch_size, progress, "pairs")  # fmt: skip
 

@@ -116,6 +116,50 @@ def test_batch_align_gives_itnet_aligns_answers(local_ray: None, tmp_path: Path)
         np.testing.assert_allclose(got["T_b_from_a"], want["T_b_from_a"], atol=1e-6)
 
 
+def test_batch_align_takes_each_pairs_up_from_the_manifest(local_ray: None, tmp_path: Path) -> None:
+    """JSON Lines with up_a, up_b (a list, or 'x,y,z'): the night stand, whose model requires
+    up, aligns its example pair as ``itnet align --up-a --up-b`` does; a pair without ups is an
+    error row that says the model needs them."""
+    truth = json.loads((EXAMPLES / "night_stand_truth.json").read_text())
+    a, b = EXAMPLES / "night_stand_a.ply", EXAMPLES / "night_stand_b.ply"
+    xyz = lambda v: ",".join(map(str, v))  # noqa: E731
+    lines = [{"a": str(a), "b": str(b), "up_a": truth["up_a"], "up_b": xyz(truth["up_b"])},
+             {"a": str(b), "b": str(a)}]  # fmt: skip
+    (tmp_path / "pairs.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    out = tmp_path / "pairs.jsonl.out.jsonl"
+    args = ["--model", "night_stand", "--no-refine"]
+    result = runner.invoke(
+        app, ["batch", "align", str(tmp_path / "pairs.jsonl"), "-o", str(out), *args]
+    )
+    assert result.exit_code == 0, result.output
+    rows = {(Path(r["cloud_a"]).name, Path(r["cloud_b"]).name): r for r in read_rows(out)}
+    assert "needs 'up'" in rows[(b.name, a.name)]["error"]
+    got = rows[(a.name, b.name)]
+    assert np.allclose(got["up_a"], truth["up_a"]) and np.allclose(got["up_b"], truth["up_b"])
+    ups = ["--up-a", xyz(truth["up_a"]), "--up-b", xyz(truth["up_b"])]
+    single = runner.invoke(app, ["align", str(a), str(b), "--json", *args, *ups])
+    want = json.loads(single.stdout.splitlines()[-1])
+    np.testing.assert_allclose(got["T_b_from_a"], want["T_b_from_a"], atol=1e-6)
+
+
+def test_a_manifests_bad_up_is_refused_with_its_row(tmp_path: Path) -> None:
+    from itnet.scale.inputs import InputError, read_manifest
+
+    (tmp_path / "ok.csv").write_text('a,b,up_a\nx.ply,y.ply,"0,-1,0"\nx.ply,z.ply,\n')
+    assert read_manifest(tmp_path / "ok.csv") == [
+        (str(tmp_path / "x.ply"), str(tmp_path / "y.ply"), "0.0,-1.0,0.0", ""),
+        (str(tmp_path / "x.ply"), str(tmp_path / "z.ply"), "", ""),
+    ]
+    for bad, says in (
+        ('"0,0,0"', "zero vector"),
+        ('"1,2"', "three finite"),
+        ("up", "three finite"),
+    ):
+        (tmp_path / "bad.csv").write_text(f"a,b,up_b\nx.ply,y.ply,{bad}\n")
+        with pytest.raises(InputError, match=f"row 1: .*{says}"):
+            read_manifest(tmp_path / "bad.csv")
+
+
 def test_batch_refuses_what_it_cannot_do(tmp_path: Path) -> None:
     """Errors the driver finds before Ray starts: exit 2 and a message."""
     cloud = str(EXAMPLES / "chair_a.ply")
