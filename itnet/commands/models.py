@@ -67,6 +67,11 @@ def models(
         typer.echo(
             f"auto: a classifier of {len(reply.auto.classes)} categories "
             f"({', '.join(reply.auto.classes)}) picks the pose model (--model auto)"
+            + (
+                "; an upright classifier joins it where the cloud's up is given (--up)"
+                if reply.auto.upright is not None
+                else ""
+            )
         )
     typer.echo(
         f"({len(reply.models)} model(s) in {folder}; runs: fused per estimate by default, as "

@@ -137,3 +137,5 @@ def test_auto_with_up_through_the_service_and_the_cli(both_dir: Path, box_cloud)
     )
     assert out.exit_code == 0, out.output
     assert '"classified_upright": true' in out.output and '"category": "chair"' in out.output
+    listed = CliRunner().invoke(app, ["models", "--model-dir", str(both_dir)])
+    assert listed.exit_code == 0 and "an upright classifier joins it" in listed.output
