@@ -197,3 +197,23 @@ def test_auto_is_offered_when_the_server_has_a_classifier(live_server, browser_p
                    budget_ms=5000, max_iterations=5)  # fmt: skip
     assert shown["model"] == api["model"]
     assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
+
+
+def test_auto_with_up_runs_the_upright_classifier_as_the_api_does(live_server, browser_page):
+    """The shipped upright classifier joins 'auto' when the Up field is set: the reply says so,
+    and the page agrees with the API given the same up (the chair's true up in its scan)."""
+    auto = httpx.get(f"{live_server.url}/v1/models").json().get("auto")
+    if auto is None or auto.get("upright") is None:
+        pytest.skip("no upright classifier shipped")
+    up = json.loads((EXAMPLES / "chair_truth.json").read_text())["T_canonical_from_a"][1][:3]
+    text = ",".join(f"{v:.6f}" for v in up)
+    page = browser_page
+    page.goto(f"{live_server.url}/?example=chair_a&model=auto&up={text}&budget_ms=5000"
+              "&max_iterations=5&play_ms=0&run=1")  # fmt: skip
+    shown = result(page)
+    assert shown["classified_upright"] is True and shown["category"] == "chair"
+    api = estimate(live_server, read_cloud(EXAMPLES / "chair_a.ply"), model="auto",
+                   up=[float(v) for v in text.split(",")], budget_ms=5000, max_iterations=5)  # fmt: skip
+    assert api["classified_upright"] is True
+    assert np.isclose(shown["category_probability"], api["category_probability"], atol=1e-6)
+    assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
