@@ -22,12 +22,9 @@ def known_ups(poses: np.ndarray, error_deg: float, seed: int = 0) -> np.ndarray:
     """Each scan's up direction in its own frame, as a caller would give it: the truth (the
     canonical +y taken back by T_canonical_from_input (S, 4, 4)) tilted by ``error_deg`` about a
     random horizontal axis (a gravity sensor's error) -> (S, 3) unit vectors."""
-    from itnet.upright import tilted
+    from itnet.upright import sensed_ups
 
-    truth = poses[:, :3, :3].transpose(0, 2, 1) @ np.array([0.0, 1.0, 0.0])  # R^T y
-    if error_deg == 0:
-        return truth
-    return tilted(truth, error_deg, np.random.default_rng(seed))
+    return sensed_ups(poses, error_deg, np.random.default_rng(seed))
 
 
 def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:

@@ -36,7 +36,7 @@ from itnet.preprocess import cap_points, estimate_normalization
 from itnet.service.recognition import mean_log_probability, turned_looks
 from itnet.service.runtime import LoadedClassifier, load_any
 from itnet.size_prior import with_size
-from itnet.upright import tilted
+from itnet.upright import sensed_ups
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,19 +63,19 @@ def main() -> None:
     shapes = load_splits(args.data, classes, 0.1, 0, args.cache)[args.split]
     rng = np.random.default_rng(2024 if args.split == "test" else 7)
     configs = [scan_config(overrides) for overrides in SCAN_MIX]
-    clouds, labels, metres, ups = [], [], [], []
+    clouds, labels, metres, poses = [], [], [], []
     radii = source_radii(args.data, classes, args.split)  # ModelNet's units, read as inches
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
         for v in range(args.views):
             cloud, canonical_from_view = scan_of(shape, rng, configs[v % len(configs)])
-            ups.append(canonical_from_view[1, :3])  # R^T e_y: the true up in the view
+            poses.append(canonical_from_view)
             norm = estimate_normalization(cloud)
             clouds.append(norm.apply(cloud))
             labels.append(int(label))
             metres.append(norm.scale * radius * INCH_M)
     prior = classifier.card.size_prior
     y = np.array(labels)
-    given = tilted(np.array(ups), args.up_error, np.random.default_rng(99))
+    given = sensed_ups(np.array(poses), args.up_error, np.random.default_rng(99))
     upright = None
     if args.upright is not None:
         upright = load_any(args.upright, threads=2)

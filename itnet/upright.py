@@ -85,6 +85,14 @@ def tilted(ups: ArrayLike, error_deg: ArrayLike, rng: np.random.Generator) -> Fl
     return np.einsum("sij,sj->si", axis_angle_to_matrix(axes, angles), ups)
 
 
+def sensed_ups(poses: ArrayLike, error_deg: float, rng: np.random.Generator) -> FloatArray:
+    """Scans' poses T_canonical_from_input (S, 4, 4) -> each scan's up direction in its own
+    frame (the canonical +y taken back, ``R^T e_y``) as a gravity sensor with ``error_deg`` of
+    error gives it (:func:`tilted`; 0: the truth, ``rng`` untouched) -> (S, 3) unit vectors."""
+    truth = np.asarray(poses, dtype=np.float64)[:, 1, :3]  # row 1 of R: R^T e_y
+    return truth if error_deg == 0 else tilted(truth, error_deg, rng)
+
+
 def levelled(points: ArrayLike, up: ArrayLike) -> FloatArray:
     """A cloud (N, 3) and its up direction (3,, unit) -> the cloud turned about its origin by
     the least rotation that takes ``up`` onto +y: the object stands, its yaw is left as it was."""

@@ -175,7 +175,9 @@ def _viewpoint(viewpoint: ArrayLike) -> NDArray[np.float64]:
     return point
 
 
-def _up(up: ArrayLike) -> NDArray[np.float64]:
+def validate_up(up: ArrayLike) -> NDArray[np.float64]:
+    """A request's up direction -> its unit vector (3,); BadCloudError saying what is wrong
+    (not three finite numbers, or zero)."""
     try:
         return unit_up(np.asarray(up, dtype=np.float64).reshape(-1))
     except (TypeError, ValueError) as err:
@@ -305,7 +307,7 @@ class AnytimeRun(Iterator[Estimate]):
         self.ensemble = ensemble
         # Which way is up in the cloud (itnet.upright): the runs start stood up, yaw turns
         # 360/K apart, and every step's pose is stood back up, so only yaw and position remain.
-        self.up = None if up is None else _up(up)
+        self.up = None if up is None else validate_up(up)
         if self.up is None and model.card.requires_up:
             raise BadCloudError(
                 f"model {model.card.name!r} needs 'up', which way is up in the cloud ([x, y, z]; "

@@ -40,11 +40,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import viewing_axis_turns
 from itnet.preprocess import DegenerateCloudError, cap_points, estimate_normalization
-from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud
+from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud, validate_up
 from itnet.service.errors import ServiceError
 from itnet.service.runtime import LoadedClassifier, LoadedModel
 from itnet.size_prior import metres_per_unit, with_size
-from itnet.upright import UP, levelled, unit_up, upright_starts
+from itnet.upright import UP, levelled, upright_starts
 
 AUTO = "auto"
 MAX_LOOKS = 16  # as many as the pose ensemble's runs
@@ -166,10 +166,7 @@ def classify_together(
         raise BadCloudError(f"{len(ups)} up directions for {len(clouds)} clouds")
     upright = classifier.upright
     if ups is not None and upright is not None and all(u is not None for u in ups):
-        try:
-            levels = [unit_up(np.asarray(u, dtype=np.float64).reshape(-1)) for u in ups]
-        except ValueError as err:
-            raise BadCloudError(str(err)) from None
+        levels = [validate_up(u) for u in ups]
     else:
         upright = None
     card = classifier.card if upright is None else upright.card  # the threshold, the prior
@@ -187,10 +184,11 @@ def classify_together(
         except DegenerateCloudError as err:
             raise BadCloudError(str(err)) from None
         rng = np.random.default_rng(seed)
-        x = turned_looks(norm.apply(cloud), looks, classifier.card.points, rng)
+        normalized = norm.apply(cloud)
+        x = turned_looks(normalized, looks, classifier.card.points, rng)
         probs = classifier.probabilities(x)
         if upright is not None:
-            stood = turned_looks(norm.apply(cloud), looks, upright.card.points, rng, up)
+            stood = turned_looks(normalized, looks, upright.card.points, rng, up)
             probs = np.concatenate([probs, upright.probabilities(stood)])
         own = mean_log_probability(probs)
         if to_metres is not None:

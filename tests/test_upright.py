@@ -17,6 +17,7 @@ from itnet.upright import (
     held_upright,
     levelled,
     rotation_onto,
+    sensed_ups,
     tilted,
     turns_about,
     unit_up,
@@ -123,6 +124,14 @@ def test_tilted_ups_are_off_by_the_error_and_levelled_clouds_stand(rng) -> None:
     off = tilted(ups, 2.0, rng)
     np.testing.assert_allclose(np.linalg.norm(off, axis=1), 1.0, atol=1e-9)
     np.testing.assert_allclose(np.degrees(np.arccos(np.sum(ups * off, axis=1))), 2.0, atol=1e-6)
+    poses = np.tile(np.eye(4), (30, 1, 1))
+    poses[:, :3, :3] = random_rotation(rng, 30)
+    truth = np.einsum("sji,j->si", poses[:, :3, :3], UP)  # R^T e_y: +y in each scan's frame
+    np.testing.assert_allclose(sensed_ups(poses, 0.0, rng), truth, atol=1e-12)
+    sensed = sensed_ups(poses, 2.0, rng)
+    np.testing.assert_allclose(
+        np.degrees(np.arccos(np.sum(truth * sensed, axis=1))), 2.0, atol=1e-6
+    )
     cloud = rng.normal(size=(50, 3))
     flat = levelled(cloud, ups[0])
     np.testing.assert_allclose(levelled(ups[0][None], ups[0])[0], UP, atol=1e-9)

@@ -90,10 +90,9 @@ def evaluate(
     scans, orientation = test_scans(data, cat, views, seed, config, cache, frame, check_orientation)
     ups, free = None, 0
     if up is not None:  # each scan's true up, tilted as a gravity sensor's would be
-        from itnet.upright import tilted
+        from itnet.upright import sensed_ups
 
-        truth = scans.poses[:, 1, :3]  # R^T e_y: the canonical +y in each scan's frame
-        ups = tilted(truth, up, np.random.default_rng(seed + 1)) if up else truth
+        ups = sensed_ups(scans.poses, up, np.random.default_rng(seed + 1))
         free = 0 if onnx is None else model.card.up_free_steps
     poses = anytime_poses(step, scans, iterations, points, batch=batch, ups=ups, free_steps=free)
     rep, rot, trans = report(poses, scans, cat.symmetry)

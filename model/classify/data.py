@@ -26,7 +26,7 @@ from itnet.model.data import cached_scan_set, load_shapes, split_files
 from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_of
 from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
-from itnet.upright import levelled, tilted
+from itnet.upright import levelled, sensed_ups, tilted
 
 SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
 UPRIGHT_EVAL_DEG = 2.0  # the up direction's error in upright validation and test views
@@ -130,7 +130,7 @@ def fixed_views(
         scans = cached_scan_set(data.shapes, per_config, seed + k, scan_config(overrides), cache)
         clouds = [normalised_view(c, points, rng) for c in scans.clouds]
         if upright is not None:
-            ups = tilted(scans.poses[:, 1, :3], upright, np.random.default_rng(seed + 17 + k))
+            ups = sensed_ups(scans.poses, upright, np.random.default_rng(seed + 17 + k))
             clouds = [levelled(c, u).astype(np.float32) for c, u in zip(clouds, ups, strict=True)]
         xs += clouds
         ys.append(np.repeat(data.labels, per_config))
