@@ -19,10 +19,10 @@ from numpy.typing import NDArray
 from torch import Tensor, nn
 
 from itnet.export.onnx_export import save_with_card
-from itnet.model.classify.data import UPRIGHT_EVAL_DEG
 from itnet.model.classify.network import Classifier, PointNetHead
 from itnet.model.network import ExportableStep, _folded, _folded_mlp
 from itnet.model_card import ClassifierCard
+from itnet.upright import UPRIGHT_EVAL_DEG
 
 if TYPE_CHECKING:
     from itnet.service.runtime import LoadedClassifier

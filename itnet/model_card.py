@@ -69,8 +69,17 @@ class ModelCard(BaseModel):
         description="the same with the sensor's direction as well, for requests that give the "
         "sensor's position (viewpoint)",
     )
+    centre_correction_up: dict | None = Field(
+        None,
+        description="the same fitted on runs held upright, for requests that give the up "
+        "direction (and no viewpoint the card has a correction for): itnet centre-fit --up",
+    )
     centre_evaluation: str = Field(
         "", description="the centre correction's measured effect as served: without and with"
+    )
+    centre_up_evaluation: str = Field(
+        "",
+        description="centre_correction_up's measured effect, as served with the up direction",
     )
     requires_up: bool = Field(
         False,

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 from itnet.geometry import FloatArray, axis_angle_to_matrix
 
 UP = np.array([0.0, 1.0, 0.0])
+UPRIGHT_EVAL_DEG = 2.0  # the up direction's error in upright validation and test views
 
 
 def unit_up(up: ArrayLike) -> FloatArray:

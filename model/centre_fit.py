@@ -54,13 +54,19 @@ class ServedCentres:
 
 
 def served_centres(
-    model: LoadedModel, scans: ScanSet, symmetry: str, ensemble: int = 1
+    model: LoadedModel,
+    scans: ScanSet,
+    symmetry: str,
+    ensemble: int = 1,
+    ups: NDArray[np.float64] | None = None,
 ) -> ServedCentres:
-    """Pose every scan as served (``ensemble`` runs fused, no centre correction) and measure its
-    centre."""
+    """Pose every scan as served (``ensemble`` runs fused, no centre correction; ``ups`` (S, 3):
+    each scan's up direction as the caller gives it, the runs then held upright) and measure
+    its centre."""
     features, offsets, ratio, poses, toward = [], [], [], [], []
-    for cloud, truth, radius in zip(scans.clouds, scans.poses, scans.radii):
-        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=ensemble, centre=False)
+    given = [None] * len(scans.clouds) if ups is None else list(ups)
+    for cloud, truth, radius, up in zip(scans.clouds, scans.poses, scans.radii, given):
+        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=ensemble, centre=False, up=up)
         last = run.run_to_end()
         pose_n = last.pose_normalized.astype(np.float64)
         moved = apply_rigid(pose_n, run.points[0].astype(np.float64))

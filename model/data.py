@@ -27,6 +27,7 @@ from itnet.model.shapes import (
     stretched,
 )
 from itnet.preprocess import estimate_normalization, pose_to_normalized, resample
+from itnet.upright import UP, levelled, rotation_onto, sensed_ups
 
 
 @dataclass
@@ -192,12 +193,15 @@ def training_batch(
     config: ScanConfig | list[ScanConfig],
     indices: NDArray[np.int64] | None = None,
     stretch: float = 1.0,
+    upright: float | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4)). A list
     of configs: each scan uses one, drawn uniformly. ``indices`` (B,): the shapes to scan (by
     default drawn uniformly). ``stretch`` > 1: each shape is first stretched along its canonical
     axes by factors drawn log-uniformly in [1/stretch, stretch] (``shapes.stretched``; the pose
-    is unchanged)."""
+    is unchanged). ``upright`` (degrees): each scan levelled by its up direction as a caller's
+    gravity sensor gives it, the truth tilted by an error drawn uniformly in [0, upright]
+    (:func:`upright_scan`): what a run held upright starts from."""
     configs = config if isinstance(config, list) else [config]
     xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
     if indices is None:
@@ -209,5 +213,20 @@ def training_batch(
                 shape.discs()  # computed once on the original, carried over to every stretch
             shape = stretched(shape, random_stretch(rng, stretch))
         cloud, pose = scan_of(shape, rng, config)
+        if upright is not None:
+            cloud, pose = upright_scan(cloud, pose, rng.uniform(0.0, upright), rng)
         xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
     return xs, targets
+
+
+def upright_scan(
+    cloud: NDArray, pose: NDArray, error_deg: float, rng: np.random.Generator
+) -> tuple[NDArray, NDArray]:
+    """A scan (N, 3) and its pose T_canonical_from_input (4, 4) -> the scan levelled about its
+    origin by its up direction tilted ``error_deg`` from the truth (``itnet.upright``), and the
+    pose of the levelled scan: the object stands, up to the error, and keeps its yaw."""
+    up = sensed_ups(pose[None], error_deg, rng)[0]
+    stand = rotation_onto(up, UP)
+    moved = pose.copy()
+    moved[:3, :3] = pose[:3, :3] @ stand.T
+    return levelled(cloud, up).astype(cloud.dtype), moved

@@ -33,6 +33,7 @@ from itnet.model.optim import (
 )
 from itnet.model.prefetch import Prefetcher
 from itnet.model.scanner import PAPER_VIEWS, scan_config
+from itnet.upright import UPRIGHT_EVAL_DEG, sensed_ups
 
 
 class TrainConfig(BaseModel):
@@ -86,6 +87,10 @@ class TrainConfig(BaseModel):
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
     compile: bool = False  # torch.compile the unrolled network for the training steps
     ema: float | None = None  # decay of an exponential moving average of the weights (0.999)
+    # not None: an upright model (data.upright_scan): training scans levelled by their up tilted
+    # by up to this many degrees; validation runs held upright by an up UPRIGHT_EVAL_DEG off, as
+    # the service serves a request that gives up
+    upright: float | None = None
 
 
 def _save(
@@ -153,6 +158,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
             train_scan_configs,
             picked,
             config.stretch,
+            config.upright,
         )
         return x, target, picked
 
@@ -283,7 +289,14 @@ def validate(net: ITNet, data: CategorySet, config: TrainConfig) -> dict:
     means over categories: precision, which the accuracy's thresholds hide."""
     curves, rotations, centres = {}, [], []
     for name, scans in data.validation.items():
-        poses = anytime_poses(torch_step(net), scans, config.eval_iterations, config.eval_points)
+        ups = None
+        if config.upright is not None:  # the same tilts every validation (a fixed stream)
+            ups = sensed_ups(
+                scans.poses, UPRIGHT_EVAL_DEG, np.random.default_rng([config.seed, 17])
+            )
+        poses = anytime_poses(
+            torch_step(net), scans, config.eval_iterations, config.eval_points, ups=ups
+        )
         rep = report(poses, scans, data.categories[name].symmetry)[0]
         curves[name] = rep.accuracy
         rotations.append(rep.median_rotation_deg[-1])

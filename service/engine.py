@@ -275,36 +275,6 @@ class AnytimeRun(Iterator[Estimate]):
             )
         self.mirror = bool(mirror)
         self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
-        # Where the sensor was, in the cloud's frame and units (a depth camera's cloud in its own
-        # frame: the origin): the card's viewpoint correction then finishes the centre.
-        self.viewpoint = None if viewpoint is None else _viewpoint(viewpoint)
-        # Then finish the object centre by the card's correction (itnet.centre): the viewpoint
-        # one where the request gives the sensor's position and the card has it, else the plain
-        # one; by default wherever one applies, except for runs from the caller's own starts or
-        # subsets.
-        applies = model.centre is not None or (
-            self.viewpoint is not None and model.centre_viewpoint is not None
-        )
-        if centre and not applies:
-            raise BadCloudError(
-                f"model {model.card.name!r} has no centre correction (its card has no "
-                "centre_correction"
-                + ("" if self.viewpoint is None else " and no centre_correction_viewpoint")
-                + "): centre cannot finish its poses"
-            )
-        if centre is None:
-            centre = applies and starts is None and points_per_step is None
-        self.centre = bool(centre)
-        self.centred: bool | None = None  # once finished: whether the correction moved the pose
-        self.centred_by_viewpoint = False  # once finished: the viewpoint correction did it
-        self._finished = False  # _finish ran
-        # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
-        # from the identity), each on its own random subset of the cloud (normalised as a
-        # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
-        # into different basins when the view is ambiguous and agree when it is not, which is
-        # what the fusion needs: on validation views (chair, table, toilet; docs/ensemble.md)
-        # K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
-        self.ensemble = ensemble
         # Which way is up in the cloud (itnet.upright): the runs start stood up, yaw turns
         # 360/K apart, and every step's pose is stood back up, so only yaw and position remain.
         self.up = None if up is None else validate_up(up)
@@ -314,6 +284,41 @@ class AnytimeRun(Iterator[Estimate]):
                 "'x,y,z' in a query): its poses are measured, and served, only with it (GET "
                 "/v1/models: 'requires_up')"
             )
+        # Where the sensor was, in the cloud's frame and units (a depth camera's cloud in its own
+        # frame: the origin): the card's viewpoint correction then finishes the centre.
+        self.viewpoint = None if viewpoint is None else _viewpoint(viewpoint)
+        # Then finish the object centre by the card's correction (itnet.centre): the viewpoint
+        # one where the request gives the sensor's position and the card has it, else the one
+        # fitted on runs held upright where the request gives up and the card has it, else the
+        # plain one; by default wherever one applies, except for runs from the caller's own
+        # starts or subsets.
+        applies = (
+            model.centre is not None
+            or (self.viewpoint is not None and model.centre_viewpoint is not None)
+            or (self.up is not None and model.centre_up is not None)
+        )
+        if centre and not applies:
+            raise BadCloudError(
+                f"model {model.card.name!r} has no centre correction (its card has no "
+                "centre_correction"
+                + ("" if self.viewpoint is None else " and no centre_correction_viewpoint")
+                + ("" if self.up is None else " and no centre_correction_up")
+                + "): centre cannot finish its poses"
+            )
+        if centre is None:
+            centre = applies and starts is None and points_per_step is None
+        self.centre = bool(centre)
+        self.centred: bool | None = None  # once finished: whether the correction moved the pose
+        self.centred_by_viewpoint = False  # once finished: the viewpoint correction did it
+        self.centred_by_up = False  # once finished: the correction fitted held upright did it
+        self._finished = False  # _finish ran
+        # Ensemble mode: K runs from turns about the viewing axis 360/K degrees apart (the first
+        # from the identity), each on its own random subset of the cloud (normalised as a
+        # whole), fused robustly after every step (itnet.fusion). Runs that start apart fall
+        # into different basins when the view is ambiguous and agree when it is not, which is
+        # what the fusion needs: on validation views (chair, table, toilet; docs/ensemble.md)
+        # K = 4 turned starts gained 5.6 points on average over one run, subsets alone 2.5.
+        self.ensemble = ensemble
         # the card's free steps: the first ones from the usual starts, not held (the sofa's)
         self.up_free = model.card.up_free_steps if self.up is not None else 0
         if self.up is not None and starts is not None:
@@ -438,6 +443,9 @@ class AnytimeRun(Iterator[Estimate]):
                 self.centred_by_viewpoint = True
             except ValueError:  # the viewpoint on the estimated centre: no direction to go by
                 pass
+        if finished is None and self.up is not None and self.model.centre_up is not None:
+            finished = centre_finished(self.points[0], pose, self.model.centre_up)
+            self.centred_by_up = True
         if finished is None and self.model.centre is not None:
             finished = centre_finished(self.points[0], pose, self.model.centre)
         if finished is not None:
@@ -553,5 +561,6 @@ class AnytimeRun(Iterator[Estimate]):
                 if self.centre and self.viewpoint is not None
                 else {}
             ),
+            **({"centre_up": self.centred_by_up} if self.centre and self.up is not None else {}),
             **({"up": [round(float(v), 6) for v in self.up]} if self.up is not None else {}),
         }

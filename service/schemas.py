@@ -177,6 +177,12 @@ class EstimateResponse(Pose):
         description="where the request gave a viewpoint: true if the correction that goes by "
         "the sensor's direction finished the centre (false: the model has none, or no step ran)",
     )
+    centre_up: bool | None = Field(
+        None,
+        description="where the request gave 'up' and the centre correction was on: true if the "
+        "correction fitted on runs held upright finished the centre (false: the model has none, "
+        "a viewpoint correction did it, or no step ran)",
+    )
     up: list[float] | None = Field(
         None,
         description="where the request gave 'up': that direction, unit length, in the cloud's "
@@ -232,7 +238,15 @@ class ModelInfo(BaseModel):
         description="the model also has a centre correction for requests that give "
         "'viewpoint' (the sensor's position)",
     )
+    centre_up: bool = Field(
+        False,
+        description="the model also has a centre correction fitted on runs held upright, for "
+        "requests that give 'up'",
+    )
     centre_evaluation: str = Field("", description="the corrections' measured effect, one run")
+    centre_up_evaluation: str = Field(
+        "", description="the upright correction's measured effect, with the up direction given"
+    )
     requires_up: bool = Field(
         False,
         description="requests must give 'up' (which way is up in the cloud): the model is "

@@ -205,3 +205,53 @@ def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
         export_step(make_net(), bad, tmp_path / f"{name}.onnx")
         with pytest.raises(ModelLoadError, match="centre_correction"):
             load_model(tmp_path / f"{name}.onnx", threads=1)
+
+
+def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
+    tmp_path: Path, make_net, viewpoint_model
+) -> None:  # type: ignore[no-untyped-def]
+    """centre_correction_up: used where a request gives up (and no viewpoint the card has a
+    correction for), the plain one otherwise; a card with only it (a model that requires up)
+    finishes every request; the reply says which one did it; a bad one fails the load."""
+    from itnet.export.onnx_export import export_step
+    from itnet.service.runtime import ModelLoadError
+
+    up_offset = [-0.1, 0.0, 0.2]
+    card = viewpoint_model.card.model_copy(
+        update={"centre_correction_up": intercept_only(up_offset).to_dict()}
+    )
+    export_step(make_net(), card, tmp_path / "all.onnx")
+    model = load_model(tmp_path / "all.onnx", threads=1)
+    assert model.centre_up is not None
+    up = [0.0, 1.0, 0.0]
+
+    def finished(**kw):  # type: ignore[no-untyped-def]
+        on = AnytimeRun(model, cloud(), budget_ms=10_000, converge_rotation_deg=0, **kw)
+        off = AnytimeRun(
+            model, cloud(), budget_ms=10_000, converge_rotation_deg=0, centre=False, **kw
+        )
+        on.run_to_end(), off.run_to_end()
+        moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
+        return on.result(), moved / on.normalization.scale
+
+    given, moved = finished(up=up)
+    assert given["centre"] is True and given["centre_up"] is True
+    assert np.allclose(moved, -np.array(up_offset), atol=1e-5)
+    plain, moved = finished()
+    assert "centre_up" not in plain and np.allclose(moved, -np.array([0.05, -0.02, 0.1]), atol=1e-5)
+    both, _ = finished(up=up, viewpoint=[0, 0, 0])  # the viewpoint's correction comes first
+    assert both["centre_viewpoint"] is True and both["centre_up"] is False
+
+    only = card.model_copy(
+        update={"centre_correction": None, "centre_correction_viewpoint": None, "requires_up": True}
+    )
+    export_step(make_net(), only, tmp_path / "only.onnx")
+    upright = load_model(tmp_path / "only.onnx", threads=1)
+    run = AnytimeRun(upright, cloud(), budget_ms=10_000, up=up)
+    run.run_to_end()
+    assert run.result()["centre"] is True and run.result()["centre_up"] is True
+
+    wrong = card.model_copy(update={"centre_correction_up": card.centre_correction_viewpoint})
+    export_step(make_net(), wrong, tmp_path / "wrong.onnx")
+    with pytest.raises(ModelLoadError, match="centre_correction_up"):
+        load_model(tmp_path / "wrong.onnx", threads=1)

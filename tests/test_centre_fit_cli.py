@@ -71,3 +71,31 @@ def test_a_model_that_poses_nothing_right_is_refused(setup) -> None:  # type: ig
     done = _fit(root, data, "--max-rotation", "0.001")
     assert done.exit_code == 2
     assert "not accurate enough to fit a centre correction" in done.output
+
+
+def test_up_fits_the_correction_held_upright_into_its_own_field(setup) -> None:  # type: ignore[no-untyped-def]
+    """--up: the runs are held upright by each scan's (tilted) up, as the service holds a
+    request that gives up, and the correction goes into centre_correction_up, leaving the
+    card's other corrections as they were; no viewpoint correction is fitted."""
+    root, data = setup
+    plain, out, report = root / "plain.onnx", root / "upright.onnx", root / "up.json"
+    assert _fit(root, data, "--max-rotation", "181", "--write", "--out", str(plain)).exit_code == 0
+    args = ["centre-fit", str(plain), "--data", str(data), "--views", "1", "--val-views", "2",
+            "--cache", str(root / "cache"), "--max-rotation", "181", "--write", "--out", str(out),
+            "--report", str(report), "--up", "2"]  # fmt: skip
+    done = runner.invoke(app, args)
+    assert done.exit_code == 0, done.output
+    measured = json.loads(report.read_text())
+    assert measured["up_error_deg"] == 2.0 and measured["viewpoint_results"] == {}
+    assert "held upright by an up 2 deg off" in measured["evaluation"]
+    # the card's plain correction, measured on the same upright runs: what up requests had
+    assert set(measured["plain_results"]) == {"occluded", "paper"}
+    assert "the plain correction (fitted on runs not held)" in measured["evaluation"]
+    fitted, before = load_model(out, threads=1), load_model(plain, threads=1)
+    assert fitted.centre_up is not None
+    assert fitted.card.centre_up_evaluation == measured["evaluation"]
+    # the others are left as they were
+    assert fitted.card.centre_correction == before.card.centre_correction is not None
+    assert fitted.card.centre_evaluation == before.card.centre_evaluation != ""
+    # the upright runs differ from the unheld ones: another fit
+    assert fitted.card.centre_correction_up != before.card.centre_correction

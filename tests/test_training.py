@@ -382,3 +382,62 @@ def test_half_checkpoint_is_smaller_and_trains_on(shape_folder, tmp_path):
     again = TrainConfig(**common, out=tmp_path / "b", init_from=half)
     best = train(again, resume=False, progress=False)
     assert np.isfinite(best["val_accuracy"])
+
+
+def test_upright_scans_keep_the_object_and_stand_it_up_within_the_error():
+    """data.upright_scan: the levelled scan under its new pose lands where the scan did under
+    its own (the same object), and the new pose's up (R^T e_y) is within the drawn error of
+    +y; with no error it is +y exactly."""
+    from itnet.geometry import apply_rigid, axis_angle_to_matrix
+    from itnet.model.data import upright_scan
+
+    rng = np.random.default_rng(5)
+    for error in (0.0, 3.0):
+        pose = np.eye(4)
+        pose[:3, :3] = axis_angle_to_matrix(rng.normal(size=3), rng.uniform(0, np.pi))
+        pose[:3, 3] = rng.normal(size=3)
+        cloud = rng.normal(size=(50, 3)).astype(np.float32)
+        levelled, moved = upright_scan(cloud, pose, error, rng)
+        assert levelled.dtype == np.float32 and levelled.shape == cloud.shape
+        np.testing.assert_allclose(
+            apply_rigid(moved, levelled.astype(np.float64)), apply_rigid(pose, cloud), atol=1e-5
+        )
+        up = moved[1, :3]  # R^T e_y: the canonical up in the levelled scan's frame
+        angle = np.degrees(np.arccos(np.clip(up[1], -1, 1)))
+        assert angle == pytest.approx(error, abs=1e-4)
+
+
+def test_an_upright_run_trains_on_levelled_scans_and_its_export_requires_up(shape_folder, tmp_path):
+    """--upright: the training scans stand (their targets' up is +y within the error), the run
+    trains and validates with it and keeps it in its config, and the export's card requires
+    up."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.model.data import training_batch
+    from itnet.model.scanner import scan_config
+    from itnet.model.shapes import Shape
+    from itnet.service.runtime import load_model
+
+    rng = np.random.default_rng(1)
+    shapes = [Shape(f"s{i}", _chair_like(rng)) for i in range(3)]
+    _, targets = training_batch(shapes, 16, 64, rng, scan_config({}), upright=4.0)
+    ups = targets[:, 1, :3] / np.linalg.norm(targets[:, 1, :3], axis=1, keepdims=True)
+    assert np.degrees(np.arccos(np.clip(ups[:, 1], -1, 1))).max() < 4.0 + 1e-3
+    _, free = training_batch(shapes, 16, 64, np.random.default_rng(1), scan_config({}))
+    assert np.degrees(np.arccos(np.clip(free[:, 1, 1], -1, 1))).max() > 30  # anything, unlevelled
+
+    run = tmp_path / "upright"
+    done = CliRunner().invoke(app, [
+        "train", "--data", str(shape_folder), "--category", "x", "--frame", "canonical",
+        "--cache", str(tmp_path / "cache"), "--out", str(run), "--steps", "2", "--batch", "8",
+        "--points", "64", "--iterations", "2", "--eval-every", "2", "--threads", "1",
+        "--no-bf16", "--no-compile", "--ema", "0", "--upright", "5",
+    ])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    assert json.loads((run / "config.json").read_text())["upright"] == 5.0
+    out = tmp_path / "x.onnx"
+    exported = CliRunner().invoke(app, ["export", str(run / "best.pt"), "--out", str(out)])
+    assert exported.exit_code == 0, exported.output
+    card = load_model(out, threads=1).card
+    assert card.requires_up and card.training["upright"] == 5.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import typer
 
 
@@ -37,21 +38,33 @@ def centre_fit(
     ),
     report: Path | None = typer.Option(None, help="Write the measurement (JSON) here."),
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes and scans."),
+    up: float | None = typer.Option(
+        None,
+        metavar="ERROR_DEG",
+        help="Fit and measure the correction for requests that give the up direction: every "
+        "scan's runs held upright by its up, tilted ERROR_DEG degrees from the truth (a gravity "
+        "sensor's error); with --write it becomes the card's centre_correction_up.",
+    ),
 ) -> None:
     """Pose scans of the category's training shapes as served, fit a linear correction of the
     object centre on them (``itnet.centre``), and measure one run without and with it on the
     validation views; with --write the card gets it, and the service applies it after the last
     step (``"centre": false`` in a request turns it off). A second correction, which also takes
     the direction toward the sensor, is fitted and measured the same way (the scanner's camera
-    is at each scan's origin): the service uses it for requests that give ``viewpoint``."""
+    is at each scan's origin): the service uses it for requests that give ``viewpoint``. With
+    --up, the runs are held upright by each scan's up direction (as the service holds a request
+    that gives ``up``) and the correction becomes the card's ``centre_correction_up``: requests
+    that give up are finished by it."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
     from itnet.model import centre_fit as fitting
     from itnet.model.categories import category
     from itnet.model.category_set import training_scans, validation_scans
+    from itnet.model.data import ScanSet
     from itnet.model.scanner import VIEW_RULES, scan_config
     from itnet.service.runtime import ModelLoadError, load_model
+    from itnet.upright import sensed_ups
 
     try:
         loaded = load_model(model)
@@ -61,47 +74,77 @@ def centre_fit(
     card = loaded.card
     cat = category(card.category, card.symmetry)
     kinds = {kind: scan_config(VIEW_RULES[kind]) for kind in ("occluded", "paper")}
+
+    def ups_of(scans: ScanSet, stream: int) -> np.ndarray | None:
+        if up is None:
+            return None
+        return sensed_ups(scans.poses, up, np.random.default_rng([seed, stream]))
+
     served = []
     for i, (kind, scan) in enumerate(kinds.items()):
         scans = training_scans(data, cat, views, seed + i, scan, cache)
-        served.append(fitting.served_centres(loaded, scans, cat.symmetry, ensemble))
+        served.append(
+            fitting.served_centres(loaded, scans, cat.symmetry, ensemble, ups_of(scans, i))
+        )
         typer.echo(f"{kind}: {len(scans.clouds)} training scans posed", err=True)
     try:
         correction = fitting.fit(served, ridge, max_rotation)
-        with_viewpoint = fitting.fit(served, ridge, max_rotation, viewpoint=True)
+        # the viewpoint correction is fitted on unheld runs only (requests with up and a
+        # viewpoint get the plain viewpoint correction, as measured)
+        with_viewpoint = None if up is not None else fitting.fit(served, ridge, max_rotation, True)
     except ValueError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     results: dict[str, dict] = {}
     viewpoint_results: dict[str, dict] = {}
+    plain_results: dict[str, dict] = {}
     for kind, scan in kinds.items():
         scans = validation_scans(data, cat, val_views, scan=scan, cache=cache)
-        posed = fitting.served_centres(loaded, scans, cat.symmetry, ensemble)
-        results[kind] = fitting.measure(posed, correction)
-        viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
-        typer.echo(f"{kind}: {json.dumps(results[kind])}")
-        typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
-    runs = "one run" if ensemble == 1 else f"{ensemble} runs fused"
-    evaluation = (
-        fitting.describe(results, runs=runs)
-        + ". "
-        + fitting.describe(
-            viewpoint_results,
-            "the viewpoint correction (requests that give the sensor's position)",
-            runs,
+        posed = fitting.served_centres(
+            loaded, scans, cat.symmetry, ensemble, ups_of(scans, 100 + len(results))
         )
-    )
+        results[kind] = fitting.measure(posed, correction)
+        typer.echo(f"{kind}: {json.dumps(results[kind])}")
+        if up is not None and loaded.centre is not None:  # what up requests get without it
+            plain_results[kind] = fitting.measure(posed, loaded.centre)
+            typer.echo(f"{kind}, the card's plain correction: {json.dumps(plain_results[kind])}")
+        if with_viewpoint is not None:
+            viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
+            typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
+    runs = "one run" if ensemble == 1 else f"{ensemble} runs fused"
+    if up is not None:
+        runs += f", held upright by an up {up:g} deg off"
+        evaluation = fitting.describe(results, "the correction fitted held upright", runs)
+        if plain_results:
+            evaluation += ". " + fitting.describe(
+                plain_results, "the plain correction (fitted on runs not held)", runs
+            )
+    else:
+        evaluation = (
+            fitting.describe(results, runs=runs)
+            + ". "
+            + fitting.describe(
+                viewpoint_results,
+                "the viewpoint correction (requests that give the sensor's position)",
+                runs,
+            )
+        )
     if report is not None:
-        report.write_text(json.dumps({"model": str(model), "results": results,
+        report.write_text(json.dumps({"model": str(model), "up_error_deg": up, "results": results,
                                       "viewpoint_results": viewpoint_results,
+                                      "plain_results": plain_results,
                                       "evaluation": evaluation}, indent=1))  # fmt: skip
     if write:
-        changed = card.model_copy(
-            update={
+        if with_viewpoint is None:  # --up: the upright correction, the others left as they are
+            update = {
+                "centre_correction_up": correction.to_dict(),
+                "centre_up_evaluation": evaluation,
+            }
+        else:
+            update = {
                 "centre_correction": correction.to_dict(),
                 "centre_correction_viewpoint": with_viewpoint.to_dict(),
                 "centre_evaluation": evaluation,
             }
-        )
-        save_with_card(onnx.load(str(model)), changed, out or model)
+        save_with_card(onnx.load(str(model)), card.model_copy(update=update), out or model)
         typer.echo(f"wrote the correction into {out or model}'s card", err=True)

@@ -93,6 +93,8 @@ def export(
         accuracy=accuracy,
         evaluation=evaluation,
         ensemble_evaluation=ensemble_text,
+        # an upright network knows only levelled views: served to requests that give up
+        requires_up=config.get("upright") is not None,
         training={
             "steps": state["step"],
             "batch": config["batch"],
@@ -101,6 +103,7 @@ def export(
             "bf16": config["bf16"],
             "validation": state["metrics"].get("val_accuracy"),
             "categories": trained_on,
+            **({"upright": config["upright"]} if config.get("upright") is not None else {}),
         },
     )
     if int8:

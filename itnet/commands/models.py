@@ -50,7 +50,7 @@ def models(
                 info.category,
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
-                _centre(info.centre, info.centre_viewpoint),
+                _centre(info.centre, info.centre_viewpoint, info.centre_up),
                 "needed" if info.requires_up else "-",
                 info.precision,
                 str(info.points),
@@ -78,7 +78,7 @@ def models(
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
         "the final pose's object centre is finished by the card's correction (+vp: another for "
-        "requests that give the sensor's position); up: 'needed' where a request must say which "
+        "requests that give the sensor's position, +up for those that give up); up: 'needed' where a request must say which "
         "way is up in its cloud (--up); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
@@ -90,8 +90,9 @@ def _accuracy(accuracy: dict[str, float], iterations: int) -> str:
     return "-" if value is None else f"{100 * value:.1f}% at {iterations} it."
 
 
-def _centre(plain: bool, viewpoint: bool) -> str:
-    """'yes', 'yes+vp', 'vp' (only for requests that give the sensor's position) or '-'."""
-    if plain:
-        return "yes+vp" if viewpoint else "yes"
-    return "vp" if viewpoint else "-"
+def _centre(plain: bool, viewpoint: bool, up: bool = False) -> str:
+    """'yes', 'yes+vp', 'vp' (only for requests that give the sensor's position), each with
+    '+up' where another is fitted for requests that give up ('up' alone: only for those), or
+    '-'."""
+    kinds = (["yes"] if plain else []) + (["vp"] if viewpoint else []) + (["up"] if up else [])
+    return "+".join(kinds) or "-"

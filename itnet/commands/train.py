@@ -105,6 +105,14 @@ def train(
         "log-uniformly in [1/S, S] before it is scanned (1: off): more shapes than the "
         "category has; the pose is unchanged.",
     ),
+    upright: float | None = typer.Option(
+        None,
+        metavar="DEG",
+        help="An upright model, for requests that give the up direction: every training scan "
+        "levelled by its up as a gravity sensor gives it (the truth tilted by up to DEG "
+        "degrees), validation runs held upright as the service holds them; its export "
+        "requires up.",
+    ),
     cache: Path = typer.Option(Path("cache"), help="Cache of canonical shapes and fixed scans."),
 ) -> None:
     """Train with fresh random partial scans every step; keeps the best validation checkpoint.
@@ -166,6 +174,7 @@ def train(
         val_scan=VIEW_RULES[val_scanner],
         val_views=val_views,
         stretch=stretch,
+        upright=upright,
     )
     best = run_training(config, resume=resume)
     typer.echo(

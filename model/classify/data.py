@@ -29,7 +29,6 @@ from itnet.preprocess import estimate_normalization, resample
 from itnet.upright import levelled, sensed_ups, tilted
 
 SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
-UPRIGHT_EVAL_DEG = 2.0  # the up direction's error in upright validation and test views
 
 
 def class_names(data: Path) -> list[str]:

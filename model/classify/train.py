@@ -20,7 +20,6 @@ from pydantic import BaseModel
 
 from itnet.model.classify.data import (
     SCAN_MIX,
-    UPRIGHT_EVAL_DEG,
     LabelledShapes,
     class_names,
     fixed_views,
@@ -37,6 +36,7 @@ from itnet.model.optim import (
 )
 from itnet.model.prefetch import Prefetcher
 from itnet.model.scanner import scan_config
+from itnet.upright import UPRIGHT_EVAL_DEG
 
 
 class ClassifyConfig(BaseModel):

@@ -213,8 +213,9 @@ def test_upright_views_stand_the_rod_along_y_within_the_sensor_error() -> None:
 
 
 def test_fixed_upright_views_are_levelled_by_a_two_degree_off_up(tmp_path: Path) -> None:
-    from itnet.model.classify.data import UPRIGHT_EVAL_DEG, LabelledShapes, fixed_views
+    from itnet.model.classify.data import LabelledShapes, fixed_views
     from itnet.model.shapes import Shape
+    from itnet.upright import UPRIGHT_EVAL_DEG
 
     rng = np.random.default_rng(2)
     rod = Shape("rod", SHAPES["rod"](rng, 600))

@@ -36,10 +36,14 @@ def test_models_lists_what_the_service_lists(tiny_model_dir):
 
 def centre_column(card) -> str:  # type: ignore[no-untyped-def]
     """What `itnet models` shows for a card's centre corrections."""
-    vp = bool(card.centre_correction_viewpoint)
-    if not card.centre_correction:
-        return "vp" if vp else "-"
-    return "yes+vp" if vp else "yes"
+    kinds = [
+        kind
+        for kind, field in (("yes", card.centre_correction),
+                            ("vp", card.centre_correction_viewpoint),
+                            ("up", card.centre_correction_up))
+        if field
+    ]  # fmt: skip
+    return "+".join(kinds) or "-"
 
 
 def test_models_table_shows_the_shipped_cards():
@@ -63,6 +67,13 @@ def test_models_table_shows_the_shipped_cards():
     night = next(r for r in rows if r.startswith("night_stand "))
     assert night.split()[5] == "needed"
     assert load_model(SHIPPED / "night_stand.onnx", warm_up=False).card.requires_up
+    # the dresser too (session 24), its centre finished by the correction fitted held upright
+    dresser = load_model(SHIPPED / "dresser.onnx", warm_up=False)
+    row = next(r for r in rows if r.startswith("dresser "))
+    assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up", "needed", "int8",
+                               "256", "1"]  # fmt: skip
+    assert dresser.card.requires_up and dresser.centre_up is not None and dresser.centre is None
+    assert "held upright" in dresser.card.centre_up_evaluation
     bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
     assert bed.recommended_ensemble == 8 and "8 runs fused, within 50 ms" in bed.ensemble_evaluation
     assert (
