@@ -67,12 +67,17 @@ def test_the_stream_holds_every_estimate_upright(client: TestClient, make_cloud)
 def needs_up(
     tmp_path_factory: pytest.TempPathFactory, make_net, settings: Settings
 ) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
+    from itnet.centre import FEATURE_COUNT, CentreCorrection
     from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder: Path = tmp_path_factory.mktemp("up_models")
+    weights = np.zeros((FEATURE_COUNT + 1, 3))
+    weights[-1] = [0.02, 0.0, 0.0]  # the centre's offset, whatever the cloud: only its use shows
+    upright_centre = CentreCorrection(np.zeros(FEATURE_COUNT), np.ones(FEATURE_COUNT), weights)
     card = ModelCard(name="box", category="dresser", points=256, recommended_iterations=3,
-                     requires_up=True, up_evaluation="measured with up")  # fmt: skip
+                     requires_up=True, up_evaluation="measured with up",
+                     centre_correction_up=upright_centre.to_dict())  # fmt: skip
     export_step(make_net(), card, folder / "box.onnx")
     with TestClient(create_app(Settings(model_dir=folder, limits=settings.limits))) as client:
         yield client
@@ -88,8 +93,11 @@ def test_a_model_that_requires_up_refuses_a_request_without_it(
         "/v1/estimate", json={"points": points, "budget_ms": 2000, "up": [0, 1, 0]}
     )
     assert served.status_code == 200 and _upright(served.json(), [0, 1, 0])
+    # the card's only centre correction is the one fitted held upright: it finished the pose
+    assert served.json()["centre"] is True and served.json()["centre_up"] is True
     (info,) = needs_up.get("/v1/models").json()["models"]
     assert info["requires_up"] is True and info["up_evaluation"] == "measured with up"
+    assert info["centre_up"] is True and info["centre"] is False
 
 
 def test_the_clients_send_up(client: TestClient, make_cloud) -> None:  # type: ignore[no-untyped-def]
