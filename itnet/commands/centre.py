@@ -98,10 +98,10 @@ def centre_fit(
     results: dict[str, dict] = {}
     viewpoint_results: dict[str, dict] = {}
     plain_results: dict[str, dict] = {}
-    for kind, scan in kinds.items():
+    for i, (kind, scan) in enumerate(kinds.items()):
         scans = validation_scans(data, cat, val_views, scan=scan, cache=cache)
         posed = fitting.served_centres(
-            loaded, scans, cat.symmetry, ensemble, ups_of(scans, 100 + len(results))
+            loaded, scans, cat.symmetry, ensemble, ups_of(scans, 100 + i)
         )
         results[kind] = fitting.measure(posed, correction)
         typer.echo(f"{kind}: {json.dumps(results[kind])}")
@@ -135,12 +135,13 @@ def centre_fit(
                                       "plain_results": plain_results,
                                       "evaluation": evaluation}, indent=1))  # fmt: skip
     if write:
-        if with_viewpoint is None:  # --up: the upright correction, the others left as they are
+        if up is not None:  # the upright correction; the others are left as they are
             update = {
                 "centre_correction_up": correction.to_dict(),
                 "centre_up_evaluation": evaluation,
             }
         else:
+            assert with_viewpoint is not None  # fitted wherever up is not given
             update = {
                 "centre_correction": correction.to_dict(),
                 "centre_correction_viewpoint": with_viewpoint.to_dict(),

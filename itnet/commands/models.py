@@ -78,8 +78,8 @@ def models(
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
         "the final pose's object centre is finished by the card's correction (+vp: another for "
-        "requests that give the sensor's position, +up for those that give up); up: 'needed' where a request must say which "
-        "way is up in its cloud (--up); "
+        "requests that give the sensor's position, +up for those that give up); up: 'needed' "
+        "where a request must say which way is up in its cloud (--up); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
