@@ -33,6 +33,7 @@ from itnet.model.optim import (
 )
 from itnet.model.prefetch import Prefetcher
 from itnet.model.scanner import PAPER_VIEWS, scan_config
+from itnet.model.widen import can_widen, widen
 from itnet.upright import UPRIGHT_EVAL_DEG, sensed_ups
 
 
@@ -189,12 +190,17 @@ def _train_loop(
         init = torch.load(config.init_from, map_location=config.device, weights_only=False)
         theirs = network_config(init.get("network", {}))
         shape = ("point_channels", "head_channels", "rotation")
-        if any(getattr(theirs, k) != getattr(net.config, k) for k in shape):
+        if can_widen(theirs, net.config):  # a narrower network: the same function, widened
+            narrow = ITNet(theirs)
+            narrow.load_state_dict(init["model"])
+            net.load_state_dict(widen(narrow, net.config, seed=config.seed).state_dict())
+        elif any(getattr(theirs, k) != getattr(net.config, k) for k in shape):
             raise ValueError(
                 f"--init-from {config.init_from}: its network ({theirs}) is not this run's "
-                f"({net.config}); match --rotation and the widths, or start from scratch"
+                f"({net.config}); match --rotation and no layer narrower, or start from scratch"
             )
-        net.load_state_dict(init["model"])
+        else:
+            net.load_state_dict(init["model"])
     ema = average_of(net, config.ema)
     if ema is not None and resume and last.exists() and "ema" in state:
         ema.load_state_dict(state["ema"])  # a run without it starts its average here

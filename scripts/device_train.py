@@ -125,6 +125,21 @@ EXPERIMENTS: dict[str, dict] = {
         f"{name}_ft": {"category": name, "init_from": "runs/lease22/shared4/best.pt", "lr": 5e-4}
         for name in ("desk", "dresser", "monitor", "night_stand")
     },
+    # issue 11's wider backbones (session 25), each the shipped chair widened (model/widen.py:
+    # the same poses to start with) and trained on as the "chair" job is, its control: the first
+    # two point layers doubled (step ~0.85 ms int8 on 2 cores), or the head doubled (~0.6 ms).
+    "chair_wide_points": {
+        "category": "chair",
+        "init_from": "itnet/models/chair.pt",
+        **CONTINUE,
+        "point_channels": (128, 256, 1024),
+    },
+    "chair_wide_head": {
+        "category": "chair",
+        "init_from": "itnet/models/chair.pt",
+        **CONTINUE,
+        "head_channels": (1024, 512),
+    },
 }
 JOB_NAMES = [*JOBS, *EXPERIMENTS, CLASSIFIER]
 

@@ -441,3 +441,72 @@ def test_an_upright_run_trains_on_levelled_scans_and_its_export_requires_up(shap
     assert exported.exit_code == 0, exported.output
     card = load_model(out, threads=1).card
     assert card.requires_up and card.training["upright"] == 5.0
+
+
+def test_widened_network_computes_the_narrow_ones_poses_and_trains_on(shape_folder, tmp_path):
+    """model/widen.py: every hidden layer wider (point MLP and head), the same regressor output
+    without noise (to float rounding), close with it, the copies made different by the noise;
+    --init-from a narrower checkpoint with wider --point-channels / --head-channels starts from
+    it widened, and a narrower or deeper run is still refused."""
+    import pytest
+    import torch
+
+    from itnet.model.network import ITNet, NetworkConfig
+    from itnet.model.train import TrainConfig, load_checkpoint, train
+    from itnet.model.widen import can_widen, widen
+
+    torch.manual_seed(0)
+    narrow = ITNet(NetworkConfig((8, 16, 24), (12, 6)))
+    for module in narrow.modules():  # trained-looking BatchNorm statistics and a non-zero output
+        if isinstance(module, torch.nn.BatchNorm1d):
+            module.running_mean.normal_()
+            module.running_var.uniform_(0.5, 2.0)
+            module.weight.data.uniform_(0.5, 1.5)
+            module.bias.data.normal_()
+    narrow.regressor.out.weight.data.normal_()
+    narrow.eval()
+    config = NetworkConfig((16, 20, 48), (24, 6))
+    assert can_widen(narrow.config, config) and not can_widen(config, narrow.config)
+    assert not can_widen(narrow.config, NetworkConfig((8, 16, 24, 32), (12, 6)))
+    x = torch.randn(3, 50, 3)
+    exact, noisy = widen(narrow, config, noise=0.0), widen(narrow, config, noise=0.01)
+    reference = narrow.regressor(x)
+    assert (
+        exact.regressor.point_mlp[0].out_features == 16
+        and exact.regressor.head[0].out_features == 24
+    )
+    assert torch.allclose(exact.regressor(x), reference, atol=1e-5)
+    moved = (noisy.regressor(x) - reference).abs().max().item()
+    assert 0 < moved < 0.05 * reference.abs().max().item()
+    first = noisy.regressor.point_mlp[0].weight
+    assert not torch.equal(first[8:], first[:8]) and torch.equal(
+        exact.regressor.point_mlp[0].weight[8:], first[:8]
+    )
+    with pytest.raises(ValueError, match="cannot widen"):
+        widen(exact, narrow.config)
+
+    common = dict(
+        data=shape_folder, category="x", frame="canonical", cache=tmp_path / "cache", steps=2,
+        batch=8, points=64, iterations=2, eval_every=2, threads=1, bf16=False, compile=False,
+    )  # fmt: skip
+    small = TrainConfig(
+        **common, out=tmp_path / "small", point_channels=(8, 16, 24), head_channels=(12,)
+    )
+    train(small, resume=False, progress=False)
+    wide = TrainConfig(
+        **common, out=tmp_path / "wide", point_channels=(16, 32, 24), head_channels=(24,),
+        init_from=small.out / "best.pt", lr=0.0,
+    )  # fmt: skip
+    train(wide, resume=False, progress=False)
+    (start, _), (widened, _) = (
+        load_checkpoint(small.out / "best.pt"),
+        load_checkpoint(wide.out / "last.pt"),
+    )
+    assert widened.config.point_channels == (16, 32, 24)
+    assert torch.allclose(
+        widened.regressor.point_mlp[0].weight[:8], start.regressor.point_mlp[0].weight
+    )
+    deeper = TrainConfig(**common, out=tmp_path / "deep", head_channels=(12, 6), point_channels=(8, 16, 24),
+                         init_from=small.out / "best.pt")  # fmt: skip
+    with pytest.raises(ValueError, match="is not this run's"):
+        train(deeper, resume=False, progress=False)
