@@ -134,6 +134,13 @@ EXPERIMENTS: dict[str, dict] = {
         **CONTINUE,
         "point_channels": (128, 256, 1024),
     },
+    # issue 12's last two categories, as served with the up direction (`--upright 5`, session
+    # 24's CPU monitor run): levelled scans, validated held upright; carry `checkpoints`
+    "desk_up": {"category": "desk", "init_from": "checkpoints/desk.pt", **CONTINUE, "upright": 5.0},
+    "monitor_up": {
+        "category": "monitor", "init_from": "checkpoints/monitor_upright.pt", **CONTINUE,
+        "upright": 5.0,
+    },
     "chair_wide_head": {
         "category": "chair",
         "init_from": "itnet/models/chair.pt",
