@@ -332,6 +332,31 @@ def load_checkpoint(path: Path) -> tuple[ITNet, dict]:
     return net.eval(), state
 
 
+def average_checkpoints(sources: list[Path], target: Path) -> Path:
+    """The mean of checkpoints of one network, weights and BatchNorm statistics alike (a "model
+    soup", Wortsman et al. 2022): fine-tunes of one start land in one basin, and their mean can
+    sit nearer its middle than any of them. Written as the last source's checkpoint (its config
+    and metrics; ``averaged_from`` lists the sources), float32, without the optimiser."""
+    if len(sources) < 2:
+        raise ValueError("average at least two checkpoints")
+    states = [torch.load(s, map_location="cpu", weights_only=False) for s in sources]
+    networks = {json.dumps(network_config(s["network"]).__dict__, sort_keys=True) for s in states}
+    if len(networks) > 1:
+        raise ValueError(f"checkpoints of different networks: {sorted(networks)}")
+    state = {k: v for k, v in states[-1].items() if k not in ("optimizer", "ema")}
+    model: dict[str, torch.Tensor] = {}
+    for key, last in states[-1]["model"].items():
+        if last.is_floating_point():
+            model[key] = torch.stack([s["model"][key].float() for s in states]).mean(0)
+        else:  # counters (BatchNorm's num_batches_tracked): the last one's
+            model[key] = last
+    state["model"] = model
+    state["averaged_from"] = [str(s) for s in sources]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(state, target)
+    return target
+
+
 def ship_checkpoint(source: Path, target: Path, half: bool = False) -> Path:
     """Copy a checkpoint without its optimiser state (a third of the size): what the repo ships.
     ``half``: floating-point weights in float16 (half again; a checkpoint kept to train on from,

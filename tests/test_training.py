@@ -510,3 +510,46 @@ def test_widened_network_computes_the_narrow_ones_poses_and_trains_on(shape_fold
                          init_from=small.out / "best.pt")  # fmt: skip
     with pytest.raises(ValueError, match="is not this run's"):
         train(deeper, resume=False, progress=False)
+
+
+def test_average_checkpoints_is_the_mean_of_one_networks_weights(tmp_path):
+    """`itnet average`: the mean of every float tensor (weights and BatchNorm statistics), the
+    counters and the config of the last checkpoint, loadable like any checkpoint; fewer than two
+    checkpoints or checkpoints of different networks are refused with a clear message."""
+    import dataclasses
+
+    import torch
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.model.network import ITNet, NetworkConfig
+    from itnet.model.train import load_checkpoint
+
+    paths = []
+    for seed, config in [(0, NetworkConfig((8, 16, 24), (12,))), (1, NetworkConfig((8, 16, 24), (12,))),
+                         (2, NetworkConfig((8, 16, 32), (12,)))]:  # fmt: skip
+        torch.manual_seed(seed)
+        net = ITNet(config)
+        net.regressor.point_mlp[1].running_mean.normal_()
+        state = {"model": net.state_dict(), "network": dataclasses.asdict(config), "step": seed,
+                 "config": {"category": "x"}, "metrics": {}, "optimizer": {"lr": 1}}  # fmt: skip
+        paths.append(tmp_path / f"{seed}.pt")
+        torch.save(state, paths[-1])
+    runner = CliRunner()
+    done = runner.invoke(
+        app, ["average", str(paths[0]), str(paths[1]), "--out", str(tmp_path / "m.pt")]
+    )
+    assert done.exit_code == 0, done.output
+    mean, state = load_checkpoint(tmp_path / "m.pt")
+    a, b = (torch.load(p, weights_only=False)["model"] for p in paths[:2])
+    for key, value in mean.state_dict().items():
+        expected = (a[key] + b[key]) / 2 if a[key].is_floating_point() else b[key]
+        assert torch.allclose(value, expected), key
+    assert not torch.allclose(
+        mean.state_dict()["regressor.point_mlp.1.running_mean"],
+        a["regressor.point_mlp.1.running_mean"],
+    )
+    assert state["step"] == 1 and "optimizer" not in state and len(state["averaged_from"]) == 2
+    for args, message in [([paths[0]], "at least two"), (paths, "different networks")]:
+        refused = runner.invoke(app, ["average", *map(str, args), "--out", str(tmp_path / "x.pt")])
+        assert refused.exit_code != 0 and message in refused.output, refused.output

@@ -183,6 +183,21 @@ def train(
     )
 
 
+def average(
+    checkpoints: list[Path] = typer.Argument(..., help="Checkpoints of one network (best.pt ...)."),
+    out: Path = typer.Option(..., help="The averaged checkpoint (.pt)."),
+) -> None:
+    """Average checkpoints of one network (fine-tunes of one start): weights and BatchNorm
+    statistics, for `itnet export` or `--init-from` like any checkpoint."""
+    from itnet.model.train import average_checkpoints
+
+    try:
+        average_checkpoints(checkpoints, out)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from None
+    typer.echo(f"wrote {out}: the mean of {len(checkpoints)} checkpoints")
+
+
 def _widths(option: str, text: str) -> tuple[int, ...]:
     """'64,128,1024' -> (64, 128, 1024); anything but positive integers is refused."""
     try:
