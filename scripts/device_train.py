@@ -301,6 +301,13 @@ def _start(name: str, args: argparse.Namespace, steps: int, decay_every: int,
     return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
 
 
+def _exit_code(proc: subprocess.Popen) -> int:
+    """A job's exit status, 143 for one ended by ``_wait``'s SIGTERM: a job's handler exits 143,
+    but a job that gets the signal while its interpreter is shutting down (its steps done, its
+    data workers closing) dies of it, -15 (seen once in the CPU test: the same stop)."""
+    return 143 if proc.returncode == -signal.SIGTERM else proc.returncode
+
+
 def _wait(procs: dict[str, subprocess.Popen], deadline: float) -> None:
     """Wait for every process until ``deadline``; then stop the rest (their best.pt stays)."""
     while any(p.poll() is None for p in procs.values()) and time.time() < deadline:
@@ -438,14 +445,14 @@ def run(args: argparse.Namespace) -> int:
         score = "val_mean_class" if n == CLASSIFIER else "val_accuracy"  # what best.pt is chosen on
         best = max(vals, key=lambda e: e[score], default={})
         summary["jobs"][n].update(
-            exit=procs[n].returncode if n in procs else 0,
+            exit=_exit_code(procs[n]) if n in procs else 0,
             steps_done=max((e.get("step", 0) for e in entries), default=0),
             best_step=best.get("step"),
             best_val_accuracy=best.get("val_accuracy"),
             val_curve=[(e["step"], e["val_accuracy"]) for e in vals],
             **({"best_val_mean_class": best.get("val_mean_class")} if n == CLASSIFIER else {}),
         )
-        if n in procs and procs[n].returncode not in (0, 143):
+        if n in procs and _exit_code(procs[n]) not in (0, 143):
             print(f"--- {n} exit {procs[n].returncode}:\n{_tail(args, n)}", flush=True)
     stop_mps(mps)
     summary["wall_s"] = round(time.time() - started, 1)
