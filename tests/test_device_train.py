@@ -134,3 +134,23 @@ def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> 
     assert shared["steps_done"] > 40 and shared["best_val_accuracy"] is not None, shared
     config = json.loads((tmp_path / "shipped" / "shared" / "config.json").read_text())
     assert config["category"] == "modelnet10" and config["lr"] == 1e-3  # every class, scratch
+
+
+def test_a_job_killed_by_the_deadline_counts_as_stopped_and_a_crash_does_not() -> None:
+    """_exit_code: a job that dies of the driver's SIGTERM (-15, e.g. while its interpreter
+    shuts down and its handler is gone) reads 143, as a job whose handler exits 143 does; any
+    other failure keeps its own status, so the summary still shows a crash as one."""
+    import importlib.util
+    import signal
+
+    spec = importlib.util.spec_from_file_location("device_train", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    driver = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(driver)
+    killed = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    killed.send_signal(signal.SIGTERM)
+    killed.wait(10)
+    assert killed.returncode == -signal.SIGTERM and driver._exit_code(killed) == 143
+    crashed = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    crashed.wait(10)
+    assert driver._exit_code(crashed) == 3
