@@ -340,9 +340,9 @@ def average_checkpoints(sources: list[Path], target: Path) -> Path:
     if len(sources) < 2:
         raise ValueError("average at least two checkpoints")
     states = [torch.load(s, map_location="cpu", weights_only=False) for s in sources]
-    networks = {json.dumps(network_config(s["network"]).__dict__, sort_keys=True) for s in states}
+    networks = {network_config(s["network"]) for s in states}  # frozen dataclasses
     if len(networks) > 1:
-        raise ValueError(f"checkpoints of different networks: {sorted(networks)}")
+        raise ValueError(f"checkpoints of different networks: {', '.join(map(str, networks))}")
     state = {k: v for k, v in states[-1].items() if k not in ("optimizer", "ema")}
     model: dict[str, torch.Tensor] = {}
     for key, last in states[-1]["model"].items():

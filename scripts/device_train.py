@@ -31,19 +31,19 @@ trains one pose network on all ten classes, and one on the four unshipped ones, 
 H200) ran them: at equal steps a network per category learned faster, and the fine-tunes ended
 under each category's own network (docs/recipe.md, *On a GPU, the third lease*). Two jobs at
 once made 33 steps/s each there; one alone made 21.7 on an H100, nine 8.2 each.
+A second call on the
+still-warm machine did not need the pack again (``/tmp/itnet-data`` was still there), and with
+``runs/lease22/shared4/best.pt`` carried as well the pack no longer fitted the 64 MiB.
+
 **The 64 MiB limit** (session 25): the tracked files alone are now 64.2 MiB (the shipped graphs),
 so nothing travelled until the graphs were untracked for the lease and restored after (the
 training jobs read none of them; ``git reset`` puts the index back, the files never leave the
 disk)::
 
-    printf '/.pack/\n*.onnx\n/checkpoints/\n/itnet/models/classifier.pt\n*.png\n' > .git/info/exclude
+    printf '/.pack/\\n*.onnx\\n/checkpoints/\\n/itnet/models/classifier.pt\\n*.png\\n' > .git/info/exclude
     git rm -r -q --cached '*.onnx' checkpoints itnet/models/classifier.pt '*.png'   # 7.8 MiB left
     ... the run(s), carrying .pack, .whl (and checkpoints, for jobs that start there) ...
-    git reset -q && printf '/.pack/\n' > .git/info/exclude
-
-A second call on the
-still-warm machine did not need the pack again (``/tmp/itnet-data`` was still there), and with
-``runs/lease22/shared4/best.pt`` carried as well the pack no longer fitted the 64 MiB.
+    git reset -q && printf '/.pack/\\n' > .git/info/exclude
 
 1. unpacks the clouds and makes ``itnet`` importable (a folder of links mirroring the
    package-dir mapping of pyproject.toml);
