@@ -32,7 +32,7 @@ from itnet.metrics import paired_accuracy
 from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
 from itnet.model.classify.size_prior import INCH_M, source_radii
 from itnet.model.scanner import scan_config, scan_of
-from itnet.preprocess import cap_points, estimate_normalization
+from itnet.preprocess import estimate_normalization, shuffled_subset
 from itnet.service.recognition import mean_log_probability, turned_looks
 from itnet.service.runtime import LoadedClassifier, load_any
 from itnet.size_prior import with_size
@@ -120,7 +120,8 @@ def main() -> None:
                 x = turned_looks(cloud, k, points, rng)
                 x[1::2, :, 0] *= -1
             else:
-                x = np.stack([cap_points(cloud, points, rng) for _ in range(k)]).astype(np.float32)
+                x = np.stack([shuffled_subset(cloud, points, rng) for _ in range(k)])
+                x = x.astype(np.float32)
             start = time.perf_counter()
             probs = classifier.probabilities(x)
             ms.append((time.perf_counter() - start) * 1e3)

@@ -58,11 +58,18 @@ class FoldedPointNet(nn.Module):
 
 
 class ExportableClassifier(nn.Module):
-    """``Classifier`` in eval mode as one graph: points (B, N, 3) -> probabilities (B, C)."""
+    """``Classifier`` in eval mode as one graph: points (B, N, 3) -> probabilities (B, C).
 
-    def __init__(self, net: Classifier) -> None:
+    ``canonical_points`` K: the transformer finds the pose from the first K points only (the
+    runtime feeds a random order), and moves all N for the classifier. The canonicaliser's
+    passes cost in proportion to their points, and it needs fewer than the classifier: on
+    validation views, K = 64 of 256 classified as well as all 256 (docs/classification.md).
+    """
+
+    def __init__(self, net: Classifier, canonical_points: int | None = None) -> None:
         super().__init__()
         net = net.eval()
+        self.canonical_points = canonical_points
         self.iterations = net.config.iterations
         self.step = ExportableStep(net.itnet) if net.itnet is not None else None
         self.tnet = FoldedPointNet(net.tnet.regressor) if net.tnet is not None else None
@@ -70,15 +77,16 @@ class ExportableClassifier(nn.Module):
 
     def forward(self, points: Tensor) -> Tensor:
         moved = points
+        seen = points if self.canonical_points is None else points[:, : self.canonical_points]
         if self.step is not None:
             pose = torch.eye(4, dtype=points.dtype).expand(points.shape[0], 4, 4)
             for _ in range(self.iterations):
-                pose, _ = self.step(points, pose)
+                pose, _ = self.step(seen, pose)
             moved = points @ pose[:, :3, :3].transpose(1, 2) + pose[:, None, :3, 3]
         elif self.tnet is not None:
             total = torch.eye(3, dtype=points.dtype).expand(points.shape[0], 3, 3)
             for _ in range(self.iterations):
-                update = self.tnet(points @ total.transpose(1, 2)).reshape(-1, 3, 3)
+                update = self.tnet(seen @ total.transpose(1, 2)).reshape(-1, 3, 3)
                 total = update @ total
             moved = points @ total.transpose(1, 2)
         return torch.softmax(self.classifier(moved), dim=-1)
@@ -90,7 +98,7 @@ def export_classifier(net: Classifier, card: ClassifierCard, path: Path, opset: 
         raise ValueError(
             f"the card names {len(card.classes)} classes, the net has {net.config.classes}"
         )
-    graph = ExportableClassifier(net).eval()
+    graph = ExportableClassifier(net, card.canonical_points).eval()
     batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
     program = torch.onnx.export(
         graph,
@@ -139,6 +147,7 @@ def score_graph(
     ``beside`` (an upright run's graph): served fused with this classifier for any orientation
     (``service/recognition.py``), so each view's probabilities are the two's, averaged in the
     log domain, ``beside`` seeing the same points unlevelled."""
+    from itnet.model.classify.data import shuffled_views
     from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
     from itnet.service.recognition import mean_log_probability
 
@@ -147,9 +156,11 @@ def score_graph(
     scored = []
     for split in ("val", "test"):
         x, y = run_views(config, splits, split)
+        x = shuffled_views(x, np.random.default_rng(0))
         probs = np.concatenate([model.probabilities(x[i : i + 1]) for i in range(len(x))])
         if beside is not None:
             free, labels = run_views(config.model_copy(update={"upright": None}), splits, split)
+            free = shuffled_views(free, np.random.default_rng(1))
             assert (labels == y).all()
             other = np.concatenate([beside.probabilities(free[i : i + 1]) for i in range(len(x))])
             fused = mean_log_probability([other, probs])

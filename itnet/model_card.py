@@ -152,6 +152,13 @@ class ClassifierCard(BaseModel):
     )
     normalization: str = NORMALIZATION
     transformer: str = Field("itnet-2", description="the canonicaliser in front of the classifier")
+    canonical_points: int | None = Field(
+        None,
+        ge=1,
+        description="the canonicaliser finds the pose from the first this many input points "
+        "(the runtime feeds them in random order), the classifier then sees them all; "
+        "None: the canonicaliser sees every point",
+    )
     threshold: float = Field(
         0.5, description="below this top probability a recognition is reported as unsure"
     )

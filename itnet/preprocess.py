@@ -84,6 +84,18 @@ def cap_points(points: ArrayLike, count: int, rng: np.random.Generator) -> NDArr
     return p[rng.choice(len(p), size=count, replace=False)]
 
 
+def shuffled_subset(points: ArrayLike, count: int, rng: np.random.Generator) -> NDArray:
+    """At most ``count`` points (K x3, K = min(N, count)) in random order: a seeded random subset
+    of a larger cloud, a smaller one whole and shuffled.
+
+    What a classifier graph is fed: its canonicaliser may look at only the first points of its
+    input (``ClassifierCard.canonical_points``), which must then be a random sample of the
+    cloud, not the first rows of a depth image.
+    """
+    p = np.asarray(points)
+    return p[rng.permutation(len(p))] if len(p) <= count else cap_points(p, count, rng)
+
+
 def resample(points: ArrayLike, count: int, rng: np.random.Generator) -> NDArray:
     """Exactly ``count`` points (count x3): a random subset, or all points plus random repeats.
 

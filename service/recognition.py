@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import viewing_axis_turns
-from itnet.preprocess import DegenerateCloudError, cap_points, estimate_normalization
+from itnet.preprocess import DegenerateCloudError, estimate_normalization, shuffled_subset
 from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud, validate_up
 from itnet.service.errors import ServiceError
 from itnet.service.runtime import LoadedClassifier, LoadedModel
@@ -107,11 +107,13 @@ def turned_looks(
     up: NDArray | None = None,
 ) -> NDArray[np.float32]:
     """A normalised cloud (N, 3) -> (looks, points, 3): own random subsets (at most ``points``
-    each), the k-th turned 360k/looks degrees about z; one look is the plain capped cloud.
+    each, in random order: ``shuffled_subset``), the k-th turned 360k/looks degrees about z.
     ``up`` (3,, unit): the cloud levelled first (up onto +y), the turns about +y instead."""
     if up is not None:
         normalized = levelled(normalized, up)
-    x = np.stack([cap_points(normalized, points, rng) for _ in range(looks)]).astype(np.float32)
+    x = np.stack([shuffled_subset(normalized, points, rng) for _ in range(looks)]).astype(
+        np.float32
+    )
     if looks > 1:
         turns = viewing_axis_turns(looks) if up is None else upright_starts(UP, looks)
         x = np.einsum("kij,knj->kni", turns.astype(np.float32), x)

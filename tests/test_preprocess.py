@@ -9,6 +9,7 @@ from itnet.preprocess import (
     pose_from_normalized,
     pose_to_normalized,
     resample,
+    shuffled_subset,
 )
 
 
@@ -46,6 +47,18 @@ def test_cap_points_subsamples_large_clouds_and_keeps_small_ones_whole(rng):
     assert out.shape == (30, 3) and len({tuple(p) for p in out}) == 30
     assert {tuple(p) for p in out} <= {tuple(p) for p in cloud}
     seeded = [cap_points(cloud, 30, np.random.default_rng(5)) for _ in range(2)]
+    assert np.array_equal(*seeded)
+
+
+def test_shuffled_subset_is_random_in_order_as_well_as_in_choice(rng):
+    cloud = np.arange(300, dtype=float)[:, None] * [1.0, 0.0, 0.0]  # rows in scan order
+    small = shuffled_subset(cloud[:100], 256, rng)
+    assert sorted(small[:, 0]) == list(range(100))  # every point, once
+    assert not np.array_equal(small, cloud[:100])  # but not in the scan's order
+    assert small[:25, 0].max() > 50  # the first points reach across the cloud
+    large = shuffled_subset(cloud, 64, rng)
+    assert large.shape == (64, 3) and len(set(large[:, 0])) == 64
+    seeded = [shuffled_subset(cloud[:100], 256, np.random.default_rng(5)) for _ in range(2)]
     assert np.array_equal(*seeded)
 
 

@@ -119,12 +119,22 @@ def classify_experiment(
 
 
 def classify_export(
-    run: Path = typer.Argument(..., help="A finished run folder (best.pt, result.json)."),
+    run: Path = typer.Argument(
+        ...,
+        help="A finished run folder (best.pt, result.json), or a shipped checkpoint "
+        "(itnet/models/classifier.pt): its run is remade from the config it keeps.",
+    ),
     out: Path = typer.Option(
         Path("itnet/models/classifier.onnx"),
         help="Output .onnx file (an upright run's: itnet/models/classifier_upright.onnx).",
     ),
     points: int | None = typer.Option(None, help="Points per cloud at serving (default: trained)."),
+    canonical_points: int | None = typer.Option(
+        None,
+        min=1,
+        help="The canonicaliser finds the pose from this many of the points (random ones), the "
+        "classifier sees them all: faster (docs/classification.md). Default: all.",
+    ),
     int8: bool = typer.Option(
         False, "--int8", help="Quantise the per-point layers to int8 (faster on 2 cores)."
     ),
@@ -167,6 +177,15 @@ def classify_export(
     from itnet.model_card import ClassifierCard
     from itnet.service.runtime import LoadedClassifier, load_any
 
+    made = tempfile.TemporaryDirectory()
+    if run.is_file():
+        from itnet.model.classify.train import run_of_checkpoint
+
+        try:
+            run = run_of_checkpoint(run, Path(made.name) / "run")
+        except ValueError as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(2) from None
     net, _ = load_classifier(run / "best.pt")
     result = json.loads((run / "result.json").read_text())
     provisional = ClassifierCard(
@@ -174,6 +193,7 @@ def classify_export(
         points=points or trained_points(run),
         transformer=result["variant"],
         upright=json.loads((run / "config.json").read_text()).get("upright") is not None,
+        canonical_points=canonical_points,
     )
     with tempfile.TemporaryDirectory() as tmp:
         graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx")
@@ -184,7 +204,9 @@ def classify_export(
             out.write_bytes(graph.read_bytes())
     loaded = load_any(out, warm_up=False)
     assert isinstance(loaded, LoadedClassifier)
-    x = np.random.default_rng(0).normal(size=(1, provisional.points, 3)).astype(np.float32)
+    # as many points as the canonicaliser sees: then the torch net's pose is the graph's
+    seen = min(provisional.points, canonical_points or provisional.points)
+    x = np.random.default_rng(0).normal(size=(1, seen, 3)).astype(np.float32)
     with torch.no_grad():
         expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
     diff = float(np.abs(loaded.probabilities(x) - expected).max())
@@ -199,7 +221,7 @@ def classify_export(
     scores = score_graph(loaded, run, partner)
     card = card_from_run(
         run, scores, points, target, None if partner is None else beside.name
-    ).model_copy(update={"precision": loaded.card.precision})
+    ).model_copy(update={"precision": loaded.card.precision, "canonical_points": canonical_points})
     save_with_card(onnx.load(str(out)), card, out)
     typer.echo(
         f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {card.precision}): "

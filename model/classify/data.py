@@ -68,6 +68,14 @@ def normalised_view(cloud: NDArray, points: int, rng: np.random.Generator) -> ND
     return resample(estimate_normalization(cloud).apply(cloud), points, rng)
 
 
+def shuffled_views(x: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.float32]:
+    """Views (V, N, 3) -> each one's points in its own random order, as the service feeds them
+    (``itnet.preprocess.shuffled_subset``): a run's fixed views pad a small view with repeats
+    after its points in scan order, and a graph whose canonicaliser sees only the first points
+    (``ClassifierCard.canonical_points``) must not see one end of the scan."""
+    return np.stack([view[rng.permutation(len(view))] for view in x])
+
+
 def training_batch(
     data: LabelledShapes,
     batch: int,

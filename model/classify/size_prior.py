@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.cloud_io import read_cloud
-from itnet.model.classify.data import SCAN_MIX, LabelledShapes, normalised_view
+from itnet.model.classify.data import SCAN_MIX, LabelledShapes, normalised_view, shuffled_views
 from itnet.model.data import split_files
 from itnet.model.scanner import scan_config, scan_of
 from itnet.model.shapes import to_canonical
@@ -83,11 +83,9 @@ def accuracy_with_and_without(
     """Top-1 and mean class accuracy of the graph alone and with the size, on the same views;
     the paired gain in top-1 with its standard error."""
     assert views.points is not None
+    x = shuffled_views(views.points, np.random.default_rng(0))  # in random order, as served
     probs = np.concatenate(
-        [
-            classifier.probabilities(views.points[i : i + 128])
-            for i in range(0, len(views.labels), 128)
-        ]
+        [classifier.probabilities(x[i : i + 128]) for i in range(0, len(views.labels), 128)]
     )
     log_probs = np.log(np.maximum(probs, 1e-12))
     sized = np.stack([with_size(lp, prior, r) for lp, r in zip(log_probs, views.radii_m)])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 
@@ -331,3 +332,21 @@ def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x
     }
     path.write_text(json.dumps(result))
     return result
+
+
+def run_of_checkpoint(checkpoint: Path, folder: Path) -> Path:
+    """A shipped classifier checkpoint (``classify-export --weights-out``, which keeps the run's
+    config) -> ``folder`` made a run folder of it, as its training left one: best.pt,
+    config.json and result.json (torch's validation and test metrics, remeasured). What
+    ``classify-export`` reads when the run itself is gone. Returns ``folder``."""
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    if "config" not in state or "classes" not in state:
+        raise ValueError(f"{checkpoint}: not a classifier checkpoint (no config or classes)")
+    config = ClassifyConfig.model_validate({**state["config"], "out": folder})
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(checkpoint, folder / "best.pt")
+    (folder / "config.json").write_text(config.model_dump_json(indent=2))
+    classes, splits = run_splits(config)
+    val_x, val_y = run_views(config, splits, "val")
+    evaluate_run(config, classes, splits, val_x, val_y)
+    return folder

@@ -210,6 +210,24 @@ def test_several_looks_are_turned_subsets_averaged_in_the_log_domain(box_cloud) 
         classify(stand_in, box_cloud, looks=17)
 
 
+def test_a_small_cloud_reaches_the_classifier_shuffled(box_cloud) -> None:
+    """A cloud of fewer points than the card's reaches the graph whole but not in its rows'
+    order: a canonicaliser that sees the first points (card.canonical_points) gets a random
+    sample of the object, not one end of a depth image."""
+    from itnet.preprocess import estimate_normalization
+    from itnet.service.recognition import classify
+
+    stand_in = _LooksRecorder()
+    scan = box_cloud[np.argsort(box_cloud[:, 0])][:50]  # 50 < 64 points, in order along x
+    classify(stand_in, scan)
+    (seen,) = stand_in.batches[-1]
+    normalized = estimate_normalization(scan).apply(scan)
+    assert seen.shape == (50, 3)
+    np.testing.assert_allclose(np.sort(seen[:, 0]), normalized[:, 0], atol=1e-6)  # all of it
+    assert not np.all(np.diff(seen[:, 0]) >= 0)  # in another order
+    assert seen[:12, 0].max() > np.median(normalized[:, 0])  # the first reach across it
+
+
 def test_the_ensemble_also_classifies_with_as_many_looks(
     chair_client, chair_dir: Path, box_cloud, tmp_path
 ) -> None:

@@ -59,6 +59,29 @@ def test_untrained_classifier_exports_and_matches_torch(
     assert np.ptp(got, axis=0).max() > 1e-3  # the clouds get different answers: a real graph
 
 
+def test_canonicaliser_on_the_first_points_moves_them_all(tmp_path: Path) -> None:
+    """``canonical_points`` K: IT-Net finds the pose from the input's first K points, and the
+    classifier sees all N moved by it; a cloud of at most K points gets the plain graph's
+    answer."""
+    from itnet.model.network import apply_pose
+
+    net = _randomised(tiny_classifier("itnet", 2), 11)
+    card = ClassifierCard(classes=CLASSES, points=100, canonical_points=40)
+    loaded = load_any(export_classifier(net, card, tmp_path / "c.onnx"), warm_up=False)
+    assert isinstance(loaded, LoadedClassifier) and loaded.card.canonical_points == 40
+    x = torch.randn(4, 100, 3, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        assert net.itnet is not None
+        pose = net.itnet(x[:, :40], 2)[-1]
+        want = torch.softmax(net.classifier(apply_pose(pose, x)), -1).numpy()
+        plain = torch.softmax(net(x)[0], -1).numpy()
+        small = torch.softmax(net(x[:, :30])[0], -1).numpy()
+    got = loaded.probabilities(x.numpy())
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    assert np.abs(got - plain).max() > 1e-3  # 40 points give another pose than all 100
+    np.testing.assert_allclose(loaded.probabilities(x[:, :30].numpy()), small, atol=2e-5)
+
+
 def test_pose_loader_does_not_take_the_classifier_for_a_pose_model(chair_dir: Path) -> None:
     with pytest.raises(ModelLoadError, match="classifier"):
         load_model(chair_dir / "classifier.onnx", warm_up=False)
@@ -81,6 +104,7 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     float32 graph's probabilities, BatchNorm folded, on clouds of noise and on an example scan."""
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
+    from itnet.model.network import apply_pose
     from itnet.preprocess import cap_points, estimate_normalization
     from itnet.service.api.routes.examples import examples_dir
     from itnet.service.runtime import LoadedClassifier, default_model_dir, load_any
@@ -98,8 +122,12 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
             cap_points(estimate_normalization(chair).apply(chair), graph.card.points, rng)[None],
         ]
     ).astype(np.float32)
+    seen = graph.card.canonical_points or graph.card.points  # the canonicaliser's points
     with torch.no_grad():
-        want = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+        assert net.itnet is not None
+        pose = net.itnet(torch.from_numpy(x[:, :seen]), net.config.iterations)[-1]
+        moved = apply_pose(pose, torch.from_numpy(x))
+        want = torch.softmax(net.classifier(moved), -1).numpy()
     got = graph.probabilities(x)
     np.testing.assert_allclose(got, want, atol=1e-4)
     assert graph.card.classes[int(got[-1].argmax())] == "chair"

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from itnet.model.classify.train import ClassifyConfig, train
 
@@ -123,6 +124,43 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     assert written["card"]["precision"] == graph.card.precision
     assert written["unsure"]["test_views"] == 12
     assert written["unsure"]["accuracy"] == pytest.approx(measured, abs=1e-4)
+
+
+def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """``classify-export CHECKPOINT.pt`` remakes the run from the config the checkpoint keeps:
+    the same card as from the run folder; ``--canonical-points`` writes a graph whose
+    canonicaliser sees that many points, measured as served."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10)
+    train(config)
+    weights = tmp_path / "shipped.pt"
+    runner = CliRunner()
+    exports = {
+        "run": [str(config.out), "--weights-out", str(weights)],
+        "checkpoint": [str(weights)],
+        "fewer": [str(weights), "--canonical-points", "16"],
+    }
+    cards = {}
+    for name, args in exports.items():
+        out = tmp_path / f"{name}.onnx"
+        run = runner.invoke(app, ["classify-export", *args, "--out", str(out)])
+        assert run.exit_code == 0, run.output
+        graph = load_any(out, warm_up=False)
+        assert isinstance(graph, LoadedClassifier)
+        cards[name] = graph.card
+    assert cards["checkpoint"] == cards["run"] and cards["run"].canonical_points is None
+    assert cards["fewer"].canonical_points == 16
+    assert cards["fewer"].training["validation"] != 0.0 and 0.0 < cards["fewer"].accuracy <= 1.0
+    bad = tmp_path / "not_a_classifier.pt"
+    torch.save({"model": {}}, bad)
+    run = runner.invoke(app, ["classify-export", str(bad), "--out", str(tmp_path / "x.onnx")])
+    assert run.exit_code == 2 and "not a classifier checkpoint" in run.output
 
 
 def test_balanced_batches_draw_classes_alike() -> None:
