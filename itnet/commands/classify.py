@@ -177,69 +177,71 @@ def classify_export(
     from itnet.model_card import ClassifierCard
     from itnet.service.runtime import LoadedClassifier, load_any
 
-    made = tempfile.TemporaryDirectory()
-    if run.is_file():
-        from itnet.model.classify.train import run_of_checkpoint
+    with tempfile.TemporaryDirectory() as made:  # a run remade from a checkpoint
+        if run.is_file():
+            from itnet.model.classify.train import run_of_checkpoint
 
-        try:
-            run = run_of_checkpoint(run, Path(made.name) / "run")
-        except ValueError as err:
-            typer.echo(f"error: {err}", err=True)
-            raise typer.Exit(2) from None
-    net, _ = load_classifier(run / "best.pt")
-    result = json.loads((run / "result.json").read_text())
-    provisional = ClassifierCard(
-        classes=result["classes"],
-        points=points or trained_points(run),
-        transformer=result["variant"],
-        upright=json.loads((run / "config.json").read_text()).get("upright") is not None,
-        canonical_points=canonical_points,
-    )
-    with tempfile.TemporaryDirectory() as tmp:
-        graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx")
-        if int8:
-            quantize_point_layers(graph, out)
-        else:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_bytes(graph.read_bytes())
-    loaded = load_any(out, warm_up=False)
-    assert isinstance(loaded, LoadedClassifier)
-    # as many points as the canonicaliser sees: then the torch net's pose is the graph's
-    seen = min(provisional.points, canonical_points or provisional.points)
-    x = np.random.default_rng(0).normal(size=(1, seen, 3)).astype(np.float32)
-    with torch.no_grad():
-        expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
-    diff = float(np.abs(loaded.probabilities(x) - expected).max())
-    partner = None
-    if loaded.card.upright:
-        partner = load_any(beside, warm_up=False)
-        if not isinstance(partner, LoadedClassifier) or partner.card.upright:
-            typer.echo(
-                f"error: --beside {beside} is not a classifier for any orientation", err=True
-            )
-            raise typer.Exit(2)
-    scores = score_graph(loaded, run, partner)
-    card = card_from_run(
-        run, scores, points, target, None if partner is None else beside.name
-    ).model_copy(update={"precision": loaded.card.precision, "canonical_points": canonical_points})
-    save_with_card(onnx.load(str(out)), card, out)
-    typer.echo(
-        f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {card.precision}): "
-        f"{card.transformer}, test accuracy {100 * card.accuracy:.1f}% on this graph "
-        f"(torch: {100 * result['test']['accuracy']:.1f}%), validation "
-        f"{100 * float(card.training['validation']):.1f}% "
-        f"(torch: {100 * result['val']['accuracy']:.1f}%), threshold {card.threshold}; "
-        f"max |onnx - torch| {diff:.2e} on a random cloud"
-    )
-    if weights_out is not None:
-        from itnet.model.train import ship_checkpoint
+            try:
+                run = run_of_checkpoint(run, Path(made) / "run")
+            except ValueError as err:
+                typer.echo(f"error: {err}", err=True)
+                raise typer.Exit(2) from None
+        net, _ = load_classifier(run / "best.pt")
+        result = json.loads((run / "result.json").read_text())
+        provisional = ClassifierCard(
+            classes=result["classes"],
+            points=points or trained_points(run),
+            transformer=result["variant"],
+            upright=json.loads((run / "config.json").read_text()).get("upright") is not None,
+            canonical_points=canonical_points,
+        )
+        with tempfile.TemporaryDirectory() as tmp:
+            graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx")
+            if int8:
+                quantize_point_layers(graph, out)
+            else:
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_bytes(graph.read_bytes())
+        loaded = load_any(out, warm_up=False)
+        assert isinstance(loaded, LoadedClassifier)
+        # as many points as the canonicaliser sees: then the torch net's pose is the graph's
+        seen = min(provisional.points, canonical_points or provisional.points)
+        x = np.random.default_rng(0).normal(size=(1, seen, 3)).astype(np.float32)
+        with torch.no_grad():
+            expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+        diff = float(np.abs(loaded.probabilities(x) - expected).max())
+        partner = None
+        if loaded.card.upright:
+            partner = load_any(beside, warm_up=False)
+            if not isinstance(partner, LoadedClassifier) or partner.card.upright:
+                typer.echo(
+                    f"error: --beside {beside} is not a classifier for any orientation", err=True
+                )
+                raise typer.Exit(2)
+        scores = score_graph(loaded, run, partner)
+        card = card_from_run(
+            run, scores, points, target, None if partner is None else beside.name
+        ).model_copy(
+            update={"precision": loaded.card.precision, "canonical_points": canonical_points}
+        )
+        save_with_card(onnx.load(str(out)), card, out)
+        typer.echo(
+            f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {card.precision}): "
+            f"{card.transformer}, test accuracy {100 * card.accuracy:.1f}% on this graph "
+            f"(torch: {100 * result['test']['accuracy']:.1f}%), validation "
+            f"{100 * float(card.training['validation']):.1f}% "
+            f"(torch: {100 * result['val']['accuracy']:.1f}%), threshold {card.threshold}; "
+            f"max |onnx - torch| {diff:.2e} on a random cloud"
+        )
+        if weights_out is not None:
+            from itnet.model.train import ship_checkpoint
 
-        ship_checkpoint(run / "best.pt", weights_out)
-        typer.echo(f"wrote {weights_out} ({weights_out.stat().st_size / 1e6:.1f} MB)")
-    if report is not None:
-        split = unsure_split(scores, card.threshold)
-        report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))
-        typer.echo(f"test views at the threshold: {json.dumps(split)}; wrote {report}")
+            ship_checkpoint(run / "best.pt", weights_out)
+            typer.echo(f"wrote {weights_out} ({weights_out.stat().st_size / 1e6:.1f} MB)")
+        if report is not None:
+            split = unsure_split(scores, card.threshold)
+            report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))
+            typer.echo(f"test views at the threshold: {json.dumps(split)}; wrote {report}")
 
 
 def classify_train(
