@@ -5,7 +5,9 @@ ModelNet10 test split, in-process, onnxruntime with the service's session option
     python -m benchmarks.classify_latency [--model-dir itnet/models] [--runs 300] [--up]
 
 ``--up``: each request gives which way is up, so the upright classifier (where installed) runs
-beside the other. Prints the median, 90th and 99th percentile in ms, the machine and the thread count. Run it as
+beside the other. ``--versus DIR``: another model folder's classifier on the same clouds, the two
+alternating request by request, so that a machine whose speed drifts times both alike; also
+prints the median of the per-pair ratio (this folder's time over DIR's). Prints the median, 90th and 99th percentile in ms, the machine and the thread count. Run it as
 ``bash scripts/quiet.sh python -m benchmarks.classify_latency`` when a training job shares the machine.
 """
 
@@ -29,13 +31,17 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--up", action="store_true", help="requests that give up")
     parser.add_argument("--looks", type=int, default=1)
+    parser.add_argument(
+        "--versus", type=Path, default=None, help="a model folder to alternate with"
+    )
     args = parser.parse_args()
 
     from itnet.service.recognition import classify
     from itnet.service.runtime import default_model_dir, load_all
 
     _, classifier = load_all(args.model_dir or default_model_dir(), threads=args.threads)
-    if classifier is None:
+    other = None if args.versus is None else load_all(args.versus, threads=args.threads)[1]
+    if classifier is None or (args.versus is not None and other is None):
         raise SystemExit("no classifier in the model folder")
     rng = np.random.default_rng(0)
     # a partial-scan-like cloud: one side of a box, in metres, off the origin
@@ -44,14 +50,29 @@ def main() -> None:
         for _ in range(16)
     ]
     up = [0.1, 1.0, 0.05] if args.up else None
+    contenders = [classifier] if other is None else [classifier, other]
     for cloud in clouds[:4]:
-        classify(classifier, cloud, up=up, looks=args.looks)
-    times, upright = [], False
+        for each in contenders:
+            classify(each, cloud, up=up, looks=args.looks)
+    times: list[list[float]] = [[] for _ in contenders]
+    upright = False
     for i in range(args.runs):
-        start = time.perf_counter()
-        upright = classify(classifier, clouds[i % len(clouds)], up=up, looks=args.looks).upright
-        times.append((time.perf_counter() - start) * 1e3)
-    p50, p90, p99 = np.percentile(times, [50, 90, 99])
+        order = range(len(contenders)) if i % 2 else reversed(range(len(contenders)))
+        for k in order:  # alternating which goes first
+            start = time.perf_counter()
+            recognition = classify(contenders[k], clouds[i % len(clouds)], up=up, looks=args.looks)
+            times[k].append((time.perf_counter() - start) * 1e3)
+            upright = upright or (k == 0 and recognition.upright)
+    p50, p90, p99 = np.percentile(times[0], [50, 90, 99])
+    versus = {}
+    if other is not None:
+        mine, theirs = np.array(times[0]), np.array(times[1])
+        versus = {
+            "versus": str(args.versus),
+            "versus_median_ms": round(float(np.median(theirs)), 3),
+            "versus_p90_ms": round(float(np.percentile(theirs, 90)), 3),
+            "median_ratio": round(float(np.median(mine / theirs)), 3),
+        }
     print(
         json.dumps(
             {
@@ -66,6 +87,7 @@ def main() -> None:
                 "median_ms": round(float(p50), 3),
                 "p90_ms": round(float(p90), 3),
                 "p99_ms": round(float(p99), 3),
+                **versus,
                 "threads": args.threads,
                 "machine": f"{platform.machine()} {os.cpu_count()} cores",
             }
