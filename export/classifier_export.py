@@ -148,7 +148,6 @@ def score_graph(
     ``beside`` (an upright run's graph): served fused with this classifier for any orientation
     (``service/recognition.py``), so each view's probabilities are the two's, averaged in the
     log domain, ``beside`` seeing the same points unlevelled."""
-    from itnet.model.classify.data import shuffled_views
     from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
     from itnet.service.recognition import mean_log_probability
 
@@ -157,11 +156,9 @@ def score_graph(
     scored = []
     for split in ("val", "test"):
         x, y = run_views(config, splits, split)
-        x = shuffled_views(x, np.random.default_rng(0))
         probs = np.concatenate([model.probabilities(x[i : i + 1]) for i in range(len(x))])
         if beside is not None:
             free, labels = run_views(config.model_copy(update={"upright": None}), splits, split)
-            free = shuffled_views(free, np.random.default_rng(1))
             assert (labels == y).all()
             other = np.concatenate([beside.probabilities(free[i : i + 1]) for i in range(len(x))])
             fused = mean_log_probability([other, probs])

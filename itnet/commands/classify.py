@@ -133,7 +133,7 @@ def classify_export(
         None,
         min=1,
         help="The canonicaliser finds the pose from this many of the points (random ones), the "
-        "classifier sees them all: faster (docs/classification.md). Default: all.",
+        "classifier sees them all: faster (docs/classification.md). Default: as trained (all).",
     ),
     int8: bool = typer.Option(
         False, "--int8", help="Quantise the per-point layers to int8 (faster on 2 cores)."
@@ -187,6 +187,8 @@ def classify_export(
                 typer.echo(f"error: {err}", err=True)
                 raise typer.Exit(2) from None
         net, _ = load_classifier(run / "best.pt")
+        if canonical_points is None:  # as trained
+            canonical_points = net.config.canonical_points
         result = json.loads((run / "result.json").read_text())
         provisional = ClassifierCard(
             classes=result["classes"],
@@ -276,6 +278,12 @@ def classify_train(
         help="Upright views: each levelled by its up direction with up to DEG degrees of error "
         "(validation and test: 2); the classifier for requests that give up. Default: full SO(3).",
     ),
+    canonical_points: int | None = typer.Option(
+        None,
+        min=1,
+        help="The transformer finds its pose from this many of the points (random ones), as "
+        "classify-export --canonical-points serves it. Default: all.",
+    ),
     init_seed: int | None = typer.Option(
         None,
         help="Seed of the initialisation and the batches (default: the split's, 0): another "
@@ -309,6 +317,7 @@ def classify_train(
         up_weight=up_weight,
         stretch=stretch,
         upright=upright,
+        canonical_points=canonical_points,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,

@@ -47,6 +47,9 @@ class ClassifierConfig:
     point_channels: tuple[int, ...] = (64, 128, 1024)
     head_channels: tuple[int, ...] = (512, 256)
     dropout: float = 0.3  # PointNet's keep probability 0.7
+    # the transformer finds its pose from the first this many points (fed in random order) and
+    # moves them all; None: from every point (``ClassifierCard.canonical_points``)
+    canonical_points: int | None = None
 
     def __post_init__(self) -> None:
         if self.transformer not in TRANSFORMERS:
@@ -55,6 +58,8 @@ class ClassifierConfig:
             raise ValueError("a transformer needs at least one iteration")
         if self.up_weight and self.transformer != "itnet":
             raise ValueError("up_weight supervises IT-Net's rotation: transformer must be itnet")
+        if self.canonical_points is not None and self.canonical_points < 1:
+            raise ValueError("canonical_points must be at least 1")
 
 
 class PointNetHead(nn.Module):
@@ -114,8 +119,10 @@ class Classifier(nn.Module):
         """Points (B, N, 3), up axes (B, 3) or None -> (the points the classifier sees
         (B, N, 3), the transformer's extra loss terms (scalar))."""
         zero = points.new_zeros(())
+        k = self.config.canonical_points
+        seen = points if k is None else points[:, :k]  # what the transformer reads
         if self.itnet is not None:
-            poses = self.itnet(points, self.config.iterations, stop_gradient=True)
+            poses = self.itnet(seen, self.config.iterations, stop_gradient=True)
             if self.config.up_weight > 0:  # IT-Net learns from the up term alone
                 penalty = zero
                 if up is not None:  # (R_k u)_y = row 1 of R_k . u: 1 when up lands on +y
@@ -127,7 +134,7 @@ class Classifier(nn.Module):
             eye = torch.eye(3, dtype=points.dtype, device=points.device)
             total, penalty = eye.expand(len(points), 3, 3), zero
             for _ in range(self.config.iterations):
-                moved = points @ total.detach().transpose(1, 2)
+                moved = seen @ total.detach().transpose(1, 2)
                 update = self.tnet(moved)
                 total = update @ total
                 penalty = (

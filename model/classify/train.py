@@ -25,6 +25,7 @@ from itnet.model.classify.data import (
     class_names,
     fixed_views,
     load_splits,
+    shuffled_views,
     training_batch,
 )
 from itnet.model.classify.network import VARIANTS, Classifier, ClassifierConfig
@@ -87,6 +88,9 @@ class ClassifyConfig(BaseModel):
     # degrees of error in training, exactly ``UPRIGHT_EVAL_DEG`` in validation and test; the
     # classifier for requests that give ``up``
     upright: float | None = None
+    # the transformer finds its pose from this many of the points (ClassifierConfig); the
+    # training and evaluation views are then fed in random order, as the service feeds them
+    canonical_points: int | None = None
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -98,7 +102,13 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
     if config.widths is not None:
         widths = {"point_channels": config.widths[0], "head_channels": config.widths[1]}
     return ClassifierConfig(
-        **{**vars(base), "classes": classes, **widths, "up_weight": config.up_weight}
+        **{
+            **vars(base),
+            "classes": classes,
+            **widths,
+            "up_weight": config.up_weight,
+            "canonical_points": config.canonical_points,
+        }
     )
 
 
@@ -124,13 +134,17 @@ def run_splits(config: ClassifyConfig) -> tuple[list[str], dict[str, LabelledSha
 def run_views(
     config: ClassifyConfig, splits: dict[str, LabelledShapes], split: str
 ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
-    """A run's fixed 'val' or 'test' views (the same every time: seeded, cached) -> (points
-    (V, N, 3), labels (V,))."""
+    """A run's fixed 'val' or 'test' views (the same every time: seeded, cached, each view's
+    points in a seeded random order) -> (points (V, N, 3), labels (V,))."""
     views, seed = {"val": (config.val_views, 7), "test": (config.test_views, 13)}[split]
     upright = None if config.upright is None else UPRIGHT_EVAL_DEG
-    return fixed_views(
+    x, y = fixed_views(
         splits[split], views, config.points, config.seed + seed, config.cache, upright
     )
+    # each view's points in random order, as the service feeds them: a small view's repeats
+    # follow its points in scan order, and a transformer that reads only the first points
+    # (``canonical_points``) must get a random sample of the view
+    return shuffled_views(x, np.random.default_rng(config.seed + seed)), y
 
 
 @torch.no_grad()
@@ -203,7 +217,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
 
     def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:
         rng = np.random.default_rng([config.run_seed, step])  # per-step stream: resume-exact data
-        return training_batch(
+        x, y, up = training_batch(
             splits["train"],
             config.batch,
             config.points,
@@ -213,6 +227,9 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
             config.stretch,
             config.upright,
         )
+        if config.canonical_points is not None:  # a small view's repeats follow its scan order
+            x = shuffled_views(x, rng)
+        return x, y, up
 
     with Prefetcher(make_batch, config.data_workers) as prefetch:  # forks before CUDA starts
         return _train_loop(config, classes, splits, val_x, val_y, prefetch, log_progress)

@@ -4,6 +4,7 @@ ModelNet layout: the loss falls, the result has test metrics, and a rerun resume
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -161,6 +162,46 @@ def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
     torch.save({"model": {}}, bad)
     run = runner.invoke(app, ["classify-export", str(bad), "--out", str(tmp_path / "x.onnx")])
     assert run.exit_code == 2 and "not a classifier checkpoint" in run.output
+
+
+def test_a_run_with_fewer_canonical_points_trains_and_exports_them(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """``canonical_points`` in training: IT-Net reads the first K points of views fed in random
+    order; the export serves the same K by default, and the float32 graph scores as torch did."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.model.classify.data import fixed_views
+    from itnet.model.classify.network import Classifier
+    from itnet.model.classify.train import load_classifier, run_splits, run_views
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10, canonical_points=16)
+    result = train(config)
+    net, _ = load_classifier(config.out / "best.pt")
+    assert net.config.canonical_points == 16
+    _, splits = run_splits(config)
+    views, _ = run_views(config, splits, "val")  # the fixed views, each in a random order
+    raw, _ = fixed_views(splits["val"], config.val_views, config.points, config.seed + 7,
+                         config.cache)  # fmt: skip
+    assert not np.array_equal(views, raw)
+    for seen, scanned in zip(views, raw, strict=True):
+        np.testing.assert_array_equal(np.unique(seen, axis=0), np.unique(scanned, axis=0))
+    out = tmp_path / "c.onnx"
+    run = CliRunner().invoke(app, ["classify-export", str(config.out), "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    graph = load_any(out, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.canonical_points == 16
+    x = np.random.default_rng(4).normal(size=(3, 64, 3)).astype(np.float32)
+    every = Classifier(replace(net.config, canonical_points=None))  # the same weights
+    every.load_state_dict(net.state_dict())
+    with torch.no_grad():
+        want = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+        other = torch.softmax(every.eval()(torch.from_numpy(x))[0], -1).numpy()
+    np.testing.assert_allclose(graph.probabilities(x), want, atol=2e-5)
+    assert np.abs(other - want).max() > 1e-6  # 16 points gave another pose than 64
+    assert graph.card.accuracy == pytest.approx(result["test"]["accuracy"], abs=1e-4)
 
 
 def test_balanced_batches_draw_classes_alike() -> None:
