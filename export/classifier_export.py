@@ -64,7 +64,7 @@ class ExportableClassifier(nn.Module):
     runtime feeds a random order), and moves all N for the classifier. The canonicaliser's
     passes cost in proportion to their points, and it needs fewer than the classifier: on
     validation views, K = 96 of 256 cost 0.3-0.5 points of top-1, within the noise of which
-    points are drawn, for about a third less time (docs/classification.md).
+    points are drawn, for about a quarter less time per request (docs/classification.md).
     """
 
     def __init__(self, net: Classifier, canonical_points: int | None = None) -> None:
