@@ -44,8 +44,11 @@ class Normalization:
 def estimate_normalization(points: ArrayLike, rel_eps: float = 1e-9) -> Normalization:
     """Centroid and RMS radius of a cloud (Nx3). Raises DegenerateCloudError for a point-like cloud."""
     p = np.asarray(points, dtype=np.float64)
+    if len(p) == 0:
+        raise DegenerateCloudError("the cloud is degenerate: it has no points")
     center = p.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((p - center) ** 2, axis=1))))
+    offsets = p - center
+    scale = float(np.sqrt(np.einsum("ij,ij->", offsets, offsets) / len(p)))
     magnitude = max(float(np.abs(center).max()), 1.0)
     if not np.isfinite(scale) or scale <= rel_eps * magnitude:
         raise DegenerateCloudError(

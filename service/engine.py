@@ -341,13 +341,13 @@ class AnytimeRun(Iterator[Estimate]):
         if points_per_step is None and ensemble > 1:
             norm = _normalization(cloud)
             size = _run_subset(model.card.points, limits.min_points, len(cloud))
-            normalized = norm.apply(cloud)
-            inputs = [cap_points(normalized, size, rng) for _ in turns]
+            # the subsets normalised alone: the same points as normalising the cloud first
+            inputs = [norm.apply(cap_points(cloud, size, rng)) for _ in turns]
             self.normalizations = [norm] * len(turns)
         elif points_per_step is None:
             # The whole cloud sets the centre and scale; then at most the card's point count.
             norm = _normalization(cloud)
-            x = cap_points(norm.apply(cloud), model.card.points, rng)
+            x = norm.apply(cap_points(cloud, model.card.points, rng))  # only the points kept
             self.normalizations, inputs = [norm] * len(turns), [x] * len(turns)
         else:
             # Each run its own seeded subset, normalised on its own: exactly what a request with

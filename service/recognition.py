@@ -39,7 +39,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import viewing_axis_turns
-from itnet.preprocess import DegenerateCloudError, estimate_normalization, shuffled_subset
+from itnet.preprocess import (
+    DegenerateCloudError,
+    Normalization,
+    estimate_normalization,
+    shuffled_subset,
+)
 from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud, validate_up
 from itnet.service.errors import ServiceError
 from itnet.service.runtime import LoadedClassifier, LoadedModel
@@ -105,15 +110,20 @@ def turned_looks(
     points: int,
     rng: np.random.Generator,
     up: NDArray | None = None,
+    norm: Normalization | None = None,
 ) -> NDArray[np.float32]:
     """A normalised cloud (N, 3) -> (looks, points, 3): own random subsets (at most ``points``
     each, in random order: ``shuffled_subset``), the k-th turned 360k/looks degrees about z.
-    ``up`` (3,, unit): the cloud levelled first (up onto +y), the turns about +y instead."""
+    ``up`` (3,, unit): the cloud levelled first (up onto +y), the turns about +y instead.
+    ``norm``: the cloud is given in its own units, and only the chosen points are normalised
+    (the same looks, without normalising the points no look keeps)."""
+    subsets = [shuffled_subset(normalized, points, rng) for _ in range(looks)]
+    if norm is not None:
+        subsets = [norm.apply(subset) for subset in subsets]
+    x = np.stack(subsets)
     if up is not None:
-        normalized = levelled(normalized, up)
-    x = np.stack([shuffled_subset(normalized, points, rng) for _ in range(looks)]).astype(
-        np.float32
-    )
+        x = levelled(x, up)  # row by row, so the same as levelling the whole cloud first
+    x = x.astype(np.float32)
     if looks > 1:
         turns = viewing_axis_turns(looks) if up is None else upright_starts(UP, looks)
         x = np.einsum("kij,knj->kni", turns.astype(np.float32), x)
@@ -186,11 +196,10 @@ def classify_together(
         except DegenerateCloudError as err:
             raise BadCloudError(str(err)) from None
         rng = np.random.default_rng(seed)
-        normalized = norm.apply(cloud)
-        x = turned_looks(normalized, looks, classifier.card.points, rng)
+        x = turned_looks(cloud, looks, classifier.card.points, rng, norm=norm)
         probs = classifier.probabilities(x)
         if upright is not None:
-            stood = turned_looks(normalized, looks, upright.card.points, rng, up)
+            stood = turned_looks(cloud, looks, upright.card.points, rng, up, norm)
             probs = np.concatenate([probs, upright.probabilities(stood)])
         own = mean_log_probability(probs)
         if to_metres is not None:

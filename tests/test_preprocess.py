@@ -33,7 +33,7 @@ def test_pose_round_trip_and_meaning(rng):
     )
 
 
-@pytest.mark.parametrize("cloud", [np.zeros((50, 3)), np.full((50, 3), 1e6)])
+@pytest.mark.parametrize("cloud", [np.zeros((50, 3)), np.full((50, 3), 1e6), np.zeros((0, 3))])
 def test_degenerate_cloud_is_refused(cloud):
     with pytest.raises(DegenerateCloudError, match="degenerate"):
         estimate_normalization(cloud)

@@ -284,6 +284,19 @@ def classify_train(
         help="The transformer finds its pose from this many of the points (random ones), as "
         "classify-export --canonical-points serves it. Default: all.",
     ),
+    label_smoothing: float = typer.Option(
+        0.0,
+        min=0.0,
+        max=0.5,
+        help="Smooth the cross-entropy's targets by E (1 - E on the class; 0: off).",
+    ),
+    ema: float | None = typer.Option(
+        None,
+        min=0.0,
+        max=1.0,
+        help="Also keep an exponential moving average of the weights (decay per step, e.g. "
+        "0.999), validated beside the raw weights; best.pt keeps whichever scores higher.",
+    ),
     init_seed: int | None = typer.Option(
         None,
         help="Seed of the initialisation and the batches (default: the split's, 0): another "
@@ -318,6 +331,8 @@ def classify_train(
         stretch=stretch,
         upright=upright,
         canonical_points=canonical_points,
+        label_smoothing=label_smoothing,
+        ema=ema,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,

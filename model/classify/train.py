@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pydantic import BaseModel
+from torch.optim.swa_utils import AveragedModel
 
 from itnet.model.classify.data import (
     SCAN_MIX,
@@ -31,6 +32,7 @@ from itnet.model.classify.data import (
 from itnet.model.classify.network import VARIANTS, Classifier, ClassifierConfig
 from itnet.model.optim import (
     CompiledForward,
+    average_of,
     bn_momentum,
     learning_rate,
     prepare_cpu,
@@ -91,6 +93,11 @@ class ClassifyConfig(BaseModel):
     # the transformer finds its pose from this many of the points (ClassifierConfig); the
     # training and evaluation views are then fed in random order, as the service feeds them
     canonical_points: int | None = None
+    # > 0: the cross-entropy's targets smoothed (1 - e on the class, e spread over all classes)
+    label_smoothing: float = 0.0
+    # not None: an exponential moving average of the weights and BatchNorm statistics (decay per
+    # step), validated beside the raw weights; best.pt keeps whichever scores higher
+    ema: float | None = None
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -182,10 +189,21 @@ def metrics(probs: NDArray, labels: NDArray, classes: list[str]) -> dict:
     }
 
 
-def _save(path: Path, net: Classifier, opt, step: int, config: ClassifyConfig, extra: dict) -> None:
+def _save(
+    path: Path,
+    net: Classifier,
+    opt,
+    step: int,
+    config: ClassifyConfig,
+    extra: dict,
+    ema: AveragedModel | None = None,
+) -> None:
+    """``net``'s weights as "model" (to ship or resume), and for resume the optimiser and, when
+    given, the moving average."""
     tmp = path.with_suffix(".tmp")
     state = {
         "model": net.state_dict(),
+        **({"ema": ema.state_dict()} if ema is not None else {}),
         "optimizer": opt.state_dict(),
         "step": step,
         "config": config.model_dump(mode="json"),
@@ -252,6 +270,9 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
     elif config.init_from is not None:
         state = torch.load(config.init_from, map_location=config.device, weights_only=False)
         net.load_state_dict(state["model"])
+    ema = average_of(net, config.ema)  # starts at the weights the run starts from
+    if ema is not None and last.exists() and "ema" in state:
+        ema.load_state_dict(state["ema"])
     log = (config.out / "log.jsonl").open("a")
 
     def write(entry: dict) -> None:
@@ -281,11 +302,18 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
         up_t = torch.from_numpy(up).to(config.device) if config.up_weight else None
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
             logits, penalty = forward(x_t, up_t)
-        loss = torch.nn.functional.cross_entropy(logits.float(), y_t) + penalty
+        loss = (
+            torch.nn.functional.cross_entropy(
+                logits.float(), y_t, label_smoothing=config.label_smoothing
+            )
+            + penalty
+        )
         penalties.append(float(penalty.detach()))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        if ema is not None:
+            ema.update_parameters(net)
         step += 1
         losses.append(float(loss.detach()))
         if not math.isfinite(losses[-1]):
@@ -303,29 +331,43 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
                 }
             )
         if step % config.eval_every == 0 or step == config.steps:
-            val = metrics(predict(net, val_x), val_y, classes)
-            entry = {
-                "step": step,
-                "val_accuracy": val["accuracy"],
-                "val_mean_class": val["mean_class_accuracy"],
-            }
+            entry, chosen = _validated(net, val_x, val_y, classes, step, "raw"), net
+            if ema is not None:  # the average competes with the raw weights on validation
+                averaged = _validated(ema.module, val_x, val_y, classes, step, "ema")
+                entry |= {f"raw_{k}": entry[k] for k in ("val_accuracy", "val_mean_class")}
+                entry |= {f"ema_{k}": averaged[k] for k in ("val_accuracy", "val_mean_class")}
+                if averaged[chosen_on] > entry[chosen_on]:
+                    entry, chosen = {**entry, **averaged}, ema.module
             if entry[chosen_on] > best[chosen_on]:
                 best = entry
                 _save(
                     config.out / "best.pt",
-                    net,
+                    chosen,
                     opt,
                     step,
                     config,
                     {"best": best, "classes": classes},
                 )
-            _save(last, net, opt, step, config, {"best": best, "classes": classes})
+            _save(last, net, opt, step, config, {"best": best, "classes": classes}, ema)
             write({"event": "val", **entry})
     result = evaluate_run(config, classes, splits, val_x, val_y)
     test = result["test"]
     write({"event": "done", "test_accuracy": test["accuracy"] if test else None})
     log.close()
     return result
+
+
+def _validated(
+    net: Classifier, val_x: NDArray, val_y: NDArray, classes: list[str], step: int, weights: str
+) -> dict:
+    """One validation entry of the log: top-1 and mean class accuracy of ``net``."""
+    val = metrics(predict(net, val_x), val_y, classes)
+    return {
+        "step": step,
+        "weights": weights,
+        "val_accuracy": val["accuracy"],
+        "val_mean_class": val["mean_class_accuracy"],
+    }
 
 
 def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x, val_y) -> dict:

@@ -56,3 +56,8 @@ def test_two_tiny_classifiers_are_scored_alone_and_fused(tmp_path: Path, monkeyp
     main()
     same = json.loads(report.read_text())
     assert same["agreement"] == 100.0 and same["fused"]["gain"] == 0.0
+    # more views a shape, and the transformers reading only the first points, as served
+    argv += ["--views", "4", "--canonical-points", "8"]
+    main()
+    served = json.loads(report.read_text())
+    assert served["views"] == 2 * result["views"] and served["canonical_points"] == 8

@@ -440,3 +440,40 @@ def test_an_upright_run_exports_an_upright_card_measured_fused_with_the_other(
     _, classifier = load_all(models, warm_up=False)
     assert classifier is not None and classifier.upright is not None
     assert classifier.upright.card.upright and not classifier.card.upright
+
+
+def test_moving_average_competes_on_validation_and_resumes(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """``ema``: every validation scores the raw weights and their moving average; best.pt holds
+    the winner's weights (it computes the logged score), last.pt the average for a resume.
+    ``label_smoothing`` changes the loss the run logs."""
+    from itnet.model.classify.train import load_classifier, metrics, predict, run_splits, run_views
+
+    config = tiny_run(three_classes, tmp_path / "ema", steps=40, eval_every=20, ema=0.9,
+                      label_smoothing=0.2)  # fmt: skip
+    train(config)
+    log = [json.loads(line) for line in (config.out / "log.jsonl").read_text().splitlines()]
+    vals = [e for e in log if e.get("event") == "val"]
+    assert [v["step"] for v in vals] == [20, 40]
+    for v in vals:
+        assert v["val_accuracy"] == max(v["raw_val_accuracy"], v["ema_val_accuracy"])
+        assert v["weights"] == ("ema" if v["ema_val_accuracy"] > v["raw_val_accuracy"] else "raw")
+    net, state = load_classifier(config.out / "best.pt")
+    classes, splits = run_splits(config)
+    val_x, val_y = run_views(config, splits, "val")
+    score = metrics(predict(net, val_x), val_y, classes)["accuracy"]
+    assert score == pytest.approx(state["best"]["val_accuracy"])
+    last = torch.load(config.out / "last.pt", weights_only=False)
+    assert "ema" in last and last["step"] == 40
+    averaged = {k[len("module.") :]: v for k, v in last["ema"].items() if k.startswith("module.")}
+    assert any(not torch.equal(averaged[k], last["model"][k]) for k in last["model"])
+    # the same start and batches without smoothing log another loss
+    plain = tiny_run(three_classes, tmp_path / "plain", steps=10, eval_every=10, log_every=10)
+    smooth = plain.model_copy(update={"out": tmp_path / "smooth" / "run", "label_smoothing": 0.2})
+    first = {}
+    for run in (plain, smooth):
+        train(run)
+        entries = (run.out / "log.jsonl").read_text().splitlines()
+        first[run.label_smoothing] = next(json.loads(e)["loss"] for e in entries if '"loss"' in e)
+    assert first[0.2] != pytest.approx(first[0.0], rel=1e-3)

@@ -139,3 +139,18 @@ def test_auto_with_up_through_the_service_and_the_cli(both_dir: Path, box_cloud)
     assert '"classified_upright": true' in out.output and '"category": "chair"' in out.output
     listed = CliRunner().invoke(app, ["models", "--model-dir", str(both_dir)])
     assert listed.exit_code == 0 and "an upright classifier joins it" in listed.output
+
+
+@pytest.mark.parametrize("up", [None, UP_GIVEN])
+def test_looks_normalise_only_the_points_they_keep_and_match_normalising_first(up) -> None:
+    """``norm`` given: the raw cloud's subsets are normalised alone; the looks are those of the
+    cloud normalised whole (the same draws, the same values), levelled or not."""
+    from itnet.preprocess import estimate_normalization
+
+    cloud = np.random.default_rng(1).normal(size=(900, 3)) * [3.0, 1.0, 0.2] + [40.0, -7.0, 2.0]
+    norm = estimate_normalization(cloud)
+    up = None if up is None else unit_up(up)
+    whole = turned_looks(norm.apply(cloud), 4, 128, np.random.default_rng(3), up)
+    kept = turned_looks(cloud, 4, 128, np.random.default_rng(3), up, norm)
+    assert kept.dtype == np.float32 and kept.shape == (4, 128, 3)
+    np.testing.assert_array_equal(kept, whole)
