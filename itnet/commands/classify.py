@@ -227,10 +227,12 @@ def classify_export(
             update={"precision": loaded.card.precision, "canonical_points": canonical_points}
         )
         save_with_card(onnx.load(str(out)), card, out)
+        test = result["test"]  # None: a run trained with --hold-test
+        torch_test = "not measured" if test is None else f"{100 * test['accuracy']:.1f}%"
         typer.echo(
             f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, {card.precision}): "
             f"{card.transformer}, test accuracy {100 * card.accuracy:.1f}% on this graph "
-            f"(torch: {100 * result['test']['accuracy']:.1f}%), validation "
+            f"(torch: {torch_test}), validation "
             f"{100 * float(card.training['validation']):.1f}% "
             f"(torch: {100 * result['val']['accuracy']:.1f}%), threshold {card.threshold}; "
             f"max |onnx - torch| {diff:.2e} on a random cloud"
@@ -290,6 +292,11 @@ def classify_train(
         max=0.5,
         help="Smooth the cross-entropy's targets by E (1 - E on the class; 0: off).",
     ),
+    hold_test: bool = typer.Option(
+        False,
+        help="End without measuring the test split (an experiment whose choice is still open); "
+        "classify-export measures the exported graph on it.",
+    ),
     ema: float | None = typer.Option(
         None,
         min=0.0,
@@ -333,6 +340,7 @@ def classify_train(
         canonical_points=canonical_points,
         label_smoothing=label_smoothing,
         ema=ema,
+        hold_test=hold_test,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,
@@ -347,7 +355,7 @@ def classify_train(
     measured = (
         f"{100 * test['accuracy']:.1f}% ± {100 * test['standard_error']:.1f} ({test['scans']} views)"
         if test
-        else "not measured (no test shapes)"
+        else "not measured (held back, or no test shapes)"
     )
     typer.echo(f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test {measured}")
 

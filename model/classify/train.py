@@ -98,6 +98,9 @@ class ClassifyConfig(BaseModel):
     # not None: an exponential moving average of the weights and BatchNorm statistics (decay per
     # step), validated beside the raw weights; best.pt keeps whichever scores higher
     ema: float | None = None
+    # the run ends without reading the test split (result.json's test is None): for experiments
+    # whose choice is still open; ``itnet classify-export`` measures the exported graph on it
+    hold_test: bool = False
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -372,13 +375,14 @@ def _validated(
 
 def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x, val_y) -> dict:
     """Validation and test metrics of the run's best.pt -> result.json (cached); ``test`` is
-    None where the data has no test split (a training-only copy on a GPU machine)."""
+    None where the data has no test split (a training-only copy on a GPU machine) or the run
+    holds it back (``hold_test``)."""
     path = config.out / "result.json"
     if path.exists():
         return json.loads(path.read_text())
     net, state = load_classifier(config.out / "best.pt")
     test = None
-    if splits["test"].shapes:
+    if splits["test"].shapes and not config.hold_test:
         test_x, test_y = run_views(config, splits, "test")
         test = metrics(predict(net, test_x), test_y, classes)
     result = {

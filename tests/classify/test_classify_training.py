@@ -477,3 +477,26 @@ def test_moving_average_competes_on_validation_and_resumes(
         entries = (run.out / "log.jsonl").read_text().splitlines()
         first[run.label_smoothing] = next(json.loads(e)["loss"] for e in entries if '"loss"' in e)
     assert first[0.2] != pytest.approx(first[0.0], rel=1e-3)
+
+
+def test_a_run_can_hold_the_test_split_back_until_it_is_exported(
+    three_classes: Path, tmp_path: Path
+) -> None:
+    """``hold_test``: the run validates as usual and ends without a test measurement; exporting
+    it measures the graph on the test split, as for any run."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    config = tiny_run(three_classes, tmp_path, steps=10, eval_every=10, hold_test=True)
+    result = train(config)
+    assert result["test"] is None and result["val"]["scans"] > 0
+    done = json.loads((config.out / "log.jsonl").read_text().splitlines()[-1])
+    assert done == {"event": "done", "test_accuracy": None}
+    out = tmp_path / "held.onnx"
+    run = CliRunner().invoke(app, ["classify-export", str(config.out), "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    assert "torch: not measured" in run.output
+    graph = load_any(out, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and 0 <= graph.card.accuracy <= 1
