@@ -105,19 +105,20 @@ class Recognition:
 
 
 def turned_looks(
-    normalized: NDArray,
+    cloud: NDArray,
     looks: int,
     points: int,
     rng: np.random.Generator,
     up: NDArray | None = None,
     norm: Normalization | None = None,
 ) -> NDArray[np.float32]:
-    """A normalised cloud (N, 3) -> (looks, points, 3): own random subsets (at most ``points``
-    each, in random order: ``shuffled_subset``), the k-th turned 360k/looks degrees about z.
+    """A cloud (N, 3), normalised unless ``norm`` is given -> (looks, points, 3): own random
+    subsets (at most ``points`` each, in random order: ``shuffled_subset``), the k-th turned
+    360k/looks degrees about z.
     ``up`` (3,, unit): the cloud levelled first (up onto +y), the turns about +y instead.
     ``norm``: the cloud is given in its own units, and only the chosen points are normalised
     (the same looks, without normalising the points no look keeps)."""
-    subsets = [shuffled_subset(normalized, points, rng) for _ in range(looks)]
+    subsets = [shuffled_subset(cloud, points, rng) for _ in range(looks)]
     if norm is not None:
         subsets = [norm.apply(subset) for subset in subsets]
     x = np.stack(subsets)
