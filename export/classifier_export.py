@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from torch import Tensor, nn
 
 from itnet.export.onnx_export import save_with_card
+from itnet.model.classify.local import LocalHead, nearest_neighbours, neighbour_max
 from itnet.model.classify.network import Classifier, PointNetHead
 from itnet.model.network import ExportableStep, _folded, _folded_mlp
 from itnet.model_card import ClassifierCard
@@ -57,6 +58,61 @@ class FoldedPointNet(nn.Module):
         return g
 
 
+class FoldedLocalHead(nn.Module):
+    """A ``LocalHead`` in eval mode, folded for inference engines: (B, N, 3) -> (B, outputs).
+
+    Each neighbour layer's BatchNorm scale goes into its centre product and multiplies the
+    neighbours' max (a negative scale would turn a max into a min if it went inside); the
+    embedding runs channels-first so that its max-pool reduces the innermost axis, as in
+    ``FoldedPointNet``.
+    """
+
+    def __init__(self, head: LocalHead) -> None:
+        super().__init__()
+        self.neighbours = head.neighbours
+        centre, neighbour, scale, shift = [], [], [], []
+        for layer in head.layers:
+            w, b = _folded(layer.centre, layer.norm)  # (s A, t)
+            centre.append(w.t().contiguous())
+            neighbour.append(layer.neighbour.weight.detach().float().t().contiguous())
+            norm = layer.norm
+            scale.append(norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps))
+            shift.append(b)
+        frozen = [nn.Parameter(t, requires_grad=False) for t in (*centre, *neighbour)]
+        self.centre = nn.ParameterList(frozen[: len(centre)])
+        self.neighbour = nn.ParameterList(frozen[len(centre) :])
+        self.scale = nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in scale])
+        self.shift = nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in shift])
+        (embed_w, embed_b), *_ = _folded_mlp(head.embed)
+        self.embed_w = nn.Parameter(embed_w, requires_grad=False)  # (E, sum of the layers')
+        self.embed_b = nn.Parameter(embed_b[:, None], requires_grad=False)
+        dense = [*_folded_mlp(head.head), _folded(head.out, None)]
+        self.dense_w = nn.ParameterList(
+            [nn.Parameter(w.t().contiguous(), requires_grad=False) for w, _ in dense]
+        )
+        self.dense_b = nn.ParameterList([nn.Parameter(b, requires_grad=False) for _, b in dense])
+
+    def forward(self, points: Tensor) -> Tensor:
+        neighbours = nearest_neighbours(points, self.neighbours)
+        x, layers = points, []
+        for a, b, s, t in zip(self.centre, self.neighbour, self.scale, self.shift):
+            x = torch.relu(x @ a + neighbour_max(x @ b, neighbours) * s + t)
+            layers.append(x)
+        h = torch.cat(layers, dim=-1).transpose(1, 2)  # (B, C, N)
+        embedded = torch.relu(self.embed_w @ h + self.embed_b)  # (B, E, N)
+        g = torch.cat([embedded.amax(dim=-1), embedded.mean(dim=-1)], dim=-1)
+        for i, (w, b) in enumerate(zip(self.dense_w, self.dense_b)):
+            g = g @ w + b
+            if i < len(self.dense_w) - 1:
+                g = torch.relu(g)
+        return g
+
+
+def folded_head(head: PointNetHead | LocalHead) -> nn.Module:
+    """The inference form of a classifier head."""
+    return FoldedLocalHead(head) if isinstance(head, LocalHead) else FoldedPointNet(head)
+
+
 class ExportableClassifier(nn.Module):
     """``Classifier`` in eval mode as one graph: points (B, N, 3) -> probabilities (B, C).
 
@@ -74,7 +130,7 @@ class ExportableClassifier(nn.Module):
         self.iterations = net.config.iterations
         self.step = ExportableStep(net.itnet) if net.itnet is not None else None
         self.tnet = FoldedPointNet(net.tnet.regressor) if net.tnet is not None else None
-        self.classifier = FoldedPointNet(net.classifier)
+        self.classifier = folded_head(net.classifier)
 
     def forward(self, points: Tensor) -> Tensor:
         moved = points
@@ -198,6 +254,7 @@ def card_from_run(
         classes=result["classes"],
         points=points or trained_points(run),
         transformer=result["variant"],
+        head=config.get("head", "pointnet"),
         threshold=threshold,
         upright=upright,
         accuracy=round(test["accuracy"], 4),

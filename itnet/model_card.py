@@ -152,6 +152,11 @@ class ClassifierCard(BaseModel):
     )
     normalization: str = NORMALIZATION
     transformer: str = Field("itnet-2", description="the canonicaliser in front of the classifier")
+    head: str = Field(
+        "pointnet",
+        description="the classifier behind the canonicaliser: pointnet (one max-pool over the "
+        "cloud) or local (each layer mixes in every point's nearest neighbours)",
+    )
     canonical_points: int | None = Field(
         None,
         ge=1,

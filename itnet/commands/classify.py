@@ -304,6 +304,20 @@ def classify_train(
         help="Also keep an exponential moving average of the weights (decay per step, e.g. "
         "0.999), validated beside the raw weights; best.pt keeps whichever scores higher.",
     ),
+    head: str = typer.Option(
+        "pointnet",
+        help="The classifier after the transformer: pointnet (the paper's) or local (each layer "
+        "mixes in every point's nearest neighbours; docs/classification.md).",
+    ),
+    neighbours: int = typer.Option(16, min=1, help="Neighbours of each point (--head local)."),
+    transformer_from: Path | None = typer.Option(
+        None,
+        help="Start the transformer (only) from this classifier checkpoint's, e.g. a new head "
+        "behind itnet/models/classifier.pt's canonicaliser.",
+    ),
+    freeze_transformer: bool = typer.Option(
+        False, help="Do not train the transformer (its weights and BatchNorm statistics stay)."
+    ),
     init_seed: int | None = typer.Option(
         None,
         help="Seed of the initialisation and the batches (default: the split's, 0): another "
@@ -341,6 +355,10 @@ def classify_train(
         label_smoothing=label_smoothing,
         ema=ema,
         hold_test=hold_test,
+        head=head,
+        neighbours=neighbours,
+        transformer_from=transformer_from,
+        freeze_transformer=freeze_transformer,
         init_seed=init_seed,
         eval_every=eval_every,
         threads=threads,

@@ -29,9 +29,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from itnet.model.classify.local import LocalHead
 from itnet.model.network import ITNet, NetworkConfig, _mlp, apply_pose
 
 TRANSFORMERS = ("none", "tnet", "itnet")
+HEADS = ("pointnet", "local")  # the classifier after the transformer (``local.py``)
 REGULARIZER_WEIGHT = 0.001  # PointNet's and the paper's weight of the orthogonality term
 
 
@@ -50,8 +52,16 @@ class ClassifierConfig:
     # the transformer finds its pose from the first this many points (fed in random order) and
     # moves them all; None: from every point (``ClassifierCard.canonical_points``)
     canonical_points: int | None = None
+    # the classifier: "pointnet" (the paper's) or "local" (``local.LocalHead``: every layer
+    # mixes in each point's ``neighbours`` nearest points; ``local_channels``: its layers' widths,
+    # then the per-point embedding's)
+    head: str = "pointnet"
+    local_channels: tuple[int, ...] = (64, 64, 128, 512)
+    neighbours: int = 16
 
     def __post_init__(self) -> None:
+        if self.head not in HEADS:
+            raise ValueError(f"head must be one of {HEADS}, not {self.head!r}")
         if self.transformer not in TRANSFORMERS:
             raise ValueError(f"transformer must be one of {TRANSFORMERS}, not {self.transformer!r}")
         if self.transformer != "none" and self.iterations < 1:
@@ -111,8 +121,18 @@ class Classifier(nn.Module):
             if config.transformer == "itnet"
             else None
         )
-        self.classifier = PointNetHead(
-            config.classes, config.point_channels, config.head_channels, config.dropout
+        self.classifier: PointNetHead | LocalHead = (
+            LocalHead(
+                config.classes,
+                config.local_channels,
+                config.head_channels,
+                config.neighbours,
+                config.dropout,
+            )
+            if config.head == "local"
+            else PointNetHead(
+                config.classes, config.point_channels, config.head_channels, config.dropout
+            )
         )
 
     def canonicalize(self, points: Tensor, up: Tensor | None = None) -> tuple[Tensor, Tensor]:

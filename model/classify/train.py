@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pydantic import BaseModel
+from torch import nn
 from torch.optim.swa_utils import AveragedModel
 
 from itnet.model.classify.data import (
@@ -101,6 +102,15 @@ class ClassifyConfig(BaseModel):
     # the run ends without reading the test split (result.json's test is None): for experiments
     # whose choice is still open; ``itnet classify-export`` measures the exported graph on it
     hold_test: bool = False
+    # the classifier after the transformer: "pointnet" or "local" (``local.LocalHead``, with
+    # ``neighbours`` nearest points; ``local_channels`` None: ClassifierConfig's widths)
+    head: str = "pointnet"
+    neighbours: int = 16
+    local_channels: tuple[int, ...] | None = None
+    # start the transformer (only) from this checkpoint's, e.g. a new head behind the shipped
+    # canonicaliser; frozen: the transformer is not trained (eval mode, no gradient)
+    transformer_from: Path | None = None
+    freeze_transformer: bool = False
     compile: bool = False  # torch.compile the network for the training steps
     device: str = "cpu"  # cpu | cuda
     data_workers: int = 0  # processes making the batches ahead (model/prefetch.py; for a GPU)
@@ -118,6 +128,9 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
             **widths,
             "up_weight": config.up_weight,
             "canonical_points": config.canonical_points,
+            "head": config.head,
+            "neighbours": config.neighbours,
+            **({} if config.local_channels is None else {"local_channels": config.local_channels}),
         }
     )
 
@@ -261,7 +274,9 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
                 log_progress: bool) -> dict:  # fmt: skip
     torch.manual_seed(config.run_seed)
     net = Classifier(network_config(config, len(classes))).to(config.device)
-    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    opt = torch.optim.Adam(
+        [p for name, p in net.named_parameters() if not _frozen(config, name)], lr=config.lr
+    )
     step, best = 0, {"val_accuracy": -1.0, "val_mean_class": -1.0}
     chosen_on = "val_mean_class" if config.balanced else "val_accuracy"
     last = config.out / "last.pt"
@@ -273,6 +288,9 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
     elif config.init_from is not None:
         state = torch.load(config.init_from, map_location=config.device, weights_only=False)
         net.load_state_dict(state["model"])
+    elif config.transformer_from is not None:
+        load_transformer(net, config.transformer_from)
+    frozen = frozen_transformer(net) if config.freeze_transformer else None
     ema = average_of(net, config.ema)  # starts at the weights the run starts from
     if ema is not None and last.exists() and "ema" in state:
         ema.load_state_dict(state["ema"])
@@ -301,6 +319,8 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
         lr = learning_rate(config.lr, config.lr_decay, config.decay_every, step)
         set_schedule(net, opt, lr, bn_momentum(config.bn_momentum, config.decay_every, step))
         net.train()
+        if frozen is not None:
+            frozen.eval()
         x_t, y_t = torch.from_numpy(x).to(config.device), torch.from_numpy(y).to(config.device)
         up_t = torch.from_numpy(up).to(config.device) if config.up_weight else None
         with torch.autocast(x_t.device.type, dtype=torch.bfloat16, enabled=config.bf16):
@@ -358,6 +378,37 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
     write({"event": "done", "test_accuracy": test["accuracy"] if test else None})
     log.close()
     return result
+
+
+TRANSFORMER_PREFIXES = ("itnet.", "tnet.")
+
+
+def _frozen(config: ClassifyConfig, name: str) -> bool:
+    return config.freeze_transformer and name.startswith(TRANSFORMER_PREFIXES)
+
+
+def load_transformer(net: Classifier, checkpoint: Path) -> None:
+    """Copy the transformer's weights (and BatchNorm statistics) of a classifier checkpoint of any
+    head into ``net``; the shapes must match."""
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)["model"]
+    wanted = {k: v for k, v in state.items() if k.startswith(TRANSFORMER_PREFIXES)}
+    if not wanted:
+        raise ValueError(f"{checkpoint} holds no transformer weights")
+    missing = [
+        k for k in net.state_dict() if k.startswith(TRANSFORMER_PREFIXES) and k not in wanted
+    ]
+    if missing:
+        raise ValueError(f"{checkpoint} lacks the transformer's {missing[:3]}")
+    net.load_state_dict(wanted, strict=False)
+
+
+def frozen_transformer(net: Classifier) -> nn.Module:
+    """Stop the gradient of ``net``'s transformer and return it (the training loop keeps it in
+    eval mode, so its BatchNorm statistics stay too)."""
+    transformer = net.itnet if net.itnet is not None else net.tnet
+    if transformer is None:
+        raise ValueError("this classifier has no transformer to freeze")
+    return transformer.requires_grad_(False)
 
 
 def _validated(

@@ -59,6 +59,34 @@ def test_untrained_classifier_exports_and_matches_torch(
     assert np.ptp(got, axis=0).max() > 1e-3  # the clouds get different answers: a real graph
 
 
+def test_untrained_local_classifier_exports_and_matches_torch(tmp_path: Path) -> None:
+    """The local head folded for the graph: BatchNorm scales of both signs (a negative one must
+    not turn the neighbours' max into a min), a canonicaliser on the first points."""
+    net = _randomised(
+        tiny_classifier("itnet", 2, head="local", local_channels=(8, 16, 32), neighbours=5), 3
+    )
+    with torch.no_grad():
+        for layer in net.classifier.layers:
+            layer.norm.weight[::2] *= -1
+    card = ClassifierCard(classes=CLASSES, points=100, canonical_points=40, head="local")
+    loaded = load_any(export_classifier(net, card, tmp_path / "c.onnx"), warm_up=False)
+    assert isinstance(loaded, LoadedClassifier) and loaded.card.head == "local"
+    x = torch.randn(5, 100, 3, generator=torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        assert net.itnet is not None
+        from itnet.model.network import apply_pose
+
+        pose = net.itnet(x[:, :40], 2)[-1]
+        expected = torch.softmax(net.classifier(apply_pose(pose, x)), -1).numpy()
+    got = loaded.probabilities(x.numpy())
+    np.testing.assert_allclose(got, expected, atol=2e-5)
+    assert np.ptp(got, axis=0).max() > 1e-3
+    few = x[:, :3]  # fewer points than neighbours: each point's neighbours are all of them
+    with torch.no_grad():
+        expected = torch.softmax(net(few)[0], -1).numpy()
+    np.testing.assert_allclose(loaded.probabilities(few.numpy()), expected, atol=2e-5)
+
+
 def test_canonicaliser_on_the_first_points_moves_them_all(tmp_path: Path) -> None:
     """``canonical_points`` K: IT-Net finds the pose from the input's first K points, and the
     classifier sees all N moved by it; a cloud of at most K points gets the plain graph's
