@@ -9,6 +9,7 @@ per-point MLP, max-pool over the innermost axis). Dropout is the identity at inf
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -121,16 +122,26 @@ class ExportableClassifier(nn.Module):
     passes cost in proportion to their points, and it needs fewer than the classifier: on
     validation views, K = 96 of 256 cost 0.3-0.5 points of top-1, within the noise of which
     points are drawn, for about a quarter less time per request (docs/classification.md).
+
+    ``fused``: classifiers with the same transformer weights (heads trained behind one frozen
+    canonicaliser, ``classify-train --freeze-transformer``) whose heads read the same moved
+    points; the graph's probabilities are then the softmax of the heads' mean log-probability
+    (``fused_probabilities``), as the service fuses several looks.
     """
 
-    def __init__(self, net: Classifier, canonical_points: int | None = None) -> None:
+    def __init__(
+        self, net: Classifier, canonical_points: int | None = None, fused: Sequence[Classifier] = ()
+    ) -> None:
         super().__init__()
         net = net.eval()
+        for other in fused:
+            if not same_transformer(net, other):
+                raise ValueError("fused classifiers must share the transformer's weights")
         self.canonical_points = canonical_points
         self.iterations = net.config.iterations
         self.step = ExportableStep(net.itnet) if net.itnet is not None else None
         self.tnet = FoldedPointNet(net.tnet.regressor) if net.tnet is not None else None
-        self.classifier = folded_head(net.classifier)
+        self.heads = nn.ModuleList(folded_head(n.eval().classifier) for n in (net, *fused))
 
     def forward(self, points: Tensor) -> Tensor:
         moved = points
@@ -146,16 +157,45 @@ class ExportableClassifier(nn.Module):
                 update = self.tnet(seen @ total.transpose(1, 2)).reshape(-1, 3, 3)
                 total = update @ total
             moved = points @ total.transpose(1, 2)
-        return torch.softmax(self.classifier(moved), dim=-1)
+        if len(self.heads) == 1:
+            return torch.softmax(self.heads[0](moved), dim=-1)
+        logs = [torch.log_softmax(head(moved), dim=-1) for head in self.heads]
+        return torch.softmax(torch.stack(logs).mean(dim=0), dim=-1)
 
 
-def export_classifier(net: Classifier, card: ClassifierCard, path: Path, opset: int = 20) -> Path:
-    """Write ``path`` (.onnx): the classifier graph with ``card`` as metadata. Returns the path."""
+def same_transformer(net: Classifier, other: Classifier) -> bool:
+    """Do two classifiers hold the same transformer (weights and BatchNorm statistics)?"""
+    mine = {k: v for k, v in net.state_dict().items() if k.startswith(("itnet.", "tnet."))}
+    theirs = {k: v for k, v in other.state_dict().items() if k.startswith(("itnet.", "tnet."))}
+    return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
+
+
+def fused_probabilities(nets: Sequence[Classifier], points: Tensor) -> Tensor:
+    """Torch's answer of a fused graph: points (B, N, 3) -> softmax of the nets' mean
+    log-probability (B, C) (one net: its probabilities)."""
+    logs = torch.stack([torch.log_softmax(n.eval()(points)[0], dim=-1) for n in nets])
+    return torch.softmax(logs.mean(dim=0), dim=-1)
+
+
+def heads_name(nets: Sequence[Classifier]) -> str:
+    """The card's ``head``: the fused heads' kinds, e.g. "local+pointnet"."""
+    return "+".join(n.config.head for n in nets)
+
+
+def export_classifier(
+    net: Classifier,
+    card: ClassifierCard,
+    path: Path,
+    opset: int = 20,
+    fused: Sequence[Classifier] = (),
+) -> Path:
+    """Write ``path`` (.onnx): the classifier graph (``fused``: more heads behind the same
+    canonicaliser, see ``ExportableClassifier``) with ``card`` as metadata. Returns the path."""
     if len(card.classes) != net.config.classes:
         raise ValueError(
             f"the card names {len(card.classes)} classes, the net has {net.config.classes}"
         )
-    graph = ExportableClassifier(net, card.canonical_points).eval()
+    graph = ExportableClassifier(net, card.canonical_points, fused).eval()
     batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
     program = torch.onnx.export(
         graph,

@@ -149,6 +149,12 @@ def classify_export(
         help="Also copy the run's best torch weights here, without optimiser state "
         "(what a later fine-tune starts from: classify-train --init-from).",
     ),
+    fuse_with: list[Path] = typer.Option(
+        [],
+        help="Also these classifier checkpoints' heads, behind the same canonicaliser (they must "
+        "hold the run's transformer weights: heads trained with --freeze-transformer); the graph "
+        "answers with their mean log-probability (docs/classification.md).",
+    ),
     beside: Path = typer.Option(
         Path("itnet/models/classifier.onnx"),
         help="An upright run's graph is served fused with this classifier for any orientation: "
@@ -167,6 +173,8 @@ def classify_export(
     from itnet.export.classifier_export import (
         card_from_run,
         export_classifier,
+        fused_probabilities,
+        heads_name,
         score_graph,
         trained_points,
         unsure_split,
@@ -187,6 +195,7 @@ def classify_export(
                 typer.echo(f"error: {err}", err=True)
                 raise typer.Exit(2) from None
         net, _ = load_classifier(run / "best.pt")
+        fused = [load_classifier(path)[0] for path in fuse_with]
         if canonical_points is None:  # as trained
             canonical_points = net.config.canonical_points
         result = json.loads((run / "result.json").read_text())
@@ -196,9 +205,14 @@ def classify_export(
             transformer=result["variant"],
             upright=json.loads((run / "config.json").read_text()).get("upright") is not None,
             canonical_points=canonical_points,
+            head=heads_name([net, *fused]),
         )
         with tempfile.TemporaryDirectory() as tmp:
-            graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx")
+            try:
+                graph = export_classifier(net, provisional, Path(tmp) / "float32.onnx", fused=fused)
+            except ValueError as err:
+                typer.echo(f"error: {err}", err=True)
+                raise typer.Exit(2) from None
             if int8:
                 quantize_point_layers(graph, out)
             else:
@@ -210,7 +224,7 @@ def classify_export(
         seen = min(provisional.points, canonical_points or provisional.points)
         x = np.random.default_rng(0).normal(size=(1, seen, 3)).astype(np.float32)
         with torch.no_grad():
-            expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+            expected = fused_probabilities([net, *fused], torch.from_numpy(x)).numpy()
         diff = float(np.abs(loaded.probabilities(x) - expected).max())
         partner = None
         if loaded.card.upright:
@@ -221,10 +235,19 @@ def classify_export(
                 )
                 raise typer.Exit(2)
         scores = score_graph(loaded, run, partner)
-        card = card_from_run(
+        measured = card_from_run(
             run, scores, points, target, None if partner is None else beside.name
-        ).model_copy(
-            update={"precision": loaded.card.precision, "canonical_points": canonical_points}
+        )
+        card = measured.model_copy(
+            update={
+                "precision": loaded.card.precision,
+                "canonical_points": canonical_points,
+                "head": provisional.head,
+                "training": {
+                    **measured.training,
+                    **({"fused_with": [p.name for p in fuse_with]} if fuse_with else {}),
+                },
+            }
         )
         save_with_card(onnx.load(str(out)), card, out)
         test = result["test"]  # None: a run trained with --hold-test

@@ -10,7 +10,12 @@ import pytest
 import torch
 from cls_helpers import CLASSES, tiny_classifier
 
-from itnet.export.classifier_export import choose_threshold, export_classifier
+from itnet.export.classifier_export import (
+    choose_threshold,
+    export_classifier,
+    fused_probabilities,
+    same_transformer,
+)
 from itnet.model_card import ClassifierCard
 from itnet.service.runtime import (
     LoadedClassifier,
@@ -87,6 +92,38 @@ def test_untrained_local_classifier_exports_and_matches_torch(tmp_path: Path) ->
     np.testing.assert_allclose(loaded.probabilities(few.numpy()), expected, atol=2e-5)
 
 
+def test_heads_behind_one_canonicaliser_export_fused(tmp_path: Path) -> None:
+    """``fused``: a local head and a PointNet head behind the same canonicaliser, one graph whose
+    probabilities are the softmax of their mean log-probability; a head behind another
+    canonicaliser is refused."""
+    local = _randomised(
+        tiny_classifier("itnet", 2, head="local", local_channels=(8, 16, 32), neighbours=5), 5
+    )
+    pointnet = _randomised(tiny_classifier("itnet", 2), 6)
+    with pytest.raises(ValueError, match="share the transformer"):
+        export_classifier(
+            local, ClassifierCard(classes=CLASSES), tmp_path / "x.onnx", fused=[pointnet]
+        )
+    pointnet.itnet.load_state_dict(local.itnet.state_dict())
+    card = ClassifierCard(classes=CLASSES, points=100, head="local+pointnet")
+    loaded = load_any(
+        export_classifier(local, card, tmp_path / "f.onnx", fused=[pointnet]), warm_up=False
+    )
+    assert isinstance(loaded, LoadedClassifier)
+    x = torch.randn(4, 100, 3, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        want = fused_probabilities([local, pointnet], x).numpy()
+        alone = [torch.softmax(n(x)[0], -1).numpy() for n in (local, pointnet)]
+    got = loaded.probabilities(x.numpy())
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    assert all(np.abs(got - a).max() > 1e-3 for a in alone)  # neither head alone
+    np.testing.assert_allclose(
+        got,
+        np.exp(np.log(alone).mean(0)) / np.exp(np.log(alone).mean(0)).sum(1, keepdims=True),
+        atol=2e-5,
+    )
+
+
 def test_canonicaliser_on_the_first_points_moves_them_all(tmp_path: Path) -> None:
     """``canonical_points`` K: IT-Net finds the pose from the input's first K points, and the
     classifier sees all N moved by it; a cloud of at most K points gets the plain graph's
@@ -128,8 +165,10 @@ def test_threshold_is_the_lowest_that_reaches_the_target() -> None:
 
 
 def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
-    """itnet/models/classifier.pt (the weights a later fine-tune starts from) gives the shipped
-    float32 graph's probabilities, BatchNorm folded, on clouds of noise and on an example scan."""
+    """itnet/models/classifier_local.pt and classifier.pt (the weights a later fine-tune starts
+    from: the local head and the PointNet head behind one canonicaliser) give the shipped float32
+    graph's probabilities, their heads fused, BatchNorm folded, on clouds of noise and on an
+    example scan."""
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
     from itnet.model.network import apply_pose
@@ -138,10 +177,12 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     from itnet.service.runtime import LoadedClassifier, default_model_dir, load_any
 
     shipped = default_model_dir()
-    net, state = load_classifier(shipped / "classifier.pt")
+    net, state = load_classifier(shipped / "classifier_local.pt")
+    other, other_state = load_classifier(shipped / "classifier.pt")
     graph = load_any(shipped / "classifier.onnx", warm_up=False)
     assert isinstance(graph, LoadedClassifier) and "optimizer" not in state
-    assert state["classes"] == graph.card.classes
+    assert state["classes"] == other_state["classes"] == graph.card.classes
+    assert graph.card.head == "local+pointnet" and same_transformer(net, other)
     rng = np.random.default_rng(0)
     chair = read_cloud(examples_dir() / "chair_a.ply")
     x = np.concatenate(
@@ -155,7 +196,8 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
         assert net.itnet is not None
         pose = net.itnet(torch.from_numpy(x[:, :seen]), net.config.iterations)[-1]
         moved = apply_pose(pose, torch.from_numpy(x))
-        want = torch.softmax(net.classifier(moved), -1).numpy()
+        logs = [torch.log_softmax(n.classifier(moved), -1) for n in (net, other)]
+        want = torch.softmax(torch.stack(logs).mean(0), -1).numpy()
     got = graph.probabilities(x)
     np.testing.assert_allclose(got, want, atol=1e-4)
     assert graph.card.classes[int(got[-1].argmax())] == "chair"

@@ -97,6 +97,21 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
     assert run.exit_code == 0, run.output
     graph = load_any(out, warm_up=False)
     assert isinstance(graph, LoadedClassifier) and graph.card.head == "local"
+    # the source run's head shares the canonicaliser: the two export fused, measured as one
+    fused = tmp_path / "fused.onnx"
+    both = [str(config.out), "--out", str(fused), "--fuse-with", str(source.out / "best.pt")]
+    run = CliRunner().invoke(app, ["classify-export", *both])
+    assert run.exit_code == 0, run.output
+    graph = load_any(fused, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.head == "local+pointnet"
+    assert graph.card.training["fused_with"] == ["best.pt"] and 0 <= graph.card.accuracy <= 1
+    other = tiny_run(three_classes, tmp_path / "other", steps=5, eval_every=5, init_seed=3)
+    train(other)  # another canonicaliser: refused
+    run = CliRunner().invoke(
+        app, ["classify-export", str(config.out), "--out", str(tmp_path / "no.onnx"),
+              "--fuse-with", str(other.out / "best.pt")],
+    )  # fmt: skip
+    assert run.exit_code == 2 and "share the transformer" in run.output
 
 
 def test_transformer_weights_must_fit(three_classes: Path, tmp_path: Path) -> None:  # noqa: F811
