@@ -21,13 +21,33 @@ from torch import Tensor, nn
 
 from itnet.export.onnx_export import save_with_card
 from itnet.model.classify.local import LocalHead, nearest_neighbours, neighbour_max
-from itnet.model.classify.network import Classifier, PointNetHead
-from itnet.model.network import ExportableStep, _folded, _folded_mlp
+from itnet.model.classify.network import Classifier, PointNetHead, transformer_state
+from itnet.model.network import ExportableStep, _bn_scale, _folded, _folded_mlp
 from itnet.model_card import ClassifierCard
 from itnet.upright import UPRIGHT_EVAL_DEG
 
 if TYPE_CHECKING:
     from itnet.service.runtime import LoadedClassifier
+
+
+def _constants(tensors: list[Tensor]) -> nn.ParameterList:
+    """Tensors -> a ParameterList that no optimiser trains (the folded graph's constants)."""
+    return nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in tensors])
+
+
+def _dense(g: Tensor, weights: nn.ParameterList, biases: nn.ParameterList) -> Tensor:
+    """Pooled features (B, C) through the folded MLP: ReLU after every layer but the last."""
+    for i, (w, b) in enumerate(zip(weights, biases)):
+        g = g @ w + b
+        if i < len(weights) - 1:
+            g = torch.relu(g)
+    return g
+
+
+def _folded_dense(head: PointNetHead | LocalHead) -> tuple[nn.ParameterList, nn.ParameterList]:
+    """A head's MLP after pooling and its output layer, folded: (weights (C_in, C_out), biases)."""
+    dense = [*_folded_mlp(head.head), _folded(head.out, None)]
+    return _constants([w.t().contiguous() for w, _ in dense]), _constants([b for _, b in dense])
 
 
 class FoldedPointNet(nn.Module):
@@ -36,15 +56,9 @@ class FoldedPointNet(nn.Module):
     def __init__(self, head: PointNetHead) -> None:
         super().__init__()
         point = _folded_mlp(head.point_mlp)
-        dense = [*_folded_mlp(head.head), _folded(head.out, None)]
-        self.point_w = nn.ParameterList([nn.Parameter(w, requires_grad=False) for w, _ in point])
-        self.point_b = nn.ParameterList(
-            [nn.Parameter(b[:, None], requires_grad=False) for _, b in point]
-        )
-        self.dense_w = nn.ParameterList(
-            [nn.Parameter(w.t().contiguous(), requires_grad=False) for w, _ in dense]
-        )
-        self.dense_b = nn.ParameterList([nn.Parameter(b, requires_grad=False) for _, b in dense])
+        self.point_w = _constants([w for w, _ in point])
+        self.point_b = _constants([b[:, None] for _, b in point])
+        self.dense_w, self.dense_b = _folded_dense(head)
 
     def forward(self, points: Tensor) -> Tensor:
         h = points.transpose(1, 2)  # (B, 3, N)
@@ -52,11 +66,7 @@ class FoldedPointNet(nn.Module):
             h = torch.relu(w @ h + b)
         # max over points commutes with the per-channel bias and ReLU (see ExportableStep)
         g = torch.relu((self.point_w[-1] @ h).amax(dim=-1) + self.point_b[-1][:, 0])
-        for i, (w, b) in enumerate(zip(self.dense_w, self.dense_b)):
-            g = g @ w + b
-            if i < len(self.dense_w) - 1:
-                g = torch.relu(g)
-        return g
+        return _dense(g, self.dense_w, self.dense_b)
 
 
 class FoldedLocalHead(nn.Module):
@@ -71,27 +81,17 @@ class FoldedLocalHead(nn.Module):
     def __init__(self, head: LocalHead) -> None:
         super().__init__()
         self.neighbours = head.neighbours
-        centre, neighbour, scale, shift = [], [], [], []
-        for layer in head.layers:
-            w, b = _folded(layer.centre, layer.norm)  # (s A, t)
-            centre.append(w.t().contiguous())
-            neighbour.append(layer.neighbour.weight.detach().float().t().contiguous())
-            norm = layer.norm
-            scale.append(norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps))
-            shift.append(b)
-        frozen = [nn.Parameter(t, requires_grad=False) for t in (*centre, *neighbour)]
-        self.centre = nn.ParameterList(frozen[: len(centre)])
-        self.neighbour = nn.ParameterList(frozen[len(centre) :])
-        self.scale = nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in scale])
-        self.shift = nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in shift])
+        folded = [_folded(layer.centre, layer.norm) for layer in head.layers]  # (s A, t)
+        self.centre = _constants([w.t().contiguous() for w, _ in folded])
+        self.shift = _constants([t for _, t in folded])
+        self.neighbour = _constants(
+            [layer.neighbour.weight.detach().float().t().contiguous() for layer in head.layers]
+        )
+        self.scale = _constants([_bn_scale(layer.norm) for layer in head.layers])
         (embed_w, embed_b), *_ = _folded_mlp(head.embed)
         self.embed_w = nn.Parameter(embed_w, requires_grad=False)  # (E, sum of the layers')
         self.embed_b = nn.Parameter(embed_b[:, None], requires_grad=False)
-        dense = [*_folded_mlp(head.head), _folded(head.out, None)]
-        self.dense_w = nn.ParameterList(
-            [nn.Parameter(w.t().contiguous(), requires_grad=False) for w, _ in dense]
-        )
-        self.dense_b = nn.ParameterList([nn.Parameter(b, requires_grad=False) for _, b in dense])
+        self.dense_w, self.dense_b = _folded_dense(head)
 
     def forward(self, points: Tensor) -> Tensor:
         neighbours = nearest_neighbours(points, self.neighbours)
@@ -102,11 +102,7 @@ class FoldedLocalHead(nn.Module):
         h = torch.cat(layers, dim=-1).transpose(1, 2)  # (B, C, N)
         embedded = torch.relu(self.embed_w @ h + self.embed_b)  # (B, E, N)
         g = torch.cat([embedded.amax(dim=-1), embedded.mean(dim=-1)], dim=-1)
-        for i, (w, b) in enumerate(zip(self.dense_w, self.dense_b)):
-            g = g @ w + b
-            if i < len(self.dense_w) - 1:
-                g = torch.relu(g)
-        return g
+        return _dense(g, self.dense_w, self.dense_b)
 
 
 def folded_head(head: PointNetHead | LocalHead) -> nn.Module:
@@ -165,8 +161,7 @@ class ExportableClassifier(nn.Module):
 
 def same_transformer(net: Classifier, other: Classifier) -> bool:
     """Do two classifiers hold the same transformer (weights and BatchNorm statistics)?"""
-    mine = {k: v for k, v in net.state_dict().items() if k.startswith(("itnet.", "tnet."))}
-    theirs = {k: v for k, v in other.state_dict().items() if k.startswith(("itnet.", "tnet."))}
+    mine, theirs = transformer_state(net.state_dict()), transformer_state(other.state_dict())
     return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
 
 
@@ -294,7 +289,6 @@ def card_from_run(
         classes=result["classes"],
         points=points or trained_points(run),
         transformer=result["variant"],
-        head=config.get("head", "pointnet"),
         threshold=threshold,
         upright=upright,
         accuracy=round(test["accuracy"], 4),

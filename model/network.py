@@ -156,6 +156,11 @@ class ITNet(nn.Module):
         return poses
 
 
+def _bn_scale(norm: nn.BatchNorm1d) -> Tensor:
+    """(C,): what BatchNorm in eval mode multiplies each channel by."""
+    return norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps)
+
+
 def _folded(linear: nn.Linear, norm: nn.BatchNorm1d | None) -> tuple[Tensor, Tensor]:
     """Weight (C_out, C_in) and bias (C_out,) of ``linear`` followed by ``norm`` in eval mode."""
     weight = linear.weight.detach().float()
@@ -166,7 +171,7 @@ def _folded(linear: nn.Linear, norm: nn.BatchNorm1d | None) -> tuple[Tensor, Ten
     )
     if norm is None:
         return weight, bias
-    scale = norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps)
+    scale = _bn_scale(norm)
     return weight * scale[:, None], (bias - norm.running_mean) * scale + norm.bias.detach()
 
 

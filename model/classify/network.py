@@ -34,6 +34,7 @@ from itnet.model.network import ITNet, NetworkConfig, _mlp, apply_pose
 
 TRANSFORMERS = ("none", "tnet", "itnet")
 HEADS = ("pointnet", "local")  # the classifier after the transformer (``local.py``)
+TRANSFORMER_PREFIXES = ("itnet.", "tnet.")  # the transformer's entries in a state dict
 REGULARIZER_WEIGHT = 0.001  # PointNet's and the paper's weight of the orthogonality term
 
 
@@ -70,6 +71,11 @@ class ClassifierConfig:
             raise ValueError("up_weight supervises IT-Net's rotation: transformer must be itnet")
         if self.canonical_points is not None and self.canonical_points < 1:
             raise ValueError("canonical_points must be at least 1")
+
+
+def transformer_state(state: dict[str, Tensor]) -> dict[str, Tensor]:
+    """A classifier's state dict -> its transformer's entries (weights, BatchNorm statistics)."""
+    return {k: v for k, v in state.items() if k.startswith(TRANSFORMER_PREFIXES)}
 
 
 class PointNetHead(nn.Module):

@@ -30,7 +30,13 @@ from itnet.model.classify.data import (
     shuffled_views,
     training_batch,
 )
-from itnet.model.classify.network import VARIANTS, Classifier, ClassifierConfig
+from itnet.model.classify.network import (
+    TRANSFORMER_PREFIXES,
+    VARIANTS,
+    Classifier,
+    ClassifierConfig,
+    transformer_state,
+)
 from itnet.model.optim import (
     CompiledForward,
     average_of,
@@ -380,9 +386,6 @@ def _train_loop(config: ClassifyConfig, classes: list[str], splits: dict[str, La
     return result
 
 
-TRANSFORMER_PREFIXES = ("itnet.", "tnet.")
-
-
 def _frozen(config: ClassifyConfig, name: str) -> bool:
     return config.freeze_transformer and name.startswith(TRANSFORMER_PREFIXES)
 
@@ -391,12 +394,10 @@ def load_transformer(net: Classifier, checkpoint: Path) -> None:
     """Copy the transformer's weights (and BatchNorm statistics) of a classifier checkpoint of any
     head into ``net``; the shapes must match."""
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)["model"]
-    wanted = {k: v for k, v in state.items() if k.startswith(TRANSFORMER_PREFIXES)}
+    wanted = transformer_state(state)
     if not wanted:
         raise ValueError(f"{checkpoint} holds no transformer weights")
-    missing = [
-        k for k in net.state_dict() if k.startswith(TRANSFORMER_PREFIXES) and k not in wanted
-    ]
+    missing = [k for k in transformer_state(net.state_dict()) if k not in wanted]
     if missing:
         raise ValueError(f"{checkpoint} lacks the transformer's {missing[:3]}")
     net.load_state_dict(wanted, strict=False)
