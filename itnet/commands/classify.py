@@ -332,7 +332,9 @@ def classify_train(
         help="The classifier after the transformer: pointnet (the paper's) or local (each layer "
         "mixes in every point's nearest neighbours; docs/classification.md).",
     ),
-    neighbours: int = typer.Option(16, min=1, help="Neighbours of each point (--head local)."),
+    neighbours: int | None = typer.Option(
+        None, min=1, help="Neighbours of each point (--head local; default 16)."
+    ),
     transformer_from: Path | None = typer.Option(
         None,
         help="Start the transformer (only) from this classifier checkpoint's, e.g. a new head "

@@ -109,9 +109,9 @@ class ClassifyConfig(BaseModel):
     # whose choice is still open; ``itnet classify-export`` measures the exported graph on it
     hold_test: bool = False
     # the classifier after the transformer: "pointnet" or "local" (``local.LocalHead``, with
-    # ``neighbours`` nearest points; ``local_channels`` None: ClassifierConfig's widths)
+    # ``neighbours`` nearest points; either None: ClassifierConfig's default)
     head: str = "pointnet"
-    neighbours: int = 16
+    neighbours: int | None = None
     local_channels: tuple[int, ...] | None = None
     # start the transformer (only) from this checkpoint's, e.g. a new head behind the shipped
     # canonicaliser; frozen: the transformer is not trained (eval mode, no gradient)
@@ -135,8 +135,11 @@ def network_config(config: ClassifyConfig, classes: int) -> ClassifierConfig:
             "up_weight": config.up_weight,
             "canonical_points": config.canonical_points,
             "head": config.head,
-            "neighbours": config.neighbours,
-            **({} if config.local_channels is None else {"local_channels": config.local_channels}),
+            **{
+                key: value
+                for key in ("neighbours", "local_channels")
+                if (value := getattr(config, key)) is not None
+            },
         }
     )
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 CLASSES = ["chair", "table", "sofa"]
 TINY = {"point_channels": (8, 16, 32), "head_channels": (16, 8)}
 
@@ -45,3 +47,26 @@ def export_fixed(
                           size_prior=size_prior, upright=upright)  # fmt: skip
     name = "classifier_upright.onnx" if upright else "classifier.onnx"
     return export_classifier(fixed_answer_classifier(logits), card, folder / name)
+
+
+# synthetic classes in the ModelNet layout: a flat plate, a long rod, a ball
+SHAPES = {
+    "plate": lambda r, n: r.uniform(-1, 1, (n, 3)) * [1.0, 0.05, 0.7],
+    "rod": lambda r, n: r.uniform(-1, 1, (n, 3)) * [0.08, 1.0, 0.08],
+    "ball": lambda r, n: (lambda v: v / np.linalg.norm(v, axis=1, keepdims=True))(
+        r.normal(size=(n, 3))
+    ),
+}
+
+
+def tiny_run(data: Path, out: Path, **overrides: object):  # type: ignore[no-untyped-def]
+    """A tiny itnet-1 run on ``data`` into ``out``/run (cache in ``out``/cache)."""
+    from itnet.model.classify.train import ClassifyConfig
+
+    base = {
+        "data": data, "variant": "itnet-1", "out": out / "run", "cache": out / "cache",
+        "steps": 60, "batch": 16, "points": 64, "lr": 3e-3, "decay_every": 1000,
+        "eval_every": 30, "log_every": 10, "val_views": 2, "test_views": 2,
+        "widths": ((16, 32, 64), (32, 16)), "bf16": False,
+    }  # fmt: skip
+    return ClassifyConfig.model_validate({**base, **overrides})

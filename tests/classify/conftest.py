@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from cls_helpers import export_fixed
+from cls_helpers import SHAPES, export_fixed
 
 
 @pytest.fixture(scope="session")
@@ -58,3 +58,19 @@ def box_cloud() -> np.ndarray:
     return (rng.uniform(-1, 1, size=(300, 3)) * [0.3, 0.5, 0.2] + [1.0, -2.0, 3.0]).astype(
         np.float32
     )
+
+
+@pytest.fixture(scope="module")
+def three_classes(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three synthetic classes (plate, rod, ball), 8 train and 2 test shapes each."""
+    rng = np.random.default_rng(0)
+    root = tmp_path_factory.mktemp("classes")
+    for name, make in SHAPES.items():
+        for split, count in (("train", 8), ("test", 2)):
+            (root / name / split).mkdir(parents=True)
+            for i in range(count):
+                np.save(
+                    root / name / split / f"{name}_{i}.npy",
+                    make(rng, 400) * rng.uniform(0.8, 1.2, 3),
+                )
+    return root

@@ -10,42 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from cls_helpers import SHAPES, tiny_run
 
-from itnet.model.classify.train import ClassifyConfig, train
-
-SHAPES = {
-    "plate": lambda r, n: r.uniform(-1, 1, (n, 3)) * [1.0, 0.05, 0.7],
-    "rod": lambda r, n: r.uniform(-1, 1, (n, 3)) * [0.08, 1.0, 0.08],
-    "ball": lambda r, n: (lambda v: v / np.linalg.norm(v, axis=1, keepdims=True))(
-        r.normal(size=(n, 3))
-    ),
-}
-
-
-def tiny_run(data: Path, out: Path, **overrides: object) -> ClassifyConfig:
-    """A tiny itnet-1 run on ``data`` into ``out``/run (cache in ``out``/cache)."""
-    base = {
-        "data": data, "variant": "itnet-1", "out": out / "run", "cache": out / "cache",
-        "steps": 60, "batch": 16, "points": 64, "lr": 3e-3, "decay_every": 1000,
-        "eval_every": 30, "log_every": 10, "val_views": 2, "test_views": 2,
-        "widths": ((16, 32, 64), (32, 16)), "bf16": False,
-    }  # fmt: skip
-    return ClassifyConfig.model_validate({**base, **overrides})
-
-
-@pytest.fixture(scope="module")
-def three_classes(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    rng = np.random.default_rng(0)
-    root = tmp_path_factory.mktemp("classes")
-    for name, make in SHAPES.items():
-        for split, count in (("train", 8), ("test", 2)):
-            (root / name / split).mkdir(parents=True)
-            for i in range(count):
-                np.save(
-                    root / name / split / f"{name}_{i}.npy",
-                    make(rng, 400) * rng.uniform(0.8, 1.2, 3),
-                )
-    return root
+from itnet.model.classify.train import train
 
 
 def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_classify_training import three_classes, tiny_run  # noqa: F401  (fixture)
+from cls_helpers import tiny_run
 
 from itnet.model.classify.local import LocalHead, nearest_neighbours, neighbour_max
 from itnet.model.classify.train import load_classifier, train
@@ -64,7 +64,7 @@ def test_local_head_sees_where_a_point_sits_among_its_neighbours() -> None:
 
 
 def test_a_local_head_trains_behind_a_frozen_transformer(
-    three_classes: Path,  # noqa: F811
+    three_classes: Path,
     tmp_path: Path,
 ) -> None:
     """``transformer_from`` copies a run's canonicaliser, ``freeze_transformer`` keeps it (weights
@@ -114,7 +114,7 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
     assert run.exit_code == 2 and "share the transformer" in run.output
 
 
-def test_transformer_weights_must_fit(three_classes: Path, tmp_path: Path) -> None:  # noqa: F811
+def test_transformer_weights_must_fit(three_classes: Path, tmp_path: Path) -> None:
     source = tiny_run(three_classes, tmp_path / "source", steps=5, eval_every=5, hold_test=True)
     train(source)
     wider = tiny_run(
