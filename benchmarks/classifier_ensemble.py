@@ -13,7 +13,9 @@ before anything is exported (export scores the test split).
 points, as the shipped graph is served (``itnet classify-export --canonical-points``), whatever
 its checkpoint was trained with. ``--views V``: V views a shape (an even number: half occluded,
 half the paper's) instead of the trainer's (2 for validation, 4 for test), fixed and cached
-alike: more views, a smaller standard error.
+alike: more views, a smaller standard error. ``--baseline CKPT...``: the gains are paired
+against these checkpoints fused (e.g. the shipped fusion, against one whose member trained
+longer) instead of against the first checkpoint alone.
 """
 
 from __future__ import annotations
@@ -61,6 +63,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--canonical-points", type=int, default=None)
     parser.add_argument("--views", type=int, default=None, help="views a shape")
+    parser.add_argument("--baseline", type=Path, nargs="+", default=None)
     args = parser.parse_args()
     if len(args.checkpoints) < 2:
         parser.error("give at least two checkpoints")
@@ -71,15 +74,24 @@ def main() -> None:
         config = config.model_copy(update={f"{args.split}_views": args.views})
     _, splits = run_splits(config)
     views, labels = run_views(config, splits, args.split)
-    members = []
-    for path in args.checkpoints:
+
+    def scores(path: Path) -> NDArray:
         net = load_classifier(path)[0]
         if args.canonical_points is not None:
             net.config = replace(net.config, canonical_points=args.canonical_points)
-        members.append(predict(net, views))
+        return predict(net, views)
+
+    members = [scores(path) for path in args.checkpoints]
     first_class = members[0].argmax(1)
     first = first_class == labels
+    if args.baseline is not None:
+        known = dict(zip(args.checkpoints, members))
+        baseline = mean_log_probability(
+            [known[p] if p in known else scores(p) for p in args.baseline]
+        )
+        first = baseline.argmax(1) == labels
     result = {
+        "baseline": [str(p) for p in args.baseline or args.checkpoints[:1]],
         "split": args.split,
         "canonical_points": args.canonical_points,
         "views": len(labels),

@@ -61,3 +61,17 @@ def test_two_tiny_classifiers_are_scored_alone_and_fused(tmp_path: Path, monkeyp
     main()
     served = json.loads(report.read_text())
     assert served["views"] == 2 * result["views"] and served["canonical_points"] == 8
+    # gains against a fused baseline: the same fusion gains nothing, and the first member alone
+    # as the baseline is the default
+    argv[1:3] = checkpoints
+    argv += ["--baseline", *checkpoints]
+    main()
+    against_fusion = json.loads(report.read_text())
+    assert against_fusion["baseline"] == checkpoints
+    assert against_fusion["fused"]["gain"] == 0.0 and against_fusion["fused"]["gain_stderr"] == 0.0
+    argv[-2:] = [checkpoints[0]]
+    main()
+    against_first = json.loads(report.read_text())
+    del argv[-2:]
+    main()
+    assert against_first == json.loads(report.read_text())
