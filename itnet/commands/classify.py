@@ -142,7 +142,12 @@ def classify_export(
         0.95, help="Unsure threshold: the lowest at which this share of validation views is right."
     ),
     report: Path | None = typer.Option(
-        None, help="Also write the card and the threshold's effect on the test views (JSON)."
+        None,
+        help="Also write the card, the graph's test metrics (per class, confusion matrix) and "
+        "the threshold's effect on the test views (JSON).",
+    ),
+    confusion: Path | None = typer.Option(
+        None, help="Also plot the graph's test confusion matrix here (PNG; docs/confusion.png)."
     ),
     weights_out: Path | None = typer.Option(
         None,
@@ -181,7 +186,7 @@ def classify_export(
     )
     from itnet.export.onnx_export import save_with_card
     from itnet.export.quantize import quantize_point_layers
-    from itnet.model.classify.train import load_classifier
+    from itnet.model.classify.train import load_classifier, metrics
     from itnet.model_card import ClassifierCard
     from itnet.service.runtime import LoadedClassifier, load_any
 
@@ -265,10 +270,24 @@ def classify_export(
 
             ship_checkpoint(run / "best.pt", weights_out)
             typer.echo(f"wrote {weights_out} ({weights_out.stat().st_size / 1e6:.1f} MB)")
+        graph_test = {
+            "classes": card.classes,
+            "test": metrics(scores.test_probs, scores.test_labels, card.classes),
+        }
         if report is not None:
             split = unsure_split(scores, card.threshold)
-            report.write_text(json.dumps({"card": card.model_dump(), "unsure": split}, indent=1))
+            report.write_text(
+                json.dumps(
+                    {"card": card.model_dump(), "unsure": split, "test": graph_test["test"]},
+                    indent=1,
+                )
+            )
             typer.echo(f"test views at the threshold: {json.dumps(split)}; wrote {report}")
+        if confusion is not None:
+            from itnet.model.classify.report import plot_confusion
+
+            name = f"{out.name} ({card.transformer}, {card.head})"
+            typer.echo(f"wrote {plot_confusion(graph_test, confusion, name)}")
 
 
 def classify_train(

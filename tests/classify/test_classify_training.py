@@ -68,7 +68,7 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     out, report = tmp_path / "c.onnx", tmp_path / "export.json"
     weights = tmp_path / "shipped" / "c.pt"
     args = ["classify-export", str(config.out), "--out", str(out), "--report", str(report)]
-    args += ["--weights-out", str(weights)]
+    args += ["--weights-out", str(weights), "--confusion", str(tmp_path / "confusion.png")]
     run = CliRunner().invoke(app, [*args, *(["--int8"] if int8 else [])])
     assert run.exit_code == 0, run.output
     # the shipped weights: the best checkpoint's network without its optimiser, fine-tunable
@@ -92,6 +92,12 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     assert written["card"]["precision"] == graph.card.precision
     assert written["unsure"]["test_views"] == 12
     assert written["unsure"]["accuracy"] == pytest.approx(measured, abs=1e-4)
+    # the graph's own per-class accuracy and confusion matrix (rows: the true class), plotted
+    confusion = np.array(written["test"]["confusion"])
+    assert confusion.sum() == 12 and confusion.trace() == round(12 * measured)
+    assert confusion.sum(1).tolist() == [4, 4, 4]
+    assert written["test"]["per_class"]["rod"] == pytest.approx(confusion[2, 2] / 4)
+    assert (tmp_path / "confusion.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
