@@ -86,10 +86,6 @@ def classify_experiment(
         Path("docs"), help="Write classification.md/.json and confusion.png here (none: skip)."
     ),
     report_only: bool = typer.Option(False, help="Only rewrite the report from finished rows."),
-    shipped: Path | None = typer.Option(
-        Path("runs/cls-ship2/itnet-2"),
-        help="Run of the shipped classifier: its confusion matrix is plotted (if it exists).",
-    ),
 ) -> None:
     """Train every row of the table (resumable: finished rows are skipped), then write the
     report. Rows: none, T-Net (1, 2 iterations), T-Net + regulariser (1, 2), IT-Net (1, 2)."""
@@ -114,7 +110,7 @@ def classify_experiment(
     if docs is not None:
         from itnet.model.classify.report import write_report
 
-        for path in write_report(out, docs, shipped):
+        for path in write_report(out, docs):
             typer.echo(f"wrote {path}")
 
 

@@ -38,21 +38,24 @@ def test_report_writes_the_table_and_keeps_the_rest_of_the_page(tmp_path: Path) 
     assert "| none |" in page and "| IT-Net, 2 iterations |" in page and "69.94" in page
     summary = json.loads((docs / "classification.json").read_text())
     assert summary["best_by_validation"] == "itnet-2"
-    assert (docs / "confusion.png").stat().st_size > 10_000
+    assert (docs / "confusion_table.png").stat().st_size > 10_000
+    assert not (docs / "confusion.png").exists()  # the shipped graph's: classify-export's
     write_report(out, docs)  # a rerun replaces the table instead of adding a second one
     assert (docs / "classification.md").read_text().count("<!-- table") == 1
 
 
-def test_a_new_shipped_run_updates_the_report_without_the_rows_runs(tmp_path: Path) -> None:
+def test_a_rerun_without_the_rows_runs_keeps_the_recorded_table(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     out, docs = tmp_path / "runs", tmp_path / "docs"
     _row(out, "none", 0.5, rng)
     _row(out, "itnet-2", 0.7, rng)
     write_report(out, docs)
     table = (docs / "classification.md").read_text()
-    _row(tmp_path / "ship", "itnet-2", 0.95, rng)  # a longer run of a row, trained later
-    write_report(tmp_path / "gone", docs, shipped=tmp_path / "ship" / "itnet-2")
+    (docs / "confusion.png").write_bytes(b"the shipped graph's plot")
+    write_report(tmp_path / "gone", docs)
     assert (docs / "classification.md").read_text() == table  # the recorded rows stay
     summary = json.loads((docs / "classification.json").read_text())
-    assert set(summary["rows"]) == {"none", "itnet-2"}
-    assert summary["shipped"]["test"]["accuracy"] > summary["rows"]["itnet-2"]["test"]["accuracy"]
+    assert (
+        set(summary["rows"]) == {"none", "itnet-2"} and summary["best_by_validation"] == "itnet-2"
+    )
+    assert (docs / "confusion.png").read_bytes() == b"the shipped graph's plot"
