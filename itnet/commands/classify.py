@@ -83,7 +83,8 @@ def classify_experiment(
     seed: int = typer.Option(0),
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes and fixed views."),
     docs: Path | None = typer.Option(
-        Path("docs"), help="Write classification.md/.json and confusion.png here (none: skip)."
+        Path("docs"),
+        help="Write classification.md/.json and confusion_table.png here (none: skip).",
     ),
     report_only: bool = typer.Option(False, help="Only rewrite the report from finished rows."),
 ) -> None:
