@@ -24,7 +24,8 @@ shape's box, ~1 mm on a chair, under the training scans' depth noise; sessions 1
          Path(".pack/modelnet10-train-511.xz"), levels=511, splits=("train",))
 
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
-(``CLASSIFIER_JOB``: the shipped classifier fine-tuned, class-balanced, batch 100), a ninth
+(``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100; or
+``classifier_local``, the fused graph's local head, behind the frozen canonicaliser), a ninth
 process sharing the GPU.  ``--jobs shared shared4`` (``EXPERIMENTS``)
 trains one pose network on all ten classes, and one on the four unshipped ones, from scratch;
 ``--jobs desk_ft ...`` fine-tunes the latter per category. The third lease (session 22, one
@@ -104,19 +105,39 @@ JOBS: dict[str, dict] = {
     },
 }
 COMMON = {"loss": "distance", "batch": 100, "ema": 0.999, "compile": False, "threads": 1}
-# The category classifier (``model/classify/train.py``: every class folder of --data, so the
-# pack must hold all ten): the shipped classifier fine-tuned class-balanced at the paper's batch.
+# The category classifiers (``model/classify/train.py``: every class folder of --data, so the
+# pack must hold all ten), run only when --jobs names them. "classifier": the shipped classifier
+# fine-tuned class-balanced at the paper's batch. "classifier_local": a local head (session 28,
+# docs/classification.md) trained from scratch behind the shipped classifier's canonicaliser,
+# frozen, as the shipped ``classifier_local.pt`` was on 2 cores (16,000 steps of batch 32): what
+# ``itnet classify-export RUN --fuse-with itnet/models/classifier.pt`` fuses. Both start from
+# ``itnet/models/classifier.pt``, which the 64 MiB procedure above untracks: carry it.
 CLASSIFIER = "classifier"
-CLASSIFIER_JOB = {
+_CLASSIFIER_COMMON = {
     "variant": "itnet-2",
-    "init_from": "itnet/models/classifier.pt",
     "balanced": True,
-    "lr": 3e-4,
-    "bn_momentum": (0.1, 0.01),
     "batch": 100,
     "compile": False,
     "threads": 1,
     "log_every": 10,  # the calibration's rate needs a few timed entries
+}
+CLASSIFIER_JOBS: dict[str, dict] = {
+    CLASSIFIER: {
+        **_CLASSIFIER_COMMON,
+        "init_from": "itnet/models/classifier.pt",
+        "lr": 3e-4,
+        "bn_momentum": (0.1, 0.01),
+    },
+    "classifier_local": {
+        **_CLASSIFIER_COMMON,
+        "head": "local",
+        "transformer_from": "itnet/models/classifier.pt",
+        "freeze_transformer": True,
+        "canonical_points": 96,
+        "lr": 1e-3,
+        "bn_momentum": (0.5, 0.01),
+        "ema": 0.999,
+    },
 }
 # Experiments, run only when --jobs names them. "shared": one network for all ten classes (every
 # class folder of the pack, ~3,900 shapes), from scratch at the rate the five from-scratch
@@ -160,7 +181,7 @@ EXPERIMENTS: dict[str, dict] = {
         "head_channels": (1024, 512),
     },
 }
-JOB_NAMES = [*JOBS, *EXPERIMENTS, CLASSIFIER]
+JOB_NAMES = [*JOBS, *EXPERIMENTS, *CLASSIFIER_JOBS]
 
 
 def package_links(root: Path) -> Path:
@@ -189,21 +210,22 @@ def package_links(root: Path) -> Path:
 
 def _start_fields(name: str, fields: dict, args: argparse.Namespace) -> dict:
     """A job's config fields with the command line's start: ``--init-dir``'s NAME.pt if there
-    (a second lease goes on from the first's), ``--lr``; ``init_from`` made absolute."""
+    (a second lease goes on from the first's), ``--lr``; checkpoint paths made absolute."""
     if args.init_dir is not None and (args.init_dir / f"{name}.pt").exists():
         fields["init_from"] = (args.init_dir / f"{name}.pt").resolve()
     if args.lr is not None:
         fields["lr"] = args.lr
-    if "init_from" in fields:
-        fields["init_from"] = REPO / fields["init_from"]
+    for key in ("init_from", "transformer_from"):
+        if key in fields:
+            fields[key] = REPO / fields[key]
     return fields
 
 
 def job_config(
     name: str, args: argparse.Namespace, steps: int, decay_every: int
 ) -> TrainConfig | ClassifyConfig:
-    if name == CLASSIFIER:
-        return classifier_config(args, steps, decay_every)
+    if name in CLASSIFIER_JOBS:
+        return classifier_config(name, args, steps, decay_every)
     from itnet.model.train import TrainConfig
 
     fields = _start_fields(name, {**COMMON, **{**JOBS, **EXPERIMENTS}[name]}, args)
@@ -226,17 +248,21 @@ def job_config(
     )
 
 
-def classifier_config(args: argparse.Namespace, steps: int, decay_every: int) -> ClassifyConfig:
+def classifier_config(
+    name: str, args: argparse.Namespace, steps: int, decay_every: int
+) -> ClassifyConfig:
     from itnet.model.classify.train import ClassifyConfig
 
-    fields = _start_fields(CLASSIFIER, dict(CLASSIFIER_JOB), args)
+    fields = _start_fields(name, dict(CLASSIFIER_JOBS[name]), args)
     if args.tiny:  # the CPU check: a small network and batch, few shapes and views
         fields.update(batch=8, widths=((16, 32, 64), (32, 16)), init_from=None, points=64)
-        fields.update(max_shapes_per_class=6, val_views=1, bf16=False)
+        fields.update(max_shapes_per_class=6, val_views=1, bf16=False, canonical_points=None)
+        if fields.pop("transformer_from", None) is not None:  # the shipped one is full size
+            fields.update(local_channels=(8, 8, 16), neighbours=4, freeze_transformer=False)
     return ClassifyConfig(
         data=args.data,
         cache=args.work / "cache",
-        out=args.work / "runs" / CLASSIFIER,
+        out=args.work / "runs" / name,
         steps=steps,
         decay_every=decay_every,
         eval_every=min(EVAL_EVERY, steps),
@@ -251,7 +277,7 @@ def run_job(args: argparse.Namespace) -> None:
     config = job_config(args.name, args, args.steps, args.decay_every)
     if args.wait_for:
         _barrier(config, args.name, args.wait_for.split(","), args.work / "ready")
-    if args.name == CLASSIFIER:
+    if args.name in CLASSIFIER_JOBS:
         from itnet.model.classify.train import train as train_classifier
 
         result = train_classifier(config)
@@ -269,7 +295,7 @@ def _barrier(config: TrainConfig | ClassifyConfig, name: str, names: list[str],
     calibration then times the jobs stepping together. Eight processes sharing one GPU
     time-slice it (10 steps/s each on an H200, where one alone made 35), so a job timed while
     the others still load runs 2-3x faster than it will."""
-    if name == CLASSIFIER:
+    if name in CLASSIFIER_JOBS:
         from itnet.model.classify.train import run_splits, run_views
 
         run_views(config, run_splits(config)[1], "val")
@@ -442,7 +468,8 @@ def run(args: argparse.Namespace) -> int:
     for n in plans:
         entries = _log(args, n)
         vals = [e for e in entries if e.get("event") == "val"]
-        score = "val_mean_class" if n == CLASSIFIER else "val_accuracy"  # what best.pt is chosen on
+        classifier = n in CLASSIFIER_JOBS
+        score = "val_mean_class" if classifier else "val_accuracy"  # what best.pt is chosen on
         best = max(vals, key=lambda e: e[score], default={})
         summary["jobs"][n].update(
             exit=_exit_code(procs[n]) if n in procs else 0,
@@ -450,7 +477,7 @@ def run(args: argparse.Namespace) -> int:
             best_step=best.get("step"),
             best_val_accuracy=best.get("val_accuracy"),
             val_curve=[(e["step"], e["val_accuracy"]) for e in vals],
-            **({"best_val_mean_class": best.get("val_mean_class")} if n == CLASSIFIER else {}),
+            **({"best_val_mean_class": best.get("val_mean_class")} if classifier else {}),
         )
         if n in procs and _exit_code(procs[n]) not in (0, 143):
             print(f"--- {n} exit {procs[n].returncode}:\n{_tail(args, n)}", flush=True)

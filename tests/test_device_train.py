@@ -154,3 +154,46 @@ def test_a_job_killed_by_the_deadline_counts_as_stopped_and_a_crash_does_not() -
     crashed = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
     crashed.wait(10)
     assert driver._exit_code(crashed) == 3
+
+
+def _script_module():  # type: ignore[no-untyped-def]
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("device_train", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_path: Path) -> None:
+    """classifier_local: as served, the local head behind the shipped classifier's canonicaliser
+    (an absolute path in the repository), frozen, 96 canonical points; the --tiny check trains
+    a small one (the shipped canonicaliser is full size) and its checkpoint is a local head."""
+    import argparse
+
+    from modelnet_tree import write_modelnet_tree
+
+    from itnet.model.classify.train import load_classifier
+
+    device_train = _script_module()
+    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
+                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    config = device_train.classifier_config("classifier_local", args, 1000, 150)
+    assert config.head == "local" and config.freeze_transformer and config.canonical_points == 96
+    assert config.transformer_from == SCRIPT.parents[1] / "itnet/models/classifier.pt"
+    assert config.transformer_from.exists() and config.init_from is None and config.batch == 100
+    assert config.out == tmp_path / "work" / "runs" / "classifier_local"
+    assert "classifier_local" in device_train.JOB_NAMES
+
+    rng = np.random.default_rng(3)
+    write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=0)
+    command = [sys.executable, str(SCRIPT), "job", "--name", "classifier_local", "--tiny"]
+    command += ["--device", "cpu", "--steps", "20", "--decay-every", "10", "--data-workers", "0"]
+    command += ["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    net, state = load_classifier(tmp_path / "work" / "runs" / "classifier_local" / "best.pt")
+    assert net.config.head == "local" and net.config.local_channels == (8, 8, 16)
+    assert state["classes"] == ["ball", "bathtub"]
