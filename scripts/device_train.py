@@ -23,6 +23,12 @@ shape's box, ~1 mm on a chair, under the training scans' depth noise; sessions 1
     pack(Path("../shared/data/modelnet10"), [...all ten names...],
          Path(".pack/modelnet10-train-511.xz"), levels=511, splits=("train",))
 
+The paper's classification table at the paper's batch: ``--jobs table_none table_tnet-1
+table_tnet-2 table_tnet-reg-1 table_tnet-reg-2 table_itnet-1 table_itnet-2`` (seven processes,
+the same steps each); back here, with the returned runs unpacked into DIR, ``python3
+scripts/device_train.py table --runs DIR`` measures each row on the test split (the machine has
+none) and writes the report (runs/cls-gpu/docs; compare it before it replaces docs/).
+
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
 (``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100; or
 ``classifier_local``, the fused graph's local head, behind the frozen canonicaliser), a ninth
@@ -139,6 +145,25 @@ CLASSIFIER_JOBS: dict[str, dict] = {
         "ema": 0.999,
     },
 }
+# The paper's classification table (docs/classification.md) at the paper's batch of 100: one job
+# a row, "table_none" ... "table_itnet-2", the table's settings (shapes drawn uniformly, lr 1e-3,
+# BatchNorm momentum 0.5 halving, all 256 points for the transformer), and the same steps for
+# every row (``equal_table_steps``: the slowest row's plan). Back here, ``python3
+# scripts/device_train.py table --runs DIR`` measures the returned rows on the test split and
+# writes the report.
+TABLE_VARIANTS = ("none", "tnet-1", "tnet-2", "tnet-reg-1", "tnet-reg-2", "itnet-1", "itnet-2")
+CLASSIFIER_JOBS.update(
+    {
+        f"table_{variant}": {
+            **_CLASSIFIER_COMMON,
+            "variant": variant,
+            "balanced": False,
+            "lr": 1e-3,
+            "bn_momentum": (0.5, 0.01),
+        }
+        for variant in TABLE_VARIANTS
+    }
+)
 # Experiments, run only when --jobs names them. "shared": one network for all ten classes (every
 # class folder of the pack, ~3,900 shapes), from scratch at the rate the five from-scratch
 # categories learned at in session 15: the comparison docs/categories.md leaves for a lease (per
@@ -458,6 +483,9 @@ def run(args: argparse.Namespace) -> int:
         steps = first + max(0, more)
         plans[n] = {"rate_steps_per_s": round(rate, 2), "steps": steps}
         summary["jobs"][n] = {**plans[n], "calibration_s": round(calibrated - started, 1)}
+    equal_table_steps(plans)
+    for n, plan in plans.items():
+        summary["jobs"][n]["steps"] = plan["steps"]
     print(json.dumps({"calibrated_after_s": round(calibrated - started, 1), **plans}), flush=True)
     procs = {
         n: _start(n, args, p["steps"], max(1, round(p["steps"] / LR_DECAYS)))
@@ -486,6 +514,31 @@ def run(args: argparse.Namespace) -> int:
     _pack_results(args, list(plans), summary)
     print(json.dumps(summary["jobs"], indent=1), flush=True)
     return 0
+
+
+def equal_table_steps(plans: dict[str, dict]) -> None:
+    """The table's rows get the same budget: each ``table_*`` plan's steps become the fewest any
+    of them was planned (the slowest row's; the others then finish early). In place."""
+    rows = [n for n in plans if n.startswith("table_")]
+    if rows:
+        fewest = min(plans[n]["steps"] for n in rows)
+        for n in rows:
+            plans[n]["steps"] = fewest
+
+
+def table_report(runs: Path, out: Path, data: Path, cache: Path, docs: Path) -> list[Path]:
+    """The table's rows as a lease returned them (``runs``/table_VARIANT/best.pt) -> run folders
+    ``out``/VARIANT with validation and test measured here (``run_of_checkpoint``), then the
+    table's report into ``docs``. Returns the report's paths."""
+    from itnet.model.classify.report import write_report
+    from itnet.model.classify.train import run_of_checkpoint
+
+    found = [v for v in TABLE_VARIANTS if (runs / f"table_{v}" / "best.pt").exists()]
+    if not found:
+        raise FileNotFoundError(f"{runs}: no table_*/best.pt")
+    for variant in found:
+        run_of_checkpoint(runs / f"table_{variant}" / "best.pt", out / variant, data, cache)
+    return write_report(out, docs)
 
 
 def _pack_results(args: argparse.Namespace, names: list[str], summary: dict) -> None:
@@ -542,7 +595,17 @@ def main() -> int:
     job_p.add_argument("--steps", type=int, required=True)
     job_p.add_argument("--decay-every", type=int, required=True)
     job_p.add_argument("--wait-for", default="", help="comma list: start stepping with these")
+    table_p = sub.add_parser("table", help="here, after a lease: the table's rows measured")
+    table_p.add_argument("--runs", type=Path, required=True, help="the lease's runs (table_*)")
+    table_p.add_argument("--out", type=Path, default=Path("runs/cls-gpu"))
+    table_p.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    table_p.add_argument("--cache", type=Path, default=Path("cache"))
+    table_p.add_argument("--docs", type=Path, default=Path("runs/cls-gpu/docs"))
     args = parser.parse_args()
+    if args.command == "table":  # here, with the project installed
+        for path in table_report(args.runs, args.out, args.data, args.cache, args.docs):
+            print(f"wrote {path}", flush=True)
+        return 0
     sys.path.insert(0, str(package_links(Path("/tmp/itnet-pkg"))))
     os.environ["PYTHONPATH"] = os.pathsep.join(
         [str(Path("/tmp/itnet-pkg")), *filter(None, [os.environ.get("PYTHONPATH")])]

@@ -197,3 +197,42 @@ def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_p
     net, state = load_classifier(tmp_path / "work" / "runs" / "classifier_local" / "best.pt")
     assert net.config.head == "local" and net.config.local_channels == (8, 8, 16)
     assert state["classes"] == ["ball", "bathtub"]
+
+
+def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path) -> None:
+    """table_VARIANT: the paper's table, a job a row (shapes drawn uniformly, from scratch), the
+    same steps each (the slowest row's plan); ``table`` here measures a returned row on the test
+    split, which the machine never had, and writes the table's report."""
+    from modelnet_tree import write_modelnet_tree
+
+    device_train = _script_module()
+    plans = {"table_none": {"steps": 900}, "table_itnet-2": {"steps": 500}, "chair": {"steps": 700}}
+    device_train.equal_table_steps(plans)
+    assert [p["steps"] for p in plans.values()] == [500, 500, 700]
+    assert {f"table_{v}" for v in device_train.TABLE_VARIANTS} <= set(device_train.JOB_NAMES)
+    row = device_train.CLASSIFIER_JOBS["table_tnet-reg-2"]
+    assert row["variant"] == "tnet-reg-2" and not row["balanced"] and "init_from" not in row
+
+    rng = np.random.default_rng(4)
+    write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=2)
+    work = tmp_path / "work"
+    command = [sys.executable, str(SCRIPT), "job", "--name", "table_none", "--tiny"]
+    command += ["--device", "cpu", "--steps", "20", "--decay-every", "10", "--data-workers", "0"]
+    command += ["--data", str(tmp_path / "data"), "--work", str(work)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    # as returned from a lease: another machine's paths in the checkpoint's config
+    (work / "runs" / "table_none" / "result.json").unlink()
+    moved = tmp_path / "returned"
+    (work / "runs").rename(moved)
+    (tmp_path / "data").rename(tmp_path / "data_here")  # the config's data is gone
+    command = [sys.executable, str(SCRIPT), "table", "--runs", str(moved)]
+    command += ["--out", str(tmp_path / "rows"), "--data", str(tmp_path / "data_here")]
+    command += ["--cache", str(tmp_path / "cache"), "--docs", str(tmp_path / "docs")]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads((tmp_path / "rows" / "none" / "result.json").read_text())
+    assert result["variant"] == "none" and result["test"]["scans"] == 2 * 2 * 4
+    assert "| none |" in (tmp_path / "docs" / "classification.md").read_text()
+    assert (tmp_path / "docs" / "confusion_table.png").exists()

@@ -452,15 +452,20 @@ def evaluate_run(config: ClassifyConfig, classes: list[str], splits: dict, val_x
     return result
 
 
-def run_of_checkpoint(checkpoint: Path, folder: Path) -> Path:
+def run_of_checkpoint(
+    checkpoint: Path, folder: Path, data: Path | None = None, cache: Path | None = None
+) -> Path:
     """A shipped classifier checkpoint (``classify-export --weights-out``, which keeps the run's
     config) -> ``folder`` made a run folder of it, as its training left one: best.pt,
     config.json and result.json (torch's validation and test metrics, remeasured). What
-    ``classify-export`` reads when the run itself is gone. Returns ``folder``."""
+    ``classify-export`` reads when the run itself is gone. ``data`` / ``cache``: where the
+    dataset and the cache are here, for a checkpoint trained elsewhere (a GPU machine's paths).
+    Returns ``folder``."""
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     if "config" not in state or "classes" not in state:
         raise ValueError(f"{checkpoint}: not a classifier checkpoint (no config or classes)")
-    config = ClassifyConfig.model_validate({**state["config"], "out": folder})
+    here = {"device": "cpu", **{k: v for k, v in (("data", data), ("cache", cache)) if v}}
+    config = ClassifyConfig.model_validate({**state["config"], "out": folder, **here})
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(checkpoint, folder / "best.pt")
     (folder / "config.json").write_text(config.model_dump_json(indent=2))
