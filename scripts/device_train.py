@@ -151,6 +151,9 @@ CLASSIFIER_JOBS: dict[str, dict] = {
 # every row (``equal_table_steps``: the slowest row's plan). Back here, ``python3
 # scripts/device_train.py table --runs DIR`` measures the returned rows on the test split and
 # writes the report.
+# The rows are model/classify/network.py's VARIANTS, written out: the job names are needed
+# (argparse's choices) before the package is importable here (``package_links``); a test checks
+# that the two agree.
 TABLE_VARIANTS = ("none", "tnet-1", "tnet-2", "tnet-reg-1", "tnet-reg-2", "itnet-1", "itnet-2")
 CLASSIFIER_JOBS.update(
     {
@@ -482,10 +485,9 @@ def run(args: argparse.Namespace) -> int:
         more -= int(rate * (more // EVAL_EVERY) * args.validation_s)
         steps = first + max(0, more)
         plans[n] = {"rate_steps_per_s": round(rate, 2), "steps": steps}
-        summary["jobs"][n] = {**plans[n], "calibration_s": round(calibrated - started, 1)}
     equal_table_steps(plans)
     for n, plan in plans.items():
-        summary["jobs"][n]["steps"] = plan["steps"]
+        summary["jobs"][n] = {**plan, "calibration_s": round(calibrated - started, 1)}
     print(json.dumps({"calibrated_after_s": round(calibrated - started, 1), **plans}), flush=True)
     procs = {
         n: _start(n, args, p["steps"], max(1, round(p["steps"] / LR_DECAYS)))

@@ -209,6 +209,9 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     plans = {"table_none": {"steps": 900}, "table_itnet-2": {"steps": 500}, "chair": {"steps": 700}}
     device_train.equal_table_steps(plans)
     assert [p["steps"] for p in plans.values()] == [500, 500, 700]
+    from itnet.model.classify.network import VARIANTS
+
+    assert tuple(VARIANTS) == device_train.TABLE_VARIANTS  # written out there: the same rows
     assert {f"table_{v}" for v in device_train.TABLE_VARIANTS} <= set(device_train.JOB_NAMES)
     row = device_train.CLASSIFIER_JOBS["table_tnet-reg-2"]
     assert row["variant"] == "tnet-reg-2" and not row["balanced"] and "init_from" not in row

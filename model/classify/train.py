@@ -464,7 +464,8 @@ def run_of_checkpoint(
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     if "config" not in state or "classes" not in state:
         raise ValueError(f"{checkpoint}: not a classifier checkpoint (no config or classes)")
-    here = {"device": "cpu", **{k: v for k, v in (("data", data), ("cache", cache)) if v}}
+    where = {k: v for k, v in (("data", data), ("cache", cache)) if v is not None}
+    here = {"device": "cpu", **where}
     config = ClassifyConfig.model_validate({**state["config"], "out": folder, **here})
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(checkpoint, folder / "best.pt")
