@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +31,20 @@ from itnet.preprocess import estimate_normalization, pose_to_normalized, resampl
 from itnet.upright import UP, levelled, rotation_onto, sensed_ups
 
 
+def save_npz(path: Path, **arrays: object) -> None:
+    """np.savez_compressed, written whole under a temporary name and then renamed: processes that
+    fill one cache at once (a GPU lease's classifier jobs) never read another's half-written
+    file (session 30's lease lost two calls to that)."""
+    partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
+    try:
+        with open(partial, "wb") as out:
+            np.savez_compressed(out, **arrays)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    os.replace(partial, path)
+
+
 @dataclass
 class ScanSet:
     """Fixed scans: clouds[i] (K_i, 3) in input units, poses (S, 4, 4) T_canonical_from_input,
@@ -42,7 +57,7 @@ class ScanSet:
 
     def save(self, path: Path) -> None:
         sizes = np.array([len(c) for c in self.clouds])
-        np.savez_compressed(
+        save_npz(
             path,
             points=np.concatenate(self.clouds),
             sizes=sizes,
@@ -123,7 +138,7 @@ def load_shapes(
         return shapes, report
     cache.mkdir(parents=True, exist_ok=True)
     tris = [s.triangles if s.triangles is not None else np.zeros((0, 3), np.int64) for s in shapes]
-    np.savez_compressed(
+    save_npz(
         path,
         names=np.array([s.name for s in shapes]),
         points=np.concatenate([s.points for s in shapes]),

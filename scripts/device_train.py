@@ -323,16 +323,18 @@ def _barrier(config: TrainConfig | ClassifyConfig, name: str, names: list[str],
     calibration then times the jobs stepping together. Eight processes sharing one GPU
     time-slice it (10 steps/s each on an H200, where one alone made 35), so a job timed while
     the others still load runs 2-3x faster than it will."""
-    if name in CLASSIFIER_JOBS:
-        from itnet.model.classify.train import run_splits, run_views
+    try:
+        if name in CLASSIFIER_JOBS:
+            from itnet.model.classify.train import run_splits, run_views
 
-        run_views(config, run_splits(config)[1], "val")
-    else:
-        from itnet.model.train import training_data
+            run_views(config, run_splits(config)[1], "val")
+        else:
+            from itnet.model.train import training_data
 
-        training_data(config)
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / name).touch()
+            training_data(config)
+    finally:  # a job that failed to load says so too: the others must not wait out the deadline
+        folder.mkdir(parents=True, exist_ok=True)  # for it (session 30's first two calls did)
+        (folder / name).touch()
     deadline = time.time() + 300
     while time.time() < deadline and not all((folder / n).exists() for n in names):
         time.sleep(0.2)
@@ -540,26 +542,64 @@ def table_report(runs: Path, out: Path, data: Path, cache: Path, docs: Path) -> 
         raise FileNotFoundError(f"{runs}: no table_*/best.pt")
     for variant in found:
         run_of_checkpoint(runs / f"table_{variant}" / "best.pt", out / variant, data, cache)
-    return write_report(out, docs)
+    return write_report(out, docs, trained=lease_description(runs / "summary.json", found))
+
+
+def lease_description(summary: Path, variants: list[str]) -> str:
+    """The lease's summary.json -> where and how its table rows were trained, for the report."""
+    if not summary.exists():
+        return "a leased GPU (its summary.json was not kept), batch 100, one process a row"
+    lease = json.loads(summary.read_text())
+    jobs = [lease["jobs"][f"table_{v}"] for v in variants if f"table_{v}" in lease["jobs"]]
+    steps = "/".join(str(s) for s in sorted({j["steps_done"] for j in jobs})) or "?"
+    return (
+        f"one leased {lease.get('gpu', lease['device'])} shared by {len(lease['jobs'])} "
+        f"processes (torch {lease.get('torch', '?')}), batch 100, {steps} steps a row "
+        f"(`scripts/device_train.py run --jobs table_...`); test measured here"
+    )
+
+
+TAR_LIMIT = 15 * 2**20  # the device tool returns files of at most 16 MiB, 8 files in all
+
+
+def tar_groups(sizes: dict[str, int], limit: int = TAR_LIMIT) -> list[list[str]]:
+    """Jobs (name -> bytes of its files) -> groups in order, each under ``limit`` bytes where a
+    job alone is (one over it goes alone). Session 30's four classifier rows a tar (6.4 MB
+    each) made tar files of 23 MB that did not come back."""
+    groups: list[list[str]] = []
+    total = limit + 1
+    for name, size in sizes.items():
+        if not groups or total + size > limit:
+            groups.append([])
+            total = 0
+        groups[-1].append(name)
+        total += size
+    return groups
 
 
 def _pack_results(args: argparse.Namespace, names: list[str], summary: dict) -> None:
-    """Shipped checkpoints, logs and configs -> tar files of at most ~4 jobs (under 16 MiB)."""
+    """Shipped checkpoints, logs and configs -> tar files under 15 MiB each (``tar_groups``)."""
     from itnet.model.train import ship_checkpoint
 
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
-    for start in range(0, len(names), 4):
-        with tarfile.open(args.out / f"runs-{start // 4 + 1}.tar", "w") as tar:
-            for n in names[start : start + 4]:
-                run_dir = args.work / "runs" / n
-                if (run_dir / "best.pt").exists():
-                    shipped = ship_checkpoint(run_dir / "best.pt", args.work / "ship" / f"{n}.pt")
-                    tar.add(shipped, arcname=f"{n}/best.pt")
-                for extra in ("log.jsonl", "config.json"):
-                    if (run_dir / extra).exists():
-                        tar.add(run_dir / extra, arcname=f"{n}/{extra}")
-                if (args.work / f"{n}.out").exists():
-                    tar.add(args.work / f"{n}.out", arcname=f"{n}/output.txt")
+    files: dict[str, list[tuple[Path, str]]] = {}
+    for n in names:
+        run_dir = args.work / "runs" / n
+        files[n] = []
+        if (run_dir / "best.pt").exists():
+            shipped = ship_checkpoint(run_dir / "best.pt", args.work / "ship" / f"{n}.pt")
+            files[n].append((shipped, f"{n}/best.pt"))
+        for extra in ("log.jsonl", "config.json"):
+            if (run_dir / extra).exists():
+                files[n].append((run_dir / extra, f"{n}/{extra}"))
+        if (args.work / f"{n}.out").exists():
+            files[n].append((args.work / f"{n}.out", f"{n}/output.txt"))
+    sizes = {n: sum(path.stat().st_size for path, _ in f) for n, f in files.items()}
+    for i, group in enumerate(tar_groups(sizes), start=1):
+        with tarfile.open(args.out / f"runs-{i}.tar", "w") as tar:
+            for n in group:
+                for path, arcname in files[n]:
+                    tar.add(path, arcname=arcname)
 
 
 def main() -> int:

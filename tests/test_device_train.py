@@ -140,13 +140,9 @@ def test_a_job_killed_by_the_deadline_counts_as_stopped_and_a_crash_does_not() -
     """_exit_code: a job that dies of the driver's SIGTERM (-15, e.g. while its interpreter
     shuts down and its handler is gone) reads 143, as a job whose handler exits 143 does; any
     other failure keeps its own status, so the summary still shows a crash as one."""
-    import importlib.util
     import signal
 
-    spec = importlib.util.spec_from_file_location("device_train", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    driver = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(driver)
+    driver = _script_module()
     killed = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     killed.send_signal(signal.SIGTERM)
     killed.wait(10)
@@ -230,6 +226,9 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     moved = tmp_path / "returned"
     (work / "runs").rename(moved)
     (tmp_path / "data").rename(tmp_path / "data_here")  # the config's data is gone
+    lease = {"device": "cuda", "gpu": "NVIDIA H200", "torch": "2.11.0", "jobs": {
+        "table_none": {"steps_done": 20}, "classifier_local": {"steps_done": 5}}}  # fmt: skip
+    (moved / "summary.json").write_text(json.dumps(lease))
     command = [sys.executable, str(SCRIPT), "table", "--runs", str(moved)]
     command += ["--out", str(tmp_path / "rows"), "--data", str(tmp_path / "data_here")]
     command += ["--cache", str(tmp_path / "cache"), "--docs", str(tmp_path / "docs")]
@@ -237,5 +236,40 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     assert done.returncode == 0, done.stdout + done.stderr
     result = json.loads((tmp_path / "rows" / "none" / "result.json").read_text())
     assert result["variant"] == "none" and result["test"]["scans"] == 2 * 2 * 4
-    assert "| none |" in (tmp_path / "docs" / "classification.md").read_text()
+    page = (tmp_path / "docs" / "classification.md").read_text()
+    assert "| none |" in page and "one leased NVIDIA H200 shared by 2 processes" in page
+    assert "batch 100, 20 steps a row" in page  # the rows' steps, not the other job's
     assert (tmp_path / "docs" / "confusion_table.png").exists()
+
+
+def test_results_come_back_in_tar_files_the_device_returns() -> None:
+    """tar_groups: every job once, in order, in tar files under 15 MiB (the device tool returns
+    files of 16 MiB at most, 8 in all); session 30's seven table rows of 6.4 MB went four a tar
+    (23 MB) and did not come back."""
+    device_train = _script_module()
+    mb = 2**20
+    rows = {f"table_{v}": int(6.4 * mb) for v in device_train.TABLE_VARIANTS}
+    groups = device_train.tar_groups(rows)
+    assert [n for group in groups for n in group] == list(rows)
+    assert all(sum(rows[n] for n in group) <= device_train.TAR_LIMIT for group in groups)
+    assert len(groups) + 1 <= 8  # with summary.json
+    assert device_train.tar_groups({"big": 20 * mb, "a": mb, "b": mb}) == [["big"], ["a", "b"]]
+
+
+def test_a_job_that_fails_to_load_does_not_hold_the_others(tmp_path: Path) -> None:
+    """_barrier: a job whose data fails to load marks itself as ready before it fails, so that
+    the jobs waiting for every name start stepping instead of waiting out the calibration's
+    deadline (session 30's first two calls lost every job that way)."""
+    import argparse
+    import time
+
+    device_train = _script_module()
+    args = argparse.Namespace(init_dir=None, lr=None, tiny=True, data=tmp_path / "missing",
+                              work=tmp_path / "work", device="cpu", data_workers=0)  # fmt: skip
+    config = device_train.classifier_config("table_none", args, 10, 5)
+    ready = tmp_path / "ready"
+    started = time.monotonic()
+    with pytest.raises(FileNotFoundError):
+        device_train._barrier(config, "table_none", ["table_none", "table_itnet-2"], ready)
+    assert (ready / "table_none").exists()
+    assert time.monotonic() - started < 60  # it failed at once, not after the barrier's wait

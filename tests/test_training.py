@@ -1,6 +1,7 @@
 """Tiny end-to-end training runs on synthetic shapes (seconds, not minutes)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -553,3 +554,28 @@ def test_average_checkpoints_is_the_mean_of_one_networks_weights(tmp_path):
     for args, message in [([paths[0]], "at least two"), (paths, "different networks")]:
         refused = runner.invoke(app, ["average", *map(str, args), "--out", str(tmp_path / "x.pt")])
         assert refused.exit_code != 0 and message in refused.output, refused.output
+
+
+def test_a_cache_file_appears_whole_or_not_at_all(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """save_npz (the shape and scan caches): the file is written under another name and renamed,
+    so a process reading the cache while another writes it (a lease's classifier jobs, session
+    30) never opens half a file; a write that fails leaves nothing under the cache's name."""
+    from itnet.model import data as data_module
+
+    path = tmp_path / "scans-abc.npz"
+    data_module.save_npz(path, points=np.arange(6.0).reshape(2, 3))
+    assert np.array_equal(np.load(path)["points"], np.arange(6.0).reshape(2, 3))
+    assert [p.name for p in tmp_path.iterdir()] == ["scans-abc.npz"]  # no partial file left
+
+    def half_written(out, **arrays):  # type: ignore[no-untyped-def]
+        out.write(b"PK\x03\x04 half a zip")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(data_module.np, "savez_compressed", half_written)
+    other = tmp_path / "shapes-def.npz"
+    with pytest.raises(OSError, match="disk full"):
+        data_module.save_npz(other, points=np.zeros(3))
+    assert not other.exists()  # a reader finds no cache and builds its own
+    assert [p.name for p in tmp_path.iterdir()] == ["scans-abc.npz"]  # the partial is removed

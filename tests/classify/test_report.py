@@ -36,6 +36,7 @@ def test_report_writes_the_table_and_keeps_the_rest_of_the_page(tmp_path: Path) 
     page = (docs / "classification.md").read_text()
     assert page.startswith("intro") and page.rstrip().endswith("outro")
     assert "| none |" in page and "| IT-Net, 2 iterations |" in page and "69.94" in page
+    assert "Trained on: " in page and "`itnet classify-experiment`, 300 steps a row" in page
     summary = json.loads((docs / "classification.json").read_text())
     assert summary["best_by_validation"] == "itnet-2"
     assert (docs / "confusion_table.png").stat().st_size > 10_000
@@ -49,11 +50,12 @@ def test_a_rerun_without_the_rows_runs_keeps_the_recorded_table(tmp_path: Path) 
     out, docs = tmp_path / "runs", tmp_path / "docs"
     _row(out, "none", 0.5, rng)
     _row(out, "itnet-2", 0.7, rng)
-    write_report(out, docs)
+    write_report(out, docs, trained="a leased GPU, batch 100")
     table = (docs / "classification.md").read_text()
+    assert "Trained on: a leased GPU, batch 100." in table
     (docs / "confusion.png").write_bytes(b"the shipped graph's plot")
     write_report(tmp_path / "gone", docs)
-    assert (docs / "classification.md").read_text() == table  # the recorded rows stay
+    assert (docs / "classification.md").read_text() == table  # the recorded rows stay, and where
     summary = json.loads((docs / "classification.json").read_text())
     assert (
         set(summary["rows"]) == {"none", "itnet-2"} and summary["best_by_validation"] == "itnet-2"
