@@ -27,7 +27,14 @@ The paper's classification table at the paper's batch: ``--jobs table_none table
 table_tnet-2 table_tnet-reg-1 table_tnet-reg-2 table_itnet-1 table_itnet-2`` (seven processes,
 the same steps each); back here, with the returned runs unpacked into DIR, ``python3
 scripts/device_train.py table --runs DIR`` measures each row on the test split (the machine has
-none) and writes the report (runs/cls-gpu/docs; compare it before it replaces docs/).
+none) and writes the report (runs/cls-gpu/docs by default; ``--docs docs`` replaces the
+README's table source). Session 30 (one H200): with ``--budget 230 --calibration-steps 150``
+the seven rows loaded and calibrated in 42 s, then ran at 19-23 steps/s each, 2,976 steps a
+row, in 203 s. Its first two calls lost every job: the rows, all loading the same ten classes
+at once, read each other's half-written cache files, and the rows that had loaded waited for
+the crashed ones until the calibration's deadline (both fixed: ``model.data.save_npz``, the
+barrier). Only the shipped ``.pt`` files (``/tmp/itnet-work/ship``) came back that time: the
+tar files were over the device's 16 MiB (now ``tar_groups``).
 
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
 (``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100; or
