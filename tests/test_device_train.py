@@ -180,7 +180,11 @@ def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_p
     assert config.transformer_from == SCRIPT.parents[1] / "itnet/models/classifier.pt"
     assert config.transformer_from.exists() and config.init_from is None and config.batch == 100
     assert config.out == tmp_path / "work" / "runs" / "classifier_local"
-    assert "classifier_local" in device_train.JOB_NAMES
+    assert {"classifier_local", "classifier_scratch"} <= set(device_train.JOB_NAMES)
+    scratch = device_train.classifier_config("classifier_scratch", args, 1000, 150)
+    assert scratch.init_from is None and scratch.transformer_from is None  # from scratch
+    assert scratch.balanced and scratch.batch == 100 and scratch.canonical_points == 96
+    assert scratch.head == "pointnet" and scratch.variant == "itnet-2" and scratch.ema == 0.999
 
     rng = np.random.default_rng(3)
     write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=0)
