@@ -231,8 +231,8 @@ def test_every_admitted_estimate_gets_a_worker_thread_at_once(
 ) -> None:
     """60 admitted requests whose runs take at least 200 ms each (ten 20 ms steps). Had they
     queued behind anyio's 40 default worker threads, the last 20 would have started their first
-    step only when the first runs ended, more than 200 ms after arriving. Each one's first step
-    must end well before that."""
+    step only when the first runs ended. Their first steps must end before any run does (all
+    but a few that the GIL starves)."""
     model = slow_copy(tiny, delay_s=0.02, concurrent_steps=64)
     model.warm_up(runs=2)
     limits = settings.limits.model_copy(
@@ -253,8 +253,13 @@ def test_every_admitted_estimate_gets_a_worker_thread_at_once(
     assert [r.status_code for r in replies] == [200] * 60
     assert {r.json()["stopped_by"] for r in replies} == {"max_iterations"}
     first_steps = [r.json()["estimates"][0]["elapsed_ms"] for r in replies]
-    # Measured on 2 cores: 85-185 ms without a queue (60 threads contend for the GIL), and
-    # 370-440 ms for the last 20 with anyio's 40 threads. The spread, not the level: a stall of
-    # the whole process (a garbage collection of the test process) delays every request alike.
-    spread = max(first_steps) - min(first_steps)
-    assert spread < 250, sorted(first_steps)[:3] + sorted(first_steps)[-3:]
+    whole_runs = [r.json()["estimates"][-1]["elapsed_ms"] for r in replies]
+    # Both from each request's arrival. Measured on 2 cores without a queue (session 30): first
+    # steps 166-280 ms, whole runs 381-553 ms (60 threads contend for the GIL); once in ~30
+    # runs a starved thread's first step came after the earliest run's end. With the pool left
+    # at anyio's 40 threads, 11 did (432-445 ms against a first run ended at 426). Counted
+    # against the runs, not in milliseconds: a slow phase of the machine or a stall of the
+    # process delays every request alike (session 29's bound, a spread under 250 ms, failed in
+    # a fresh clone in session 30 at 215-558 ms).
+    late = [f for f in first_steps if f > min(whole_runs)]
+    assert len(late) <= 4, (sorted(late), min(whole_runs))
