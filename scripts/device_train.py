@@ -37,9 +37,9 @@ barrier). Only the shipped ``.pt`` files (``/tmp/itnet-work/ship``) came back th
 tar files were over the device's 16 MiB (now ``tar_groups``).
 
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
-(``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100; or
-``classifier_local``, the fused graph's local head, behind the frozen canonicaliser), a ninth
-process sharing the GPU.  ``--jobs shared shared4`` (``EXPERIMENTS``)
+(``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100;
+``classifier_scratch``, its recipe from scratch at batch 100; or ``classifier_local``, the fused
+graph's local head, behind the frozen canonicaliser), a ninth process sharing the GPU.  ``--jobs shared shared4`` (``EXPERIMENTS``)
 trains one pose network on all ten classes, and one on the four unshipped ones, from scratch;
 ``--jobs desk_ft ...`` fine-tunes the latter per category. The third lease (session 22, one
 H200) ran them: at equal steps a network per category learned faster, and the fine-tunes ended
