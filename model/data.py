@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.atomic_write import written_whole
 from itnet.model.scanner import ScanConfig, scan_of
 from itnet.model.shapes import (
     Shape,
@@ -32,17 +32,11 @@ from itnet.upright import UP, levelled, rotation_onto, sensed_ups
 
 
 def save_npz(path: Path, **arrays: object) -> None:
-    """np.savez_compressed, written whole under a temporary name and then renamed: processes that
-    fill one cache at once (a GPU lease's classifier jobs) never read another's half-written
-    file (session 30's lease lost two calls to that)."""
-    partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
-    try:
-        with open(partial, "wb") as out:
-            np.savez_compressed(out, **arrays)
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
-    os.replace(partial, path)
+    """np.savez_compressed, written whole (``written_whole``): processes that fill one cache at
+    once (a GPU lease's classifier jobs) never read another's half-written file (session 30's
+    lease lost two calls to that)."""
+    with written_whole(path) as partial, open(partial, "wb") as out:
+        np.savez_compressed(out, **arrays)
 
 
 @dataclass

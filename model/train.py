@@ -19,6 +19,7 @@ import torch
 from pydantic import BaseModel, Field
 from torch.optim.swa_utils import AveragedModel
 
+from itnet.atomic_write import written_whole
 from itnet.model.category_set import CategorySet, category_names, load_category_set
 from itnet.model.data import training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
@@ -105,20 +106,19 @@ def _save(
 ) -> None:
     """``net``'s weights as "model" (the network to ship or resume), and for resume the optimiser
     and, when given, the moving average."""
-    tmp = path.with_suffix(".tmp")
-    torch.save(
-        {
-            "model": net.state_dict(),
-            **({"ema": ema.state_dict()} if ema is not None else {}),
-            "optimizer": opt.state_dict(),
-            "step": step,
-            "config": config.model_dump(mode="json"),
-            "network": vars(net.config),
-            "metrics": metrics,
-        },
-        tmp,
-    )
-    tmp.replace(path)
+    with written_whole(path) as tmp:
+        torch.save(
+            {
+                "model": net.state_dict(),
+                **({"ema": ema.state_dict()} if ema is not None else {}),
+                "optimizer": opt.state_dict(),
+                "step": step,
+                "config": config.model_dump(mode="json"),
+                "network": vars(net.config),
+                "metrics": metrics,
+            },
+            tmp,
+        )
 
 
 def training_data(config: TrainConfig) -> CategorySet:

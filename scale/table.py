@@ -20,6 +20,8 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from itnet.atomic_write import written_whole
+
 FORMATS = {".parquet": "parquet", ".jsonl": "jsonl", ".ndjson": "jsonl"}
 
 
@@ -57,17 +59,15 @@ class BatchTable:
         """One finished batch of rows, on disk at once (written aside, then renamed)."""
         self.parts.mkdir(parents=True, exist_ok=True)
         path = self.parts / f"part-{uuid.uuid4().hex}{self.output.suffix}"
-        tmp = path.with_name("." + path.name + ".tmp")
-        _write(tmp, self.format, rows)
-        tmp.rename(path)
+        with written_whole(path) as tmp:
+            _write(tmp, self.format, rows)
         return path
 
     def finish(self) -> int:
         """Merge everything into ``output``, drop the parts; the number of rows."""
         rows = [row for source in self._sources() for row in _read(source, self.format)]
-        tmp = self.output.with_name("." + self.output.name + ".tmp")
-        _write(tmp, self.format, rows)
-        tmp.rename(self.output)
+        with written_whole(self.output) as tmp:
+            _write(tmp, self.format, rows)
         shutil.rmtree(self.parts, ignore_errors=True)
         return len(rows)
 

@@ -21,6 +21,7 @@ from pydantic import BaseModel
 from torch import nn
 from torch.optim.swa_utils import AveragedModel
 
+from itnet.atomic_write import written_whole
 from itnet.model.classify.data import (
     SCAN_MIX,
     LabelledShapes,
@@ -225,7 +226,6 @@ def _save(
 ) -> None:
     """``net``'s weights as "model" (to ship or resume), and for resume the optimiser and, when
     given, the moving average."""
-    tmp = path.with_suffix(".tmp")
     state = {
         "model": net.state_dict(),
         **({"ema": ema.state_dict()} if ema is not None else {}),
@@ -235,8 +235,8 @@ def _save(
         "network": vars(net.config),
         **extra,
     }
-    torch.save(state, tmp)
-    tmp.replace(path)
+    with written_whole(path) as tmp:
+        torch.save(state, tmp)
 
 
 def load_classifier(path: Path) -> tuple[Classifier, dict]:
