@@ -39,7 +39,12 @@ tar files were over the device's 16 MiB (now ``tar_groups``).
 The pose jobs (``JOBS``) run by default; ``--jobs chair ... classifier`` adds the classifier
 (``CLASSIFIER_JOBS``: the shipped classifier fine-tuned, class-balanced, batch 100;
 ``classifier_scratch``, its recipe from scratch at batch 100; or ``classifier_local``, the fused
-graph's local head, behind the frozen canonicaliser), a ninth process sharing the GPU.  ``--jobs shared shared4`` (``EXPERIMENTS``)
+graph's local head, behind the frozen canonicaliser), a ninth process sharing the GPU. Session
+31 (one H200) ran ``classifier_scratch classifier_local`` together, ``--data-workers 6``: 58.8
+and 66.7 steps/s, about 22,000 and 24,000 steps in a 500 s budget; then, on the still-warm
+machine, ``classifier_local`` alone behind the first call's scratch classifier (its ``best.pt``
+carried as ``itnet/models/classifier.pt``), ``--data-workers 12``: 87.5 steps/s. Those two are
+the shipped classifier since (docs/classification.md).  ``--jobs shared shared4`` (``EXPERIMENTS``)
 trains one pose network on all ten classes, and one on the four unshipped ones, from scratch;
 ``--jobs desk_ft ...`` fine-tunes the latter per category. The third lease (session 22, one
 H200) ran them: at equal steps a network per category learned faster, and the fine-tunes ended
@@ -128,8 +133,9 @@ COMMON = {"loss": "distance", "batch": 100, "ema": 0.999, "compile": False, "thr
 # "classifier_scratch": the shipped PointNet classifier's recipe (IT-Net, 2 iterations,
 # class-balanced, lr 1e-3, BatchNorm momentum 0.5 halving, the moving average of the weights;
 # the transformer on 96 points as served) from scratch at batch 100, for a lease's whole
-# budget: session 30's table rows made ~22 steps/s each with seven sharing an H200, so one
-# alone should see more views than the shipped classifier's 26,000 CPU steps of 32 (832,000).
+# budget: session 30's table rows made ~22 steps/s each with seven sharing an H200. Session 31
+# ran it beside classifier_local: 21,928 steps (2.19 M views, 2.6 times the CPU-trained
+# classifier's), validation 89.5% against its 85.5% (3,192 views); shipped, with a local head.
 CLASSIFIER = "classifier"
 _CLASSIFIER_COMMON = {
     "variant": "itnet-2",

@@ -240,6 +240,12 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     assert done.returncode == 0, done.stdout + done.stderr
     result = json.loads((tmp_path / "rows" / "none" / "result.json").read_text())
     assert result["variant"] == "none" and result["test"]["scans"] == 2 * 2 * 4
+    # the remade run's weights carry the config of here, so weights shipped from it export here
+    from itnet.model.classify.train import load_classifier
+
+    remade = load_classifier(tmp_path / "rows" / "none" / "best.pt")[1]["config"]
+    assert remade["data"] == str(tmp_path / "data_here") and remade["device"] == "cpu"
+    assert remade == json.loads((tmp_path / "rows" / "none" / "config.json").read_text())
     page = (tmp_path / "docs" / "classification.md").read_text()
     assert "| none |" in page and "one leased NVIDIA H200 shared by 2 processes" in page
     assert "batch 100, 20 steps a row" in page  # the rows' steps, not the other job's

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import time
 from pathlib import Path
 
@@ -468,7 +467,10 @@ def run_of_checkpoint(
     here = {"device": "cpu", **where}
     config = ClassifyConfig.model_validate({**state["config"], "out": folder, **here})
     folder.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(checkpoint, folder / "best.pt")
+    # the weights with the config of here: what is shipped from this folder (``classify-export
+    # --weights-out``) then exports and fine-tunes here, not on the machine that trained it
+    state["config"] = config.model_dump(mode="json")
+    torch.save(state, folder / "best.pt")
     (folder / "config.json").write_text(config.model_dump_json(indent=2))
     classes, splits = run_splits(config)
     val_x, val_y = run_views(config, splits, "val")
