@@ -199,6 +199,43 @@ def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_p
     assert state["classes"] == ["ball", "bathtub"]
 
 
+def test_the_heads_go_on_behind_the_shipped_canonicaliser_so_they_still_fuse(
+    tmp_path: Path,
+) -> None:
+    """classifier_head_ft / classifier_local_ft (the next lease's plan): each shipped head goes on
+    from its shipped weights with the canonicaliser frozen, which is what lets ``classify-export
+    --fuse-with`` fuse the two after; the --tiny check trains a small local head so."""
+    import argparse
+
+    from modelnet_tree import write_modelnet_tree
+
+    from itnet.model.classify.train import load_classifier
+
+    device_train = _script_module()
+    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
+                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    models = SCRIPT.parents[1] / "itnet" / "models"
+    head = device_train.classifier_config("classifier_head_ft", args, 1000, 150)
+    local = device_train.classifier_config("classifier_local_ft", args, 1000, 150)
+    assert head.init_from == models / "classifier.pt" and head.head == "pointnet"
+    assert local.init_from == models / "classifier_local.pt" and local.head == "local"
+    for config in (head, local):
+        assert config.freeze_transformer and config.canonical_points == 96 and config.balanced
+        assert config.init_from is not None and config.init_from.exists()
+        assert config.lr < 1e-3 and config.ema == 0.999 and config.batch == 100
+
+    rng = np.random.default_rng(5)
+    write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=0)
+    command = [sys.executable, str(SCRIPT), "job", "--name", "classifier_local_ft", "--tiny"]
+    command += ["--device", "cpu", "--steps", "10", "--decay-every", "5", "--data-workers", "0"]
+    command += ["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    net, _ = load_classifier(tmp_path / "work" / "runs" / "classifier_local_ft" / "best.pt")
+    assert net.config.head == "local"
+
+
 def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path) -> None:
     """table_VARIANT: the paper's table, a job a row (shapes drawn uniformly, from scratch), the
     same steps each (the slowest row's plan); ``table`` here measures a returned row on the test
