@@ -162,6 +162,17 @@ def _script_module():  # type: ignore[no-untyped-def]
     return module
 
 
+def _tiny_job(name: str, data: Path, work: Path, steps: int) -> None:
+    """``device_train.py job --name NAME --tiny`` on the CPU for ``steps`` steps (the rate
+    decayed every half of them); fails the test with the job's output if the job fails."""
+    command = [sys.executable, str(SCRIPT), "job", "--name", name, "--tiny", "--device", "cpu"]
+    command += ["--steps", str(steps), "--decay-every", str(steps // 2), "--data-workers", "0"]
+    command += ["--data", str(data), "--work", str(work)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
 def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_path: Path) -> None:
     """classifier_local: as served, the local head behind the shipped classifier's canonicaliser
     (an absolute path in the repository), frozen, 96 canonical points; the --tiny check trains
@@ -188,12 +199,7 @@ def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_p
 
     rng = np.random.default_rng(3)
     write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=0)
-    command = [sys.executable, str(SCRIPT), "job", "--name", "classifier_local", "--tiny"]
-    command += ["--device", "cpu", "--steps", "20", "--decay-every", "10", "--data-workers", "0"]
-    command += ["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
+    _tiny_job("classifier_local", tmp_path / "data", tmp_path / "work", 20)
     net, state = load_classifier(tmp_path / "work" / "runs" / "classifier_local" / "best.pt")
     assert net.config.head == "local" and net.config.local_channels == (8, 8, 16)
     assert state["classes"] == ["ball", "bathtub"]
@@ -226,12 +232,7 @@ def test_the_heads_go_on_behind_the_shipped_canonicaliser_so_they_still_fuse(
 
     rng = np.random.default_rng(5)
     write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=0)
-    command = [sys.executable, str(SCRIPT), "job", "--name", "classifier_local_ft", "--tiny"]
-    command += ["--device", "cpu", "--steps", "10", "--decay-every", "5", "--data-workers", "0"]
-    command += ["--data", str(tmp_path / "data"), "--work", str(tmp_path / "work")]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
+    _tiny_job("classifier_local_ft", tmp_path / "data", tmp_path / "work", 10)
     net, _ = load_classifier(tmp_path / "work" / "runs" / "classifier_local_ft" / "best.pt")
     assert net.config.head == "local"
 
@@ -256,12 +257,7 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     rng = np.random.default_rng(4)
     write_modelnet_tree(tmp_path / "data", {"bathtub": _tub, "ball": _ball}, rng, train=8, test=2)
     work = tmp_path / "work"
-    command = [sys.executable, str(SCRIPT), "job", "--name", "table_none", "--tiny"]
-    command += ["--device", "cpu", "--steps", "20", "--decay-every", "10", "--data-workers", "0"]
-    command += ["--data", str(tmp_path / "data"), "--work", str(work)]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
+    _tiny_job("table_none", tmp_path / "data", work, 20)
     # as returned from a lease: another machine's paths in the checkpoint's config
     (work / "runs" / "table_none" / "result.json").unlink()
     moved = tmp_path / "returned"
@@ -273,7 +269,13 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     command = [sys.executable, str(SCRIPT), "table", "--runs", str(moved)]
     command += ["--out", str(tmp_path / "rows"), "--data", str(tmp_path / "data_here")]
     command += ["--cache", str(tmp_path / "cache"), "--docs", str(tmp_path / "docs")]
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        command,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     result = json.loads((tmp_path / "rows" / "none" / "result.json").read_text())
     assert result["variant"] == "none" and result["test"]["scans"] == 2 * 2 * 4
