@@ -237,6 +237,23 @@ def test_the_heads_go_on_behind_the_shipped_canonicaliser_so_they_still_fuse(
     assert net.config.head == "local"
 
 
+def test_the_chair_from_scratch_job_is_the_shipped_recipe_at_the_papers_batch(
+    tmp_path: Path,
+) -> None:
+    """chair_scratch (issue 11's next lease): the chair from scratch (no starting weights), the
+    shipped recipe's precision loss and moving average, the paper's rate and batch."""
+    import argparse
+
+    device_train = _script_module()
+    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
+                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    config = device_train.job_config("chair_scratch", args, 1000, 150)
+    assert config.category == "chair" and config.init_from is None and config.lr == 1e-3
+    assert config.loss == "distance" and config.ema == 0.999 and config.batch == 100
+    assert config.bn_momentum == (0.5, 0.01) and "chair_scratch" in device_train.JOB_NAMES
+    assert "chair_scratch" not in device_train.JOBS  # run only when --jobs names it
+
+
 def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path) -> None:
     """table_VARIANT: the paper's table, a job a row (shapes drawn uniformly, from scratch), the
     same steps each (the slowest row's plan); ``table`` here measures a returned row on the test
