@@ -3,6 +3,7 @@ budget, and the shipped checkpoint, log and config in the tar file."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -16,6 +17,25 @@ import pytest
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "device_train.py"
 BUDGET = 60
 CALIBRATION = 75
+
+
+def _run(
+    command: list[str], timeout: float, cwd: Path | None = None
+) -> subprocess.CompletedProcess:
+    """``command`` run as a job runs here: one OpenMP thread a process (2 cores), its output
+    captured."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.run(
+        command, env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def _job_args(tmp_path: Path, **overrides: object) -> argparse.Namespace:
+    """A job's command line as ``job_config`` / ``classifier_config`` read it: as on a lease
+    (cuda, 2 data workers, full size), with ``overrides``."""
+    fields = {"init_dir": None, "lr": None, "tiny": False, "data": tmp_path / "data",
+              "work": tmp_path / "work", "device": "cuda", "data_workers": 2}  # fmt: skip
+    return argparse.Namespace(**{**fields, **overrides})
 
 
 def _tub(rng: np.random.Generator, n: int = 400) -> np.ndarray:
@@ -47,10 +67,7 @@ def test_run_calibrates_plans_trains_and_packs(tmp_path: Path) -> None:
     # --margin: the default (30 s, for packing eight jobs) would leave a 40 s budget no time
     # after the calibration for the planned run
     command += ["--restart-s", "5", "--validation-s", "1", "--margin", "5"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(
-        command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=BUDGET + 60
-    )
+    done = _run(command, BUDGET + 60, cwd=tmp_path)
     output = (
         done.stdout
         + done.stderr
@@ -114,10 +131,7 @@ def test_the_classifier_job_trains_from_a_training_only_pack(tmp_path: Path) -> 
     command += ["--jobs", "classifier", "shared", "--calibration-steps", "40"]
     command += ["--data-workers", "0"]
     command += ["--restart-s", "5", "--validation-s", "1", "--margin", "5"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(
-        command, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=budget + 60
-    )
+    done = _run(command, budget + 60, cwd=tmp_path)
     log = work / "classifier.out"
     assert done.returncode == 0, (
         done.stdout + done.stderr + (log.read_text() if log.exists() else "")
@@ -168,8 +182,7 @@ def _tiny_job(name: str, data: Path, work: Path, steps: int) -> None:
     command = [sys.executable, str(SCRIPT), "job", "--name", name, "--tiny", "--device", "cpu"]
     command += ["--steps", str(steps), "--decay-every", str(steps // 2), "--data-workers", "0"]
     command += ["--data", str(data), "--work", str(work)]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    done = _run(command, 300)
     assert done.returncode == 0, done.stdout + done.stderr
 
 
@@ -177,15 +190,12 @@ def test_the_local_head_job_trains_behind_the_shipped_canonicaliser_frozen(tmp_p
     """classifier_local: as served, the local head behind the shipped classifier's canonicaliser
     (an absolute path in the repository), frozen, 96 canonical points; the --tiny check trains
     a small one (the shipped canonicaliser is full size) and its checkpoint is a local head."""
-    import argparse
-
     from modelnet_tree import write_modelnet_tree
 
     from itnet.model.classify.train import load_classifier
 
     device_train = _script_module()
-    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
-                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    args = _job_args(tmp_path)
     config = device_train.classifier_config("classifier_local", args, 1000, 150)
     assert config.head == "local" and config.freeze_transformer and config.canonical_points == 96
     assert config.transformer_from == SCRIPT.parents[1] / "itnet/models/classifier.pt"
@@ -211,15 +221,12 @@ def test_the_heads_go_on_behind_the_shipped_canonicaliser_so_they_still_fuse(
     """classifier_head_ft / classifier_local_ft (the next lease's plan): each shipped head goes on
     from its shipped weights with the canonicaliser frozen, which is what lets ``classify-export
     --fuse-with`` fuse the two after; the --tiny check trains a small local head so."""
-    import argparse
-
     from modelnet_tree import write_modelnet_tree
 
     from itnet.model.classify.train import load_classifier
 
     device_train = _script_module()
-    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
-                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    args = _job_args(tmp_path)
     models = SCRIPT.parents[1] / "itnet" / "models"
     head = device_train.classifier_config("classifier_head_ft", args, 1000, 150)
     local = device_train.classifier_config("classifier_local_ft", args, 1000, 150)
@@ -242,11 +249,8 @@ def test_the_chair_from_scratch_job_is_the_shipped_recipe_at_the_papers_batch(
 ) -> None:
     """chair_scratch (issue 11's next lease): the chair from scratch (no starting weights), the
     shipped recipe's precision loss and moving average, the paper's rate and batch."""
-    import argparse
-
     device_train = _script_module()
-    args = argparse.Namespace(init_dir=None, lr=None, tiny=False, data=tmp_path / "data",
-                              work=tmp_path / "work", device="cuda", data_workers=2)  # fmt: skip
+    args = _job_args(tmp_path)
     config = device_train.job_config("chair_scratch", args, 1000, 150)
     assert config.category == "chair" and config.init_from is None and config.lr == 1e-3
     assert config.loss == "distance" and config.ema == 0.999 and config.batch == 100
@@ -286,13 +290,7 @@ def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path)
     command = [sys.executable, str(SCRIPT), "table", "--runs", str(moved)]
     command += ["--out", str(tmp_path / "rows"), "--data", str(tmp_path / "data_here")]
     command += ["--cache", str(tmp_path / "cache"), "--docs", str(tmp_path / "docs")]
-    done = subprocess.run(
-        command,
-        env={**os.environ, "OMP_NUM_THREADS": "1"},
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    done = _run(command, 300)
     assert done.returncode == 0, done.stdout + done.stderr
     result = json.loads((tmp_path / "rows" / "none" / "result.json").read_text())
     assert result["variant"] == "none" and result["test"]["scans"] == 2 * 2 * 4
@@ -326,12 +324,10 @@ def test_a_job_that_fails_to_load_does_not_hold_the_others(tmp_path: Path) -> No
     """_barrier: a job whose data fails to load marks itself as ready before it fails, so that
     the jobs waiting for every name start stepping instead of waiting out the calibration's
     deadline (session 30's first two calls lost every job that way)."""
-    import argparse
     import time
 
     device_train = _script_module()
-    args = argparse.Namespace(init_dir=None, lr=None, tiny=True, data=tmp_path / "missing",
-                              work=tmp_path / "work", device="cpu", data_workers=0)  # fmt: skip
+    args = _job_args(tmp_path, tiny=True, data=tmp_path / "missing", device="cpu", data_workers=0)
     config = device_train.classifier_config("table_none", args, 10, 5)
     ready = tmp_path / "ready"
     started = time.monotonic()
