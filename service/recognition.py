@@ -27,6 +27,11 @@ One place for the logic; the HTTP route and the WebSocket (through ``ServiceStat
   canonicaliser starts from K poses, as the pose ensemble's runs do), the log-probabilities
   averaged: on validation views, 4 looks gained 2.2 points top-1 for ~4x the classification's
   time (docs/classification.md, ``benchmarks/classify_tta.py``).
+* A second opinion: when one look leaves the answer unsure (below the threshold), the cloud
+  gets ``SECOND_LOOKS`` - 1 more turned looks and the answer is theirs and the first's together
+  (the same as asking for that many looks), where the budget has room: they must be expected to
+  end within the budget's first half (``second_look_deadline``), so the pose run keeps the
+  rest. Sure answers (most) cost one look; the reply says ``second_opinion: true`` when it ran.
 """
 
 from __future__ import annotations
@@ -53,6 +58,13 @@ from itnet.upright import UP, levelled, upright_starts
 
 AUTO = "auto"
 MAX_LOOKS = 16  # as many as the pose ensemble's runs
+SECOND_LOOKS = 4  # the second opinion's looks, the first included (docs/classification.md)
+
+
+def second_look_deadline(started: float, budget_ms: float) -> float:
+    """When a request's second opinion must end (``time.perf_counter()`` seconds): within the
+    first half of its budget, so the pose run keeps at least the other half."""
+    return started + budget_ms / 2e3
 
 
 @dataclass(frozen=True)
@@ -73,6 +85,7 @@ class Recognition:
     size_used: bool = False  # whether that size entered the probabilities (the card's prior)
     looks: int = 1  # inputs per cloud whose log-probabilities were averaged (turned subsets)
     upright: bool = False  # the upright classifier also saw the clouds, levelled by their up
+    second_opinion: bool = False  # the first look was unsure: ``looks`` is the second opinion's
 
     @property
     def category(self) -> str:
@@ -101,6 +114,7 @@ class Recognition:
             "size_used": self.size_used,
             **({"classify_looks": self.looks} if self.looks > 1 else {}),
             **({"classified_upright": True} if self.upright else {}),
+            **({"second_opinion": True} if self.second_opinion else {}),
         }
 
 
@@ -146,13 +160,39 @@ def classify(
     units: str | None = None,
     looks: int = 1,
     up: ArrayLike | None = None,
+    second_looks: int = SECOND_LOOKS,
+    deadline: float | None = None,
 ) -> Recognition:
     """A cloud (N, 3), any unit -> its Recognition. ``units``: the cloud's unit, if known (its
     size then counts, see the module); ``looks``: inputs averaged; ``up``: which way is up in
-    the cloud, if known (see the module). Raises BadCloudError for a bad cloud, unit, look
-    count or up."""
+    the cloud, if known; ``second_looks``, ``deadline``: the second opinion (see the module).
+    Raises BadCloudError for a bad cloud, unit, look count or up."""
     ups = None if up is None else [up]
-    return classify_together(classifier, [points], top, limits, seed, units, looks, ups)
+    return classify_together(
+        classifier, [points], top, limits, seed, units, looks, ups, second_looks, deadline
+    )
+
+
+def _look_probabilities(
+    classifier: LoadedClassifier,
+    upright: LoadedClassifier | None,
+    cloud: NDArray,
+    norm: Normalization,
+    up: NDArray | None,
+    looks: int,
+    seed: int,
+    skip: int = 0,
+) -> NDArray:
+    """One cloud's ``looks`` turned looks (drawn from ``seed``), less the first ``skip`` of
+    them -> (L, C) class probabilities: the classifier's of each look, then, with ``upright``,
+    the upright classifier's of each levelled look."""
+    rng = np.random.default_rng(seed)
+    x = turned_looks(cloud, looks, classifier.card.points, rng, norm=norm)[skip:]
+    probs = classifier.probabilities(x)
+    if upright is not None:
+        stood = turned_looks(cloud, looks, upright.card.points, rng, up, norm)[skip:]
+        probs = np.concatenate([probs, upright.probabilities(stood)])
+    return probs
 
 
 def classify_together(
@@ -164,16 +204,21 @@ def classify_together(
     units: str | None = None,
     looks: int = 1,
     ups: list[ArrayLike | None] | None = None,
+    second_looks: int = SECOND_LOOKS,
+    deadline: float | None = None,
 ) -> Recognition:
     """Several clouds of one object (e.g. the two clouds of an alignment) -> one Recognition:
     the product of the per-cloud probabilities (each the mean over ``looks`` turned subsets in
     the log domain, with its size's likelihood when ``units`` is given and the card has a size
     prior), renormalised. ``ups``: each cloud's up direction, where known; when every cloud has
     one and an upright classifier is loaded, it also classifies them levelled (see the module).
-    Raises BadCloudError."""
+    ``second_looks`` K > 1: one look that leaves the answer unsure is followed by K - 1 more,
+    turned, when they are expected to end by ``deadline`` (``time.perf_counter()`` seconds;
+    None: no limit), and the answer is the K looks' (see the module). Raises BadCloudError."""
     start = time.perf_counter()
-    if not 1 <= looks <= MAX_LOOKS:
-        raise BadCloudError(f"looks must be in [1, {MAX_LOOKS}], got {looks}")
+    for name, count in (("looks", looks), ("second_looks", second_looks)):
+        if not 1 <= count <= MAX_LOOKS:
+            raise BadCloudError(f"{name} must be in [1, {MAX_LOOKS}], got {count}")
     levels: list[NDArray | None] = [None] * len(clouds)
     if ups is not None and len(ups) != len(clouds):
         raise BadCloudError(f"{len(ups)} up directions for {len(clouds)} clouds")
@@ -188,33 +233,44 @@ def classify_together(
     except ValueError as err:
         raise BadCloudError(str(err)) from None
     prior = classifier.card.size_prior if to_metres is not None else None
-    log_probs = np.zeros(len(classifier.card.classes))
-    sizes = []
-    for points, up in zip(clouds, levels, strict=True):
+    prepared = []
+    for points in clouds:
         cloud = validate_cloud(points, limits)
         try:
-            norm = estimate_normalization(cloud)
+            prepared.append((cloud, estimate_normalization(cloud)))
         except DegenerateCloudError as err:
             raise BadCloudError(str(err)) from None
-        rng = np.random.default_rng(seed)
-        x = turned_looks(cloud, looks, classifier.card.points, rng, norm=norm)
-        probs = classifier.probabilities(x)
-        if upright is not None:
-            stood = turned_looks(cloud, looks, upright.card.points, rng, up, norm)
-            probs = np.concatenate([probs, upright.probabilities(stood)])
-        own = mean_log_probability(probs)
-        if to_metres is not None:
-            sizes.append(norm.scale * to_metres)
-            own = own if prior is None else with_size(own, prior, sizes[-1])
-        log_probs += own
-    probs = np.exp(log_probs - log_probs.max())
-    probs /= probs.sum()
+    sizes = [norm.scale * to_metres for _, norm in prepared] if to_metres is not None else []
+
+    def fused(per_cloud: list[NDArray]) -> NDArray:
+        """Each cloud's looks' probabilities (L, C) -> the renormalised product over clouds."""
+        log_probs = np.zeros(len(classifier.card.classes))
+        for k, probs in enumerate(per_cloud):
+            own = mean_log_probability(probs)
+            log_probs += own if prior is None else with_size(own, prior, sizes[k])
+        probs = np.exp(log_probs - log_probs.max())
+        return probs / probs.sum()
+
+    per_cloud = [
+        _look_probabilities(classifier, upright, cloud, norm, up, looks, seed)
+        for (cloud, norm), up in zip(prepared, levels, strict=True)
+    ]
+    probs, second = fused(per_cloud), False
+    if looks == 1 and second_looks > 1 and probs.max() < card.threshold:
+        expected_s = (time.perf_counter() - start) * (second_looks - 1)  # as long a look each
+        if deadline is None or time.perf_counter() + expected_s <= deadline:
+            per_cloud = [
+                np.concatenate([probs, _look_probabilities(
+                    classifier, upright, cloud, norm, up, second_looks, seed, skip=1)])
+                for probs, (cloud, norm), up in zip(per_cloud, prepared, levels, strict=True)
+            ]  # fmt: skip
+            probs, looks, second = fused(per_cloud), second_looks, True
     order = np.argsort(-probs, kind="stable")[: max(1, top)]
     candidates = [Candidate(classifier.card.classes[i], float(probs[i])) for i in order]
     elapsed_ms = (time.perf_counter() - start) * 1e3
     size = float(np.mean(sizes)) if sizes else None
     return Recognition(candidates, card.threshold, elapsed_ms, size, prior is not None, looks,
-                       upright is not None)  # fmt: skip
+                       upright is not None, second)  # fmt: skip
 
 
 def pose_model_for(category: str, models: dict[str, LoadedModel]) -> LoadedModel | None:
@@ -233,9 +289,12 @@ def recognise(
     units: str | None = None,
     looks: int = 1,
     up: ArrayLike | None = None,
+    second_looks: int = SECOND_LOOKS,
+    deadline: float | None = None,
 ) -> tuple[Recognition, LoadedModel]:
     """Classify a cloud (``looks`` times, levelled by ``up`` where given and an upright
-    classifier is loaded; see the module) and pick its pose model. Raises
+    classifier is loaded, a second opinion of ``second_looks`` when unsure and it ends by
+    ``deadline``; see the module) and pick its pose model. Raises
     ServiceError: 422 ``no_classifier`` when none is loaded, 422 ``bad_cloud``, 422
     ``no_pose_model`` when the category has no model."""
     if classifier is None:
@@ -246,7 +305,10 @@ def recognise(
             f"({', '.join(sorted(models))})",
         )
     try:
-        recognition = classify(classifier, points, limits=limits, units=units, looks=looks, up=up)
+        recognition = classify(
+            classifier, points, limits=limits, units=units, looks=looks, up=up,
+            second_looks=second_looks, deadline=deadline,
+        )  # fmt: skip
     except BadCloudError as err:
         raise ServiceError(422, "bad_cloud", str(err)) from None
     model = pose_model_for(recognition.category, models)
@@ -285,16 +347,20 @@ def auto_run(
     max_iterations: int | None = None,
     started: float | None = None,
     units: str | None = None,
+    second_looks: int = SECOND_LOOKS,
     **kwargs: Any,
 ) -> RecognisedRun:
     """Classify, then set up the category model's run on one clock (``started``, default now):
     the classification's time counts against ``budget_ms``; an ``ensemble`` of K asked for
-    also classifies with K looks, and an ``up`` levels the cloud for the upright classifier. Raises ServiceError (see :func:`recognise`) or BadCloudError."""
+    also classifies with K looks, an ``up`` levels the cloud for the upright classifier, and
+    an unsure single look gets its second opinion (``second_looks``) in the budget's first
+    half. Raises ServiceError (see :func:`recognise`) or BadCloudError."""
     started = time.perf_counter() if started is None else started
     looks = kwargs.get("ensemble") or 1
     recognition, model = recognise(
-        classifier, models, points, units=units, looks=looks, up=kwargs.get("up")
-    )
+        classifier, models, points, units=units, looks=looks, up=kwargs.get("up"),
+        second_looks=second_looks, deadline=second_look_deadline(started, budget_ms),
+    )  # fmt: skip
     return RecognisedRun(
         recognition,
         model,

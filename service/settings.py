@@ -12,6 +12,7 @@ from pydantic import BaseModel, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from itnet.service.engine import Limits
+from itnet.service.recognition import MAX_LOOKS, SECOND_LOOKS
 from itnet.service.runtime import default_model_dir
 
 
@@ -154,6 +155,14 @@ class Settings(BaseSettings):
         default=True,
         description="after start-up, exclude the objects alive then from garbage collection "
         "(gc.freeze): full collections shrink from ~45 ms to ~1 ms (service/gc_tuning.py)",
+    )
+    classify_second_looks: int = Field(
+        default=SECOND_LOOKS,
+        ge=1,
+        le=MAX_LOOKS,
+        description="model auto: a single look below the classifier's threshold is followed by "
+        "this many looks in all, where they fit the budget's first half (1: never; "
+        "docs/classification.md)",
     )
     limits: LimitSettings = Field(default_factory=lambda: LimitSettings())
     server: ServerSettings = Field(default_factory=lambda: ServerSettings())

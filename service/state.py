@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ from itnet.service.errors import ServiceError
 from itnet.service.guards.byte_budget import ByteBudget
 from itnet.service.handback import HandbackTimer
 from itnet.service.metrics import Metrics
-from itnet.service.recognition import AUTO, RecognisedRun, recognise
+from itnet.service.recognition import AUTO, RecognisedRun, recognise, second_look_deadline
 from itnet.service.runtime import (
     LoadedClassifier,
     LoadedModel,
@@ -180,6 +181,10 @@ class ServiceState:
             recognition, model = recognise(
                 self.classifier, self.models, points, limits.engine_limits(), params.units,
                 looks=params.ensemble or 1, up=params.up,
+                second_looks=self.settings.classify_second_looks,
+                deadline=second_look_deadline(
+                    time.perf_counter() if arrived is None else arrived, params.budget_ms
+                ),
             )  # fmt: skip
         model.relax_step_ms()  # a step-time estimate inflated by a past burst must not stick
         iterations = params.max_iterations or min(

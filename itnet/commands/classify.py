@@ -30,6 +30,14 @@ def classify(
         "the upright classifier where one is installed.",
         callback=check_xyz,
     ),
+    second_looks: int | None = typer.Option(
+        None,
+        min=1,
+        max=16,
+        help="A single look whose answer is unsure is followed by more, this many looks in all "
+        "(1: never; default: the service's, 4): more accurate, that many times the time for "
+        "those clouds.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
@@ -43,8 +51,9 @@ def classify(
     for path in files:
         try:
             result = recognise(
-                classifier, read_cloud(path), top=top, units=units, looks=looks, up=up
-            )
+                classifier, read_cloud(path), top=top, units=units, looks=looks, up=up,
+                **({} if second_looks is None else {"second_looks": second_looks}),
+            )  # fmt: skip
         except (CloudReadError, BadCloudError) as err:
             message = str(err) if str(err).startswith(str(path)) else f"{path}: {err}"
             typer.echo(f"error: {message}", err=True)
@@ -56,6 +65,7 @@ def classify(
             others = ", ".join(f"{c.category} {c.probability:.3f}" for c in result.candidates[1:])
             unsure = " (unsure)" if result.unsure else ""
             unsure += " (upright)" if result.upright else ""
+            unsure += f" ({result.looks} looks)" if result.second_opinion else ""
             typer.echo(
                 f"{path}: {result.category} {result.probability:.3f}{unsure}"
                 + (f"; then {others}" if others else "")

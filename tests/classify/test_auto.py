@@ -4,6 +4,7 @@ answer is fixed (always 'chair', always 'table', leaning to 'chair' below the th
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -98,6 +99,32 @@ def test_unsure_recognition_says_so(unsure_dir: Path, box_cloud) -> None:
         reply = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
         assert reply["status"] == 200 and reply["category"] == "chair"
         assert reply["unsure"] is True and reply["category_probability"] < 0.6
+
+
+def test_an_unsure_request_gets_a_second_opinion_within_half_its_budget(
+    unsure_dir: Path, box_cloud, tmp_path
+) -> None:
+    """The fixed classifier stays unsure however it looks: with room in the budget the reply is
+    the 4 looks' (said so), not without it, nor when the service is told never (setting 1)."""
+    for client in _client(unsure_dir):
+        reply = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
+        assert reply["status"] == 200 and reply["unsure"] is True
+        assert reply["second_opinion"] is True and reply["classify_looks"] == 4
+        hurried = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=0.001)
+        assert hurried["status"] == 200 and hurried["category"] == "chair"
+        assert "second_opinion" not in hurried and "classify_looks" not in hurried
+    settings = Settings(model_dir=unsure_dir, warm_up=False, classify_second_looks=1)
+    with TestClient(create_app(settings)) as client:
+        never = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
+        assert never["unsure"] is True and "second_opinion" not in never
+    path = _write_cloud(tmp_path / "box.npy", box_cloud)
+    common = [str(path), "--model-dir", str(unsure_dir), "--json"]
+    assert json.loads(CliRunner().invoke(cli, ["classify", *common]).stdout)["classify_looks"] == 4
+    once = json.loads(CliRunner().invoke(cli, ["classify", *common, "--second-looks", "1"]).stdout)
+    assert once["unsure"] is True and "classify_looks" not in once
+    posed = CliRunner().invoke(cli, ["pose", *common, "--model", "auto", "--max-iterations", "1"])
+    assert posed.exit_code == 0, posed.output
+    assert json.loads(posed.stdout.splitlines()[-1])["second_opinion"] is True
 
 
 def test_auto_without_a_classifier_says_none_is_loaded(pose_dir: Path, box_cloud) -> None:
@@ -208,6 +235,37 @@ def test_several_looks_are_turned_subsets_averaged_in_the_log_domain(box_cloud) 
     np.testing.assert_allclose([got["chair"], got["table"]], expected, rtol=1e-6)
     with pytest.raises(BadCloudError, match="looks"):
         classify(stand_in, box_cloud, looks=17)
+
+
+def test_an_unsure_look_is_followed_by_the_rest_of_the_looks(box_cloud) -> None:
+    """Unsure after one look (a threshold over what the stand-in gives): 3 more looks, turned,
+    and the answer is the same as asking for 4; sure, or asked never, or out of time: one."""
+    from itnet.service.engine import BadCloudError
+    from itnet.service.recognition import classify
+
+    stand_in = _LooksRecorder()
+    sure = classify(stand_in, box_cloud)  # threshold 0.5 of 2 classes: always sure
+    assert not sure.second_opinion and [len(b) for b in stand_in.batches] == [1]
+    stand_in.card = stand_in.card.model_copy(update={"threshold": 0.9999})
+    stand_in.batches.clear()
+    second = classify(stand_in, box_cloud, second_looks=4)
+    assert second.second_opinion and second.looks == 4 and second.unsure
+    assert [len(b) for b in stand_in.batches] == [1, 3]  # the first look is not taken again
+    assert second.as_dict()["second_opinion"] is True and second.as_dict()["classify_looks"] == 4
+    four = classify(stand_in, box_cloud, looks=4, second_looks=4)
+    assert not four.second_opinion  # K looks asked for: no second opinion after them
+    np.testing.assert_allclose(stand_in.batches[-1][0], stand_in.batches[0][0])
+    np.testing.assert_allclose(stand_in.batches[-1][1:], stand_in.batches[1])
+    assert [c.probability for c in second.candidates] == pytest.approx(
+        [c.probability for c in four.candidates], rel=1e-9
+    )
+    assert second.probability != pytest.approx(sure.probability)
+    for late in (classify(stand_in, box_cloud, second_looks=1),
+                 classify(stand_in, box_cloud, deadline=time.perf_counter() - 1.0)):  # fmt: skip
+        assert late.unsure and not late.second_opinion and late.looks == 1
+        assert "second_opinion" not in late.as_dict()
+    with pytest.raises(BadCloudError, match="second_looks"):
+        classify(stand_in, box_cloud, second_looks=0)
 
 
 def test_a_small_cloud_reaches_the_classifier_shuffled(box_cloud) -> None:
