@@ -235,7 +235,8 @@ def score_graph(
     model: LoadedClassifier, run: Path, beside: LoadedClassifier | None = None
 ) -> GraphScores:
     """Run an exported graph over the run's fixed validation and test views, one view per call
-    as the service runs it (an int8 graph quantises its activations with one scale per call).
+    as the service runs it (an int8 graph quantises its activations with one scale per call),
+    each cut to the graph's card's points where it is served at fewer than trained.
     ``beside`` (an upright run's graph): served fused with this classifier for any orientation
     (``service/recognition.py``), so each view's probabilities are the two's, averaged in the
     log domain, ``beside`` seeing the same points unlevelled."""
@@ -247,9 +248,11 @@ def score_graph(
     scored = []
     for split in ("val", "test"):
         x, y = run_views(config, splits, split)
+        x = x[:, : model.card.points]  # served at fewer points: as many (a view's are shuffled)
         probs = np.concatenate([model.probabilities(x[i : i + 1]) for i in range(len(x))])
         if beside is not None:
             free, labels = run_views(config.model_copy(update={"upright": None}), splits, split)
+            free = free[:, : beside.card.points]
             assert (labels == y).all()
             other = np.concatenate([beside.probabilities(free[i : i + 1]) for i in range(len(x))])
             fused = mean_log_probability([other, probs])

@@ -100,6 +100,38 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     assert (tmp_path / "confusion.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_graph_served_at_fewer_points_is_measured_at_them(three_classes: Path, tmp_path) -> None:
+    """``classify-export --points P`` (fewer than trained): the card's accuracy and threshold are
+    the graph's on views of P points, as it will be served, not on the trained views."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.export.classifier_export import score_graph
+    from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
+    from itnet.service.runtime import LoadedClassifier, load_any
+
+    config = tiny_run(three_classes, tmp_path, steps=10, eval_every=10)
+    train(config)
+    out = tmp_path / "few.onnx"
+    run = CliRunner().invoke(app, ["classify-export", str(config.out), "--out", str(out),
+                                   "--points", "8"])  # fmt: skip
+    assert run.exit_code == 0, run.output
+    graph = load_any(out, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.points == 8
+    seen: list[int] = []
+    probabilities = graph.probabilities
+    graph.probabilities = lambda x: seen.append(x.shape[1]) or probabilities(x)  # type: ignore[method-assign]
+    scores = score_graph(graph, config.out)
+    assert set(seen) == {8}
+    x, y = run_views(ClassifyConfig.model_validate_json((config.out / "config.json").read_text()),
+                     run_splits(config)[1], "test")  # fmt: skip
+    assert x.shape[1] == 64  # trained at 64: the card's are the first 8 of each shuffled view
+    cut = np.concatenate([probabilities(x[i : i + 1, :8]) for i in range(len(x))])
+    np.testing.assert_allclose(scores.test_probs, cut, atol=1e-6)
+    measured = float((cut.argmax(1) == y).mean())
+    assert graph.card.accuracy == pytest.approx(measured, abs=1e-4)
+
+
 def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
     three_classes: Path, tmp_path: Path
 ) -> None:
