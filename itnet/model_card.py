@@ -164,6 +164,12 @@ class ClassifierCard(BaseModel):
         "(the runtime feeds them in random order), the classifier then sees them all; "
         "None: the canonicaliser sees every point",
     )
+    cascade: float | None = Field(
+        None,
+        description="a fused graph's cascade: the heads after the first run only for looks "
+        "whose first-head top probability is below this, the others get the first head's "
+        "answer (export/cascade.py); None: every head on every look",
+    )
     threshold: float = Field(
         0.5, description="below this top probability a recognition is reported as unsure"
     )

@@ -165,7 +165,8 @@ function onMessage(message) {
     const p = message.category_probability;
     const size = message.size_used ? `, size ${message.size_m.toFixed(2)} m counted` : '';
     const upright = message.classified_upright ? ', levelled by up' : '';
-    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}${size}${upright}, model ${message.model ?? '?'}`);
+    const second = message.second_opinion ? `, ${message.classify_looks} looks (one was unsure)` : '';
+    setStatus(`classified as ${message.category}${p === undefined ? '' : ` (p = ${p.toFixed(2)})`}${size}${upright}${second}, model ${message.model ?? '?'}`);
     const chosen = modelInfo(message.model ?? message.category);
     if (chosen) view.setSymmetry(chosen.symmetry);
   }

@@ -165,10 +165,10 @@ def test_threshold_is_the_lowest_that_reaches_the_target() -> None:
 
 
 def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
-    """itnet/models/classifier_local.pt and classifier.pt (the weights a later fine-tune starts
-    from: the local head and the PointNet head behind one canonicaliser) give the shipped float32
-    graph's probabilities, their heads fused, BatchNorm folded, on clouds of noise and on an
-    example scan."""
+    """itnet/models/classifier.pt and classifier_local.pt (the weights a later fine-tune starts
+    from: the PointNet head and the local head behind one canonicaliser) give the shipped float32
+    graph's probabilities, BatchNorm folded, on noise, a sphere, a box's side and an example scan: the
+    cascade's, the PointNet head's alone where it is sure, the two heads fused elsewhere."""
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
     from itnet.model.network import apply_pose
@@ -182,13 +182,21 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     graph = load_any(shipped / "classifier.onnx", warm_up=False)
     assert isinstance(graph, LoadedClassifier) and "optimizer" not in state
     assert state["classes"] == other_state["classes"] == graph.card.classes
-    assert graph.card.head == "local+pointnet" and same_transformer(net, other)
+    assert graph.card.head == "pointnet+local" and same_transformer(net, other)
+    assert graph.card.cascade == 0.9
     rng = np.random.default_rng(0)
     chair = read_cloud(examples_dir() / "chair_a.ply")
-    x = np.concatenate(
+    sphere = rng.normal(size=(graph.card.points, 3))
+    side = rng.uniform(-1, 1, (graph.card.points, 3)) * [0.4, 0.5, 0.05]  # a box's flat side
+    clouds = [
+        rng.normal(size=(graph.card.points, 3)),
+        sphere / np.linalg.norm(sphere, axis=1)[:, None],
+        side,
+    ]
+    x = np.stack(
         [
-            rng.normal(size=(3, graph.card.points, 3)),
-            cap_points(estimate_normalization(chair).apply(chair), graph.card.points, rng)[None],
+            *(estimate_normalization(c).apply(c) for c in clouds),
+            cap_points(estimate_normalization(chair).apply(chair), graph.card.points, rng),
         ]
     ).astype(np.float32)
     seen = graph.card.canonical_points or graph.card.points  # the canonicaliser's points
@@ -196,8 +204,11 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
         assert net.itnet is not None
         pose = net.itnet(torch.from_numpy(x[:, :seen]), net.config.iterations)[-1]
         moved = apply_pose(pose, torch.from_numpy(x))
-        logs = [torch.log_softmax(n.classifier(moved), -1) for n in (net, other)]
-        want = torch.softmax(torch.stack(logs).mean(0), -1).numpy()
+        logs = [torch.log_softmax(n.classifier(moved), -1) for n in (other, net)]
+        fused = torch.softmax(torch.stack(logs).mean(0), -1).numpy()
+        first = torch.softmax(logs[0], -1).numpy()
+    sure = first.max(1) >= graph.card.cascade
+    assert sure[-1] and not sure[1:3].any()  # the chair: sure; a sphere, a box's side: not
     got = graph.probabilities(x)
-    np.testing.assert_allclose(got, want, atol=1e-4)
+    np.testing.assert_allclose(got, np.where(sure[:, None], first, fused), atol=1e-4)
     assert graph.card.classes[int(got[-1].argmax())] == "chair"

@@ -69,6 +69,7 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
 ) -> None:
     """``transformer_from`` copies a run's canonicaliser, ``freeze_transformer`` keeps it (weights
     and BatchNorm statistics); the local head learns; the export card names the head."""
+    import onnx
     from typer.testing import CliRunner
 
     from itnet.cli import app
@@ -105,6 +106,19 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
     graph = load_any(fused, warm_up=False)
     assert isinstance(graph, LoadedClassifier) and graph.card.head == "local+pointnet"
     assert graph.card.training["fused_with"] == ["best.pt"] and 0 <= graph.card.accuracy <= 1
+    assert graph.card.cascade is None
+    # the cascade: the same heads, the second only where the first is unsure; said on the card
+    cascaded = tmp_path / "cascade.onnx"
+    run = CliRunner().invoke(app, ["classify-export", *both[:1], "--out", str(cascaded),
+                                   *both[3:], "--cascade", "0.8"])  # fmt: skip
+    assert run.exit_code == 0, run.output
+    graph = load_any(cascaded, warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.cascade == 0.8
+    assert any(n.op_type == "If" for n in onnx.load(str(cascaded)).graph.node)
+    for refused in (["--cascade", "0.8"], [*both[3:], "--cascade", "0.8", "--int8"]):
+        run = CliRunner().invoke(app, ["classify-export", str(config.out), "--out",
+                                       str(tmp_path / "no.onnx"), *refused])  # fmt: skip
+        assert run.exit_code == 2 and "--cascade" in run.output
     other = tiny_run(three_classes, tmp_path / "other", steps=5, eval_every=5, init_seed=3)
     train(other)  # another canonicaliser: refused
     run = CliRunner().invoke(
