@@ -276,6 +276,15 @@ class AutoInfo(BaseModel):
     mean_class_accuracy: float
     points: int
     evaluation: str
+    second_looks: int = Field(
+        description="looks in all that a cloud unsure after one gets, where the budget has room "
+        "(1: no second opinion; ITNET_CLASSIFY_SECOND_LOOKS)"
+    )
+    cascade: float | None = Field(
+        None,
+        description="the graph's cascade: its other heads run only for looks whose first head "
+        "is below this probability (null: every head on every look)",
+    )
     models: dict[str, str | None] = Field(
         description="the pose model 'auto' runs for each class (null: none loaded)"
     )

@@ -107,6 +107,8 @@ def test_an_unsure_request_gets_a_second_opinion_within_half_its_budget(
     """The fixed classifier stays unsure however it looks: with room in the budget the reply is
     the 4 looks' (said so), not without it, nor when the service is told never (setting 1)."""
     for client in _client(unsure_dir):
+        auto = client.get("/v1/models").json()["auto"]
+        assert auto["second_looks"] == 4 and auto["cascade"] is None  # a one-head graph
         reply = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
         assert reply["status"] == 200 and reply["unsure"] is True
         assert reply["second_opinion"] is True and reply["classify_looks"] == 4
@@ -115,6 +117,7 @@ def test_an_unsure_request_gets_a_second_opinion_within_half_its_budget(
         assert "second_opinion" not in hurried and "classify_looks" not in hurried
     settings = Settings(model_dir=unsure_dir, warm_up=False, classify_second_looks=1)
     with TestClient(create_app(settings)) as client:
+        assert client.get("/v1/models").json()["auto"]["second_looks"] == 1
         never = _post(client, box_cloud, model="auto", max_iterations=1, budget_ms=2000)
         assert never["unsure"] is True and "second_opinion" not in never
     path = _write_cloud(tmp_path / "box.npy", box_cloud)

@@ -66,6 +66,8 @@ async def models(state: StateDep) -> ModelsResponse:
             mean_class_accuracy=card.mean_class_accuracy,
             points=card.points,
             evaluation=card.evaluation,
+            second_looks=state.settings.classify_second_looks,
+            cascade=card.cascade,
             models={c: None if m is None else m.card.name for c, m in picks.items()},
             sizes=None if card.size_prior is None else card.size_prior.evaluation,
             upright=_upright_info(state.classifier.upright),
