@@ -29,7 +29,7 @@ One place for the logic; the HTTP route and the WebSocket (through ``ServiceStat
   time (docs/classification.md, ``benchmarks/classify_tta.py``).
 * A second opinion: when one look leaves the answer unsure (below the threshold), the cloud
   gets ``SECOND_LOOKS`` - 1 more turned looks and the answer is theirs and the first's together
-  (the same as asking for that many looks), where the budget has room: they must be expected to
+  (without ``up``, exactly what asking for that many looks gives), where the budget has room: they must be expected to
   end within the budget's first half (``second_look_deadline``), so the pose run keeps the
   rest. Sure answers (most) cost one look; the reply says ``second_opinion: true`` when it ran.
 """
