@@ -77,13 +77,16 @@ def main() -> None:
     if classifier is None or (args.versus is not None and other is None):
         raise SystemExit("no classifier in the model folder")
     rng = np.random.default_rng(0)
-    # a partial-scan-like cloud: one side of a box, in metres, off the origin
-    clouds = [
-        rng.uniform(-1, 1, (args.points, 3)) * [0.4, 0.5, 0.05] + rng.normal(0, 2, 3)
-        for _ in range(16)
-    ]
-    if args.scans:  # views of real objects instead: how sure the classifier is counts
-        clouds = test_scans(args.scans, args.data)
+    # a partial-scan-like cloud: one side of a box, in metres, off the origin; or views of real
+    # objects (--scans), where how sure the classifier is counts
+    clouds = (
+        test_scans(args.scans, args.data)
+        if args.scans
+        else [
+            rng.uniform(-1, 1, (args.points, 3)) * [0.4, 0.5, 0.05] + rng.normal(0, 2, 3)
+            for _ in range(16)
+        ]
+    )
     up = [0.1, 1.0, 0.05] if args.up else None
     contenders = [classifier] if other is None else [classifier, other]
     for cloud in clouds[:4]:

@@ -105,9 +105,9 @@ def main() -> None:
         for i, cloud in enumerate(clouds):
             rng = np.random.default_rng(i)
             if mode in ("second", "second-upright"):  # the service's own function, as served
-                classifier.upright = upright if mode == "second-upright" else None
-                if classifier.upright is None and mode == "second-upright":
+                if mode == "second-upright" and upright is None:
                     raise SystemExit(f"{k}:{mode} needs --upright")
+                classifier.upright = upright if mode == "second-upright" else None
                 up = given[i] if mode == "second-upright" else None
                 seen = classify(classifier, cloud, seed=i, up=up, second_looks=k)
                 ms.append(seen.elapsed_ms)

@@ -253,14 +253,15 @@ def classify_export(
         # as many points as the canonicaliser sees: then the torch net's pose is the graph's
         seen = min(provisional.points, canonical_points or provisional.points)
         x = np.random.default_rng(0).normal(size=(1, seen, 3)).astype(np.float32)
-        with torch.no_grad():
-            if cascade is None:
-                expected = fused_probabilities([net, *fused], torch.from_numpy(x)).numpy()
-            else:
-                from itnet.export.cascade import cascade_probabilities
+        with torch.no_grad():  # the cascade's answer is the fused one where the first is unsure
+            from itnet.export.cascade import cascade_probabilities
 
-                expected = cascade_probabilities([net, *fused], torch.from_numpy(x), cascade)
-                expected = expected.numpy()
+            nets, cloud = [net, *fused], torch.from_numpy(x)
+            expected = (
+                fused_probabilities(nets, cloud)
+                if cascade is None
+                else cascade_probabilities(nets, cloud, cascade)
+            ).numpy()
         diff = float(np.abs(loaded.probabilities(x) - expected).max())
         partner = None
         if loaded.card.upright:

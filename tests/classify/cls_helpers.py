@@ -21,6 +21,24 @@ def tiny_classifier(transformer: str = "itnet", iterations: int = 1, classes: in
     return Classifier(config)
 
 
+def randomised(net: Any, seed: int) -> Any:
+    """Random weights (the transformer's last layer included: not the identity) and random
+    BatchNorm statistics, eval mode."""
+    import torch
+
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.Linear):
+                m.weight.copy_(torch.randn(m.weight.shape, generator=gen) * 0.3)
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
+                m.running_var.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
+                m.weight.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
+                m.bias.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
+    return net.eval()
+
+
 def fixed_answer_classifier(logits: list[float]):  # type: ignore[no-untyped-def]
     """A classifier whose probabilities are softmax(logits) whatever the cloud."""
     import torch

@@ -12,8 +12,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
-from cls_helpers import CLASSES, tiny_classifier
-from test_classifier_export import _randomised
+from cls_helpers import CLASSES, randomised, tiny_classifier
 
 from itnet.export.cascade import cascade_graph, cascade_probabilities
 from itnet.export.classifier_export import export_classifier, fused_probabilities
@@ -24,8 +23,8 @@ from itnet.service.runtime import LoadedClassifier, load_any
 @pytest.fixture(scope="module")
 def heads() -> list[torch.nn.Module]:
     """A PointNet head first, a local head behind the same canonicaliser."""
-    pointnet = _randomised(tiny_classifier("itnet", 2), 6)
-    local = _randomised(
+    pointnet = randomised(tiny_classifier("itnet", 2), 6)
+    local = randomised(
         tiny_classifier("itnet", 2, head="local", local_channels=(8, 16, 32), neighbours=5), 5
     )
     local.itnet.load_state_dict(pointnet.itnet.state_dict())

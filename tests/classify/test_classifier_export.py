@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cls_helpers import CLASSES, tiny_classifier
+from cls_helpers import CLASSES, randomised, tiny_classifier
 
 from itnet.export.classifier_export import (
     choose_threshold,
@@ -27,22 +27,6 @@ from itnet.service.runtime import (
 )
 
 
-def _randomised(net: torch.nn.Module, seed: int) -> torch.nn.Module:
-    """Random weights (the transformer's last layer included: not the identity) and random
-    BatchNorm statistics, eval mode."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in net.modules():
-            if isinstance(m, torch.nn.Linear):
-                m.weight.copy_(torch.randn(m.weight.shape, generator=gen) * 0.3)
-            if isinstance(m, torch.nn.BatchNorm1d):
-                m.running_mean.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
-                m.running_var.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(m.num_features, generator=gen) + 0.5)
-                m.bias.copy_(torch.randn(m.num_features, generator=gen) * 0.2)
-    return net.eval()
-
-
 @pytest.mark.parametrize(
     ("transformer", "iterations", "regularizer"),
     [("none", 1, 0.0), ("tnet", 2, 0.001), ("itnet", 2, 0.0)],
@@ -50,7 +34,7 @@ def _randomised(net: torch.nn.Module, seed: int) -> torch.nn.Module:
 def test_untrained_classifier_exports_and_matches_torch(
     tmp_path: Path, transformer: str, iterations: int, regularizer: float
 ) -> None:
-    net = _randomised(tiny_classifier(transformer, iterations, regularizer=regularizer), 7)
+    net = randomised(tiny_classifier(transformer, iterations, regularizer=regularizer), 7)
     card = ClassifierCard(classes=CLASSES, points=100)
     loaded = load_any(export_classifier(net, card, tmp_path / "c.onnx"), warm_up=False)
     assert isinstance(loaded, LoadedClassifier) and loaded.card.classes == CLASSES
@@ -67,7 +51,7 @@ def test_untrained_classifier_exports_and_matches_torch(
 def test_untrained_local_classifier_exports_and_matches_torch(tmp_path: Path) -> None:
     """The local head folded for the graph: BatchNorm scales of both signs (a negative one must
     not turn the neighbours' max into a min), a canonicaliser on the first points."""
-    net = _randomised(
+    net = randomised(
         tiny_classifier("itnet", 2, head="local", local_channels=(8, 16, 32), neighbours=5), 3
     )
     with torch.no_grad():
@@ -96,10 +80,10 @@ def test_heads_behind_one_canonicaliser_export_fused(tmp_path: Path) -> None:
     """``fused``: a local head and a PointNet head behind the same canonicaliser, one graph whose
     probabilities are the softmax of their mean log-probability; a head behind another
     canonicaliser is refused."""
-    local = _randomised(
+    local = randomised(
         tiny_classifier("itnet", 2, head="local", local_channels=(8, 16, 32), neighbours=5), 5
     )
-    pointnet = _randomised(tiny_classifier("itnet", 2), 6)
+    pointnet = randomised(tiny_classifier("itnet", 2), 6)
     with pytest.raises(ValueError, match="share the transformer"):
         export_classifier(
             local, ClassifierCard(classes=CLASSES), tmp_path / "x.onnx", fused=[pointnet]
@@ -130,7 +114,7 @@ def test_canonicaliser_on_the_first_points_moves_them_all(tmp_path: Path) -> Non
     answer."""
     from itnet.model.network import apply_pose
 
-    net = _randomised(tiny_classifier("itnet", 2), 11)
+    net = randomised(tiny_classifier("itnet", 2), 11)
     card = ClassifierCard(classes=CLASSES, points=100, canonical_points=40)
     loaded = load_any(export_classifier(net, card, tmp_path / "c.onnx"), warm_up=False)
     assert isinstance(loaded, LoadedClassifier) and loaded.card.canonical_points == 40
