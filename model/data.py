@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.atomic_write import written_whole
+from itnet.geometry import apply_rigid, axis_angle_to_matrix, invert_rigid
 from itnet.model.scanner import ScanConfig, scan_of
 from itnet.model.shapes import (
     Shape,
@@ -203,6 +204,7 @@ def training_batch(
     indices: NDArray[np.int64] | None = None,
     stretch: float = 1.0,
     upright: float | None = None,
+    near: NearStarts | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Fresh random scans -> (normalised points (B, points, 3), target poses (B, 4, 4)). A list
     of configs: each scan uses one, drawn uniformly. ``indices`` (B,): the shapes to scan (by
@@ -210,7 +212,8 @@ def training_batch(
     axes by factors drawn log-uniformly in [1/stretch, stretch] (``shapes.stretched``; the pose
     is unchanged). ``upright`` (degrees): each scan levelled by its up direction as a caller's
     gravity sensor gives it, the truth tilted by an error drawn uniformly in [0, upright]
-    (:func:`upright_scan`): what a run held upright starts from."""
+    (:func:`upright_scan`): what a run held upright starts from. ``near``: that share of the
+    scans starts near its answer instead (:func:`near_start`), as a run's last iterations do."""
     configs = config if isinstance(config, list) else [config]
     xs, targets = np.empty((batch, points, 3), np.float32), np.empty((batch, 4, 4), np.float32)
     if indices is None:
@@ -224,8 +227,37 @@ def training_batch(
         cloud, pose = scan_of(shape, rng, config)
         if upright is not None:
             cloud, pose = upright_scan(cloud, pose, rng.uniform(0.0, upright), rng)
-        xs[b], targets[b] = _normalised_example(cloud, pose, points, rng)
+        x, target = _normalised_example(cloud, pose, points, rng)
+        if near is not None and rng.random() < near.share:
+            x, target = near_start(x, target, rng, near.max_deg, near.max_shift)
+        xs[b], targets[b] = x, target
     return xs, targets
+
+
+@dataclass(frozen=True)
+class NearStarts:
+    """Training scans that start near their answer: ``share`` of them, each moved to within
+    ``max_deg`` degrees and ``max_shift`` (normalised units: the scan's RMS radius) of it."""
+
+    share: float
+    max_deg: float = 20.0
+    max_shift: float = 0.2
+
+
+def near_start(
+    points: NDArray, target: NDArray, rng: np.random.Generator, max_deg: float, max_shift: float
+) -> tuple[NDArray, NDArray]:
+    """A normalised scan (N, 3) and its target T (4, 4) -> the scan as a run sees it once it is
+    nearly right, and that scan's target: the canonical points T x moved by a small random
+    rigid error E (angle uniform in [0, max_deg] about a uniform axis, a shift of length uniform
+    in [0, max_shift] in a uniform direction), x' = E T x, whose target is E^-1. What the
+    network sees in its last iterations, where precision is decided."""
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    error = np.eye(4)
+    error[:3, :3] = axis_angle_to_matrix(axis, np.radians(rng.uniform(0.0, max_deg)))
+    error[:3, 3] = direction / np.linalg.norm(direction) * rng.uniform(0.0, max_shift)
+    moved = apply_rigid(error @ target, points)
+    return moved.astype(points.dtype), invert_rigid(error).astype(target.dtype)
 
 
 def upright_scan(

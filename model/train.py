@@ -21,7 +21,7 @@ from torch.optim.swa_utils import AveragedModel
 
 from itnet.atomic_write import written_whole
 from itnet.model.category_set import CategorySet, category_names, load_category_set
-from itnet.model.data import training_batch
+from itnet.model.data import NearStarts, training_batch
 from itnet.model.evaluate import anytime_poses, report, torch_step
 from itnet.model.network import ITNet, NetworkConfig, PointLoss, Rotation, point_loss
 from itnet.model.optim import (
@@ -93,6 +93,11 @@ class TrainConfig(BaseModel):
     # by up to this many degrees; validation runs held upright by an up UPRIGHT_EVAL_DEG off, as
     # the service serves a request that gives up
     upright: float | None = None
+    # > 0: this share of the training scans starts within near_deg / near_shift of its answer
+    # (data.near_start), the regime of a run's last iterations, where precision is decided
+    near_starts: float = Field(0.0, ge=0.0, le=1.0)
+    near_deg: float = Field(20.0, gt=0.0)
+    near_shift: float = Field(0.2, ge=0.0)
 
 
 def _save(
@@ -147,6 +152,9 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
     quiet = {"depth_noise": (0.0, 0.0), "jitter": (0.0, 0.0), "outlier_fraction": (0.0, 0.0)}
     noise = {} if config.sensor_noise else quiet
     train_scan_configs = [scan_config(noise, overrides) for overrides in config.scan_mix]
+    near = None
+    if config.near_starts > 0:
+        near = NearStarts(config.near_starts, config.near_deg, config.near_shift)
 
     def make_batch(step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rng = np.random.default_rng([config.seed, step])  # per-step stream: resume-exact data
@@ -160,6 +168,7 @@ def train(config: TrainConfig, resume: bool = True, progress: bool = True) -> di
             picked,
             config.stretch,
             config.upright,
+            near,
         )
         return x, target, picked
 

@@ -579,3 +579,66 @@ def test_a_cache_file_appears_whole_or_not_at_all(
         data_module.save_npz(other, points=np.zeros(3))
     assert not other.exists()  # a reader finds no cache and builds its own
     assert [p.name for p in tmp_path.iterdir()] == ["scans-abc.npz"]  # the partial is removed
+
+
+def test_a_near_start_moves_a_scan_near_its_answer_and_keeps_its_canonical_points():
+    """data.near_start: x' = E T x with E within the bounds (angle and shift both used up to
+    their limits over many draws), and its target E^-1 takes x' to the same canonical points."""
+    from itnet.geometry import apply_rigid, invert_rigid, random_rotation, rotation_angle_deg
+    from itnet.model.data import near_start
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(64, 3)).astype(np.float32)
+    angles, shifts = [], []
+    for _ in range(300):
+        target = np.eye(4)
+        target[:3, :3], target[:3, 3] = random_rotation(rng), rng.normal(size=3)
+        moved, near = near_start(x, target.astype(np.float32), rng, 15.0, 0.3)
+        assert moved.dtype == x.dtype and near.dtype == np.float32
+        assert np.allclose(apply_rigid(near, moved), apply_rigid(target, x), atol=1e-4)
+        error = invert_rigid(near)
+        angles.append(float(rotation_angle_deg(error[:3, :3])))
+        shifts.append(float(np.linalg.norm(error[:3, 3])))
+    assert max(angles) <= 15.0 + 1e-3 and max(angles) > 14.0 and min(angles) < 1.0
+    assert max(shifts) <= 0.3 + 1e-5 and max(shifts) > 0.28
+
+
+def test_near_starts_take_their_share_of_a_batch_and_a_run_records_them(shape_folder, tmp_path):
+    """training_batch(near=...): that share of the scans has a target within the bounds of the
+    identity (a fresh scan's is anything); ``itnet train --near-starts`` trains with them and
+    keeps them in its config."""
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.geometry import rotation_angle_deg
+    from itnet.model.data import NearStarts, training_batch
+    from itnet.model.scanner import scan_config
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(5)
+    shapes = [Shape(f"s{i}", _chair_like(rng)) for i in range(3)]
+
+    def angles(share: float) -> np.ndarray:
+        near = NearStarts(share, max_deg=10.0, max_shift=0.1)
+        _, targets = training_batch(
+            shapes, 200, 64, np.random.default_rng(6), scan_config({}), near=near
+        )
+        return rotation_angle_deg(targets[:, :3, :3].astype(np.float64))
+
+    assert (angles(1.0) <= 10.0 + 1e-3).all()
+    near_share = (angles(0.5) <= 10.0 + 1e-3).mean()
+    assert 0.35 < near_share < 0.65, near_share  # a fresh view is within 10° about 0.2% of times
+    assert (angles(0.0) <= 10.0).mean() < 0.05
+
+    run = tmp_path / "near"
+    done = CliRunner().invoke(app, [
+        "train", "--data", str(shape_folder), "--category", "x", "--frame", "canonical",
+        "--cache", str(tmp_path / "cache"), "--out", str(run), "--steps", "2", "--batch", "8",
+        "--points", "64", "--iterations", "2", "--eval-every", "2", "--threads", "1",
+        "--no-bf16", "--no-compile", "--ema", "0", "--near-starts", "0.5", "--near-deg", "12",
+    ])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    config = json.loads((run / "config.json").read_text())
+    assert (config["near_starts"], config["near_deg"], config["near_shift"]) == (0.5, 12.0, 0.2)
+    refused = CliRunner().invoke(app, ["train", "--near-starts", "1.5", "--out", str(run)])
+    assert refused.exit_code != 0 and "near-starts" in refused.output

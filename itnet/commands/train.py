@@ -113,6 +113,19 @@ def train(
         "degrees), validation runs held upright as the service holds them; its export "
         "requires up.",
     ),
+    near_starts: float = typer.Option(
+        0.0,
+        min=0.0,
+        max=1.0,
+        metavar="SHARE",
+        help="Start this share of the training scans near their answer (within --near-deg "
+        "and --near-shift), as a run's last iterations see them: more training where "
+        "precision is decided (0: off, the paper's).",
+    ),
+    near_deg: float = typer.Option(20.0, min=0.1, help="--near-starts: largest angle, degrees."),
+    near_shift: float = typer.Option(
+        0.2, min=0.0, help="--near-starts: largest shift, in the scan's RMS radii."
+    ),
     cache: Path = typer.Option(Path("cache"), help="Cache of canonical shapes and fixed scans."),
 ) -> None:
     """Train with fresh random partial scans every step; keeps the best validation checkpoint.
@@ -175,6 +188,9 @@ def train(
         val_views=val_views,
         stretch=stretch,
         upright=upright,
+        near_starts=near_starts,
+        near_deg=near_deg,
+        near_shift=near_shift,
     )
     best = run_training(config, resume=resume)
     typer.echo(
