@@ -256,6 +256,10 @@ def test_the_chair_from_scratch_job_is_the_shipped_recipe_at_the_papers_batch(
     assert config.loss == "distance" and config.ema == 0.999 and config.batch == 100
     assert config.bn_momentum == (0.5, 0.01) and "chair_scratch" in device_train.JOB_NAMES
     assert "chair_scratch" not in device_train.JOBS  # run only when --jobs names it
+    near = device_train.job_config("chair_scratch_near", args, 1000, 150)
+    assert near.near_starts == 0.3 and config.near_starts == 0.0  # its arm: one change apart
+    differ = {k for k, v in near.model_dump().items() if v != config.model_dump()[k]}
+    assert differ == {"near_starts", "out"}, differ
 
 
 def test_the_table_rows_get_the_same_steps_and_are_measured_here(tmp_path: Path) -> None:
