@@ -43,7 +43,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             points_per_step: int | None = None,
             mirror: bool | None = None, centre: bool | None = None,
             baseline: dict | None = None, viewpoint: bool = False,
-            up_error_deg: float | None = None) -> dict:  # fmt: skip
+            up_error_deg: float | None = None, verify: bool | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -62,7 +62,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     ups = None if up_error_deg is None else known_ups(scans.poses, up_error_deg)
     out, first = {}, None
     for k in ensembles:
-        poses, iterations, elapsed, mirrored, runs = [], [], [], [], []
+        poses, iterations, elapsed, mirrored, runs, verified = [], [], [], [], [], []
         for i, cloud in enumerate(scans.clouds):
             run = AnytimeRun(
                 model,
@@ -74,8 +74,10 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 centre=centre,
                 viewpoint=[0.0, 0.0, 0.0] if viewpoint else None,  # the scanner's camera
                 up=None if ups is None else ups[i],
+                verify=verify if k != 1 else None,
             )
             last = run.run_to_end()
+            verified.append(run.verified)
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
@@ -104,6 +106,12 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             **(
                 {"mirror_finished": round(float(np.mean([m is True for m in mirrored])), 3)}
                 if any(m is not None for m in mirrored)
+                else {}
+            ),
+            # where verify was on: the share of runs whose probes the budget held
+            **(
+                {"verified": round(float(np.mean([v is True for v in verified])), 3)}
+                if any(v is not None for v in verified)
                 else {}
             ),
         }
@@ -165,6 +173,13 @@ def main() -> None:
         default=None,
         help="a JSON of this benchmark on the same scans: adds each setting's paired gain over it",
     )
+    parser.add_argument(
+        "--verify",
+        choices=["default", "on", "off"],
+        default="default",
+        help="anchor fused runs by the firmest one (itnet.basin): the card's default, always "
+        "(K > 1), never",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
@@ -184,6 +199,7 @@ def main() -> None:
         "centre": args.centre,
         "viewpoint": args.viewpoint,
         "up_error_deg": args.up,
+        "verify": args.verify,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -201,6 +217,7 @@ def main() -> None:
                 baseline,
                 args.viewpoint,
                 args.up,
+                switch[args.verify],
             )
             for s in args.scanners
         },

@@ -34,20 +34,22 @@ def nearest_rotation(matrix: ArrayLike) -> FloatArray:
 
 
 def fuse_poses(
-    poses: ArrayLike, symmetry: str = "none", inlier_deg: float = INLIER_DEG
+    poses: ArrayLike,
+    symmetry: str = "none",
+    inlier_deg: float = INLIER_DEG,
+    anchor: int | None = None,
 ) -> FloatArray:
-    """Poses T_canonical_from_input (K, 4, 4) of one cloud -> one fused pose (4, 4) (see module)."""
+    """Poses T_canonical_from_input (K, 4, 4) of one cloud -> one fused pose (4, 4) (see module).
+    ``anchor``: that run stands in for the medoid (step 1), e.g. the run that sits most firmly in
+    its basin (``itnet.basin``)."""
     t = np.asarray(poses, dtype=np.float64)
     if len(t) == 1:
         return t[0].copy()
     rotations = t[:, :3, :3]
     centres = -np.einsum("kji,kj->ki", rotations, t[:, :3, 3])  # -R^T t: the object's centre
-    group = symmetry_group(symmetry, FUSION_YAW_SAMPLES)  # (G, 3, 3)
-    # angle[i, j, g]: between rotation i and rotation j turned by group element g
-    turned = group[None] @ rotations[:, None]  # (K, G, 3, 3): S_g R_j
-    angles = rotation_error_deg(rotations[:, None, None], turned[None])  # (K, K, G)
+    turned, angles = _pairwise(rotations, symmetry)
     closest = angles.min(axis=2)
-    medoid = int(np.argmin(closest.sum(axis=1)))
+    medoid = int(np.argmin(closest.sum(axis=1))) if anchor is None else int(anchor)
     best_turn = angles[medoid].argmin(axis=1)  # (K,): the element bringing each run nearest
     aligned = turned[np.arange(len(t)), best_turn]  # (K, 3, 3)
     inliers = closest[medoid] < inlier_deg
@@ -55,3 +57,17 @@ def fuse_poses(
     fused[:3, :3] = nearest_rotation(aligned[inliers].sum(axis=0))
     fused[:3, 3] = -fused[:3, :3] @ centres[inliers].mean(axis=0)
     return fused
+
+
+def medoid_index(poses: ArrayLike, symmetry: str = "none") -> int:
+    """Poses (K, 4, 4) -> the run ``fuse_poses`` centres its fusion on (step 1 above)."""
+    rotations = np.asarray(poses, dtype=np.float64)[:, :3, :3]
+    return int(np.argmin(_pairwise(rotations, symmetry)[1].min(axis=2).sum(axis=1)))
+
+
+def _pairwise(rotations: FloatArray, symmetry: str) -> tuple[FloatArray, FloatArray]:
+    """Rotations (K, 3, 3) -> (every rotation turned by every element of the symmetry group,
+    S_g R_j (K, G, 3, 3); angle[i, j, g] between rotation i and S_g R_j (K, K, G), degrees)."""
+    group = symmetry_group(symmetry, FUSION_YAW_SAMPLES)  # (G, 3, 3)
+    turned = group[None] @ rotations[:, None]
+    return turned, rotation_error_deg(rotations[:, None, None], turned[None])

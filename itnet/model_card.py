@@ -59,6 +59,12 @@ class ModelCard(BaseModel):
         description="finish the fused pose of several runs (the ensemble mode) by the mirror "
         "planes too, by default (a single run's always is): chosen per category on validation",
     )
+    verify_fused: bool = Field(
+        False,
+        description="anchor the fusion of several runs (the ensemble mode) by the run that sits "
+        "most firmly in its basin (itnet.basin), by default, where the budget holds its probes: "
+        "chosen per category on validation",
+    )
     centre_correction: dict | None = Field(
         None,
         description="a linear correction of the object centre, applied after the last step "

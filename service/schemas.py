@@ -75,6 +75,14 @@ class EstimateParams(BaseModel):
         "run, and for fused runs where the card says so ('mirror_fused'); true for a model "
         "without it is refused",
     )
+    verify: bool | None = Field(
+        default=None,
+        description="with ensemble > 1: after the last iteration, knock each run's pose off by "
+        "four 30-degree turns, let the network step back 5 times from each, and fuse the runs "
+        "around the one that came back closest (itnet.basin; about twice the runs' steps, taken "
+        "only if budget_ms still holds them); default: where the model's card says so (GET "
+        "/v1/models: 'verify_fused'); refused for a single run and with 'up'",
+    )
     centre: bool | None = Field(
         default=None,
         description="finish the final pose's object centre by the model's centre correction "
@@ -162,6 +170,11 @@ class EstimateResponse(Pose):
         description="where the mirror refinement was on: true if the final pose was finished by "
         "it, false if the budget could not hold it (the final pose is then the last estimate)",
     )
+    verified: bool | None = Field(
+        None,
+        description="where verify was on: true if the fused pose was anchored by the run that "
+        "sits most firmly in its basin, false if the budget could not hold the probes",
+    )
     mirror_planes: list[str] | None = Field(
         None,
         description="where the mirror refinement was on: the planes that finished the pose, in "
@@ -227,6 +240,11 @@ class ModelInfo(BaseModel):
     mirror_evaluation: str = Field("", description="the planes' measured effect, one run")
     mirror_fused: bool = Field(
         False, description="fused runs (the ensemble mode) are finished by the planes too"
+    )
+    verify_fused: bool = Field(
+        False,
+        description="fused runs are anchored by the run that sits most firmly in its basin, "
+        "where the budget holds the probes, unless a request says 'verify': false",
     )
     centre: bool = Field(
         False,

@@ -202,6 +202,7 @@ class ServiceState:
                 reserve_ms=reserve_ms,
                 ensemble=params.ensemble,
                 mirror=params.mirror,
+                verify=params.verify,
                 centre=params.centre,
                 viewpoint=params.viewpoint,
                 up=params.up,

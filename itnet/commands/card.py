@@ -29,6 +29,12 @@ def card(
         "--mirror-fused/--no-mirror-fused",
         help="Finish fused runs (the ensemble mode) by the planes too, by default.",
     ),
+    verify_fused: bool | None = typer.Option(
+        None,
+        "--verify-fused/--no-verify-fused",
+        help="Anchor fused runs by the one that sits most firmly in its basin (itnet.basin), "
+        "by default, where the budget holds the probes.",
+    ),
     recommended_ensemble: int | None = typer.Option(
         None,
         min=1,
@@ -93,6 +99,8 @@ def card(
         if mirror_fused and not planes:
             raise typer.BadParameter("--mirror-fused needs mirror planes on the card")
         update["mirror_fused"] = mirror_fused
+    if verify_fused is not None:
+        update["verify_fused"] = verify_fused
     if (without_mirror is None) != (with_mirror is None):
         raise typer.BadParameter("give both --without-mirror and --with-mirror, or neither")
     if without_mirror is not None and with_mirror is not None:

@@ -44,6 +44,14 @@ def pose(
         "within --budget-ms). Default: for a single run, where the model's card declares it "
         "(`itnet models`).",
     ),
+    verify: bool | None = typer.Option(
+        None,
+        "--verify/--no-verify",
+        help="With --ensemble: fuse the runs around the one that sits most firmly in its basin "
+        "(each knocked off by four 30-degree turns, 5 steps back; about twice the runs' steps, "
+        "within --budget-ms). Default: where the model's card says so (`itnet models --json`: "
+        "verify_fused).",
+    ),
     centre: bool | None = typer.Option(
         None,
         "--centre/--no-centre",
@@ -86,11 +94,11 @@ def pose(
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
                 ensemble=ensemble, units=units, mirror=mirror, centre=centre, viewpoint=viewpoint,
-                up=up,
+                up=up, verify=verify,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
-            mirror=mirror, centre=centre, viewpoint=viewpoint, up=up,
+            mirror=mirror, centre=centre, viewpoint=viewpoint, up=up, verify=verify,
         )  # fmt: skip
 
     failed = False
@@ -122,6 +130,7 @@ def pose(
                 f"{path}: {seen}rotation {float(rotation_angle_deg(t[:3, :3])):.1f} deg, translation "
                 f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}], {result['iterations']} iterations "
                 f"in {result['elapsed_ms']:.1f} ms (stopped by {result['stopped_by']}"
+                f"{', verified' if result.get('verified') else ''}"
                 f"{', mirror-finished' if result.get('mirror') else ''}"
                 f"{', centre-corrected' if result.get('centre') else ''}"
                 f"{', held upright' if result.get('up') else ''})"

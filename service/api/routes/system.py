@@ -38,6 +38,7 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_planes=list(m.card.mirror_planes),
             mirror_evaluation=m.card.mirror_evaluation,
             mirror_fused=m.card.mirror_fused,
+            verify_fused=m.card.verify_fused,
             centre=m.centre is not None,
             centre_viewpoint=m.centre_viewpoint is not None,
             centre_up=m.centre_up is not None,

@@ -1,0 +1,155 @@
+"""verify: fused runs anchored by the run that sits most firmly in its basin (itnet.basin), in
+the engine, the HTTP API, the stream, the CLI and the card."""
+
+import json
+
+import numpy as np
+import pytest
+
+from itnet.basin import PROBE_DEG, PROBE_STEPS, basin_drift, firm_anchor, probe_turns
+from itnet.fusion import fuse_poses, medoid_index
+from itnet.preprocess import pose_from_normalized
+from itnet.service.engine import AnytimeRun, BadCloudError
+from itnet.service.runtime import load_model
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model_dir):
+    return load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
+
+
+@pytest.fixture
+def cloud(rng):
+    return rng.normal(size=(700, 3)) * [1.0, 0.5, 0.3] + [2.0, -1.0, 4.0]
+
+
+def _anchored(model, run: AnytimeRun) -> np.ndarray:
+    """What verify should answer for a finished run, computed here from its runs' poses."""
+    drift = basin_drift(
+        lambda x, pose: model.step(x, pose)[0],
+        run.points,
+        run.pose_normalized,
+        probe_turns(PROBE_DEG),
+        PROBE_STEPS,
+    )
+    anchor = firm_anchor(drift, medoid_index(run.pose_normalized, model.card.symmetry))
+    anchored = fuse_poses(run.pose_normalized, model.card.symmetry, anchor=anchor)
+    return pose_from_normalized(anchored, run.normalization)
+
+
+def test_a_verified_run_answers_the_fusion_anchored_by_its_firmest_run(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    estimates = list(run)
+    assert [e.iteration for e in estimates] == [1, 2, 3]  # the stream is the fused pose's
+    assert np.allclose(estimates[-1].pose, fuse_poses(run.poses(), model.card.symmetry), atol=1e-4)
+    assert run.result()["verified"] is True and run.result()["iterations"] == 3
+    assert np.allclose(run.last.pose, _anchored(model, run), atol=1e-4)
+
+
+def test_a_budget_that_cannot_hold_the_probes_keeps_the_plain_fusion(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    fused = [next(run) for _ in range(3)][-1]
+    run.budget_ms = run.elapsed_ms() + 0.01  # no time left for 5 steps of 16 runs
+    assert run.run_to_end() is fused or np.allclose(run.last.pose, fused.pose)
+    assert run.result()["verified"] is False
+
+
+def test_a_cancelled_run_is_not_verified(model, cloud):
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    next(run)
+    run.cancel()
+    run.run_to_end()
+    assert run.stopped_by == "cancelled" and run.result()["verified"] is False
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"verify": True}, "needs ensemble > 1"),
+        ({"verify": True, "ensemble": 1}, "needs ensemble > 1"),
+        ({"verify": True, "ensemble": 4, "up": [0.0, 1.0, 0.0]}, "cannot be combined with up"),
+    ],
+)
+def test_verify_without_fused_runs_or_with_up_is_refused(model, cloud, kwargs, message):
+    with pytest.raises(BadCloudError, match=message):
+        AnytimeRun(model, cloud, budget_ms=5000, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def verifying_dir(tmp_path_factory):
+    """'tiny' (no verify on its card) and 'tinyv', whose card says verify_fused."""
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+    from tests.conftest import make_tiny_net
+
+    folder = tmp_path_factory.mktemp("verify")
+    net = make_tiny_net()
+    export_step(net, ModelCard(name="tiny", category="chair", points=256), folder / "tiny.onnx")
+    card = ModelCard(name="tinyv", category="chair", points=256, verify_fused=True)
+    export_step(net, card, folder / "tinyv.onnx")
+    return folder
+
+
+def test_the_cards_verify_fused_is_the_default_for_fused_runs_only(verifying_dir, cloud):
+    verifying = load_model(verifying_dir / "tinyv.onnx", warm_up=False)
+    plain = load_model(verifying_dir / "tiny.onnx", warm_up=False)
+    kw = {"budget_ms": 5000, "max_iterations": 2}
+    assert AnytimeRun(verifying, cloud, ensemble=4, **kw).verify
+    assert not AnytimeRun(verifying, cloud, ensemble=4, verify=False, **kw).verify
+    assert not AnytimeRun(verifying, cloud, **kw).verify  # one run: nothing to weigh
+    assert not AnytimeRun(verifying, cloud, ensemble=4, up=[0.0, 1.0, 0.0], **kw).verify
+    assert not AnytimeRun(plain, cloud, ensemble=4, **kw).verify
+    single = AnytimeRun(verifying, cloud, **kw)
+    single.run_to_end()
+    assert "verified" not in single.result()
+
+
+def test_http_stream_and_cli_verify(verifying_dir, tmp_path, cloud):
+    from fastapi.testclient import TestClient
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    with TestClient(create_app(Settings(model_dir=verifying_dir))) as client:
+        listed = {m["name"]: m for m in client.get("/v1/models").json()["models"]}
+        assert listed["tinyv"]["verify_fused"] is True and listed["tiny"]["verify_fused"] is False
+        body = {"points": cloud.tolist(), "max_iterations": 2, "budget_ms": 5000}
+        asked = {**body, "model": "tiny", "ensemble": 4, "verify": True}
+        reply = client.post("/v1/estimate", json=asked)
+        assert reply.status_code == 200, reply.text
+        assert reply.json()["verified"] is True and reply.json()["ensemble"] == 4
+        default = client.post("/v1/estimate", json={**body, "model": "tinyv", "ensemble": 3})
+        assert default.json()["verified"] is True
+        off = {**body, "model": "tinyv", "ensemble": 3, "verify": False}
+        assert "verified" not in client.post("/v1/estimate", json=off).json()
+        refused = client.post("/v1/estimate", json={**body, "model": "tiny", "verify": True})
+        assert refused.status_code == 422 and "ensemble > 1" in refused.text
+        with client.websocket_connect("/v1/estimate/stream") as ws:
+            ws.send_json(asked)
+            messages = [ws.receive_json() for _ in range(3)]
+        assert [m["type"] for m in messages] == ["estimate", "estimate", "result"]
+        assert messages[-1]["verified"] is True
+    path = tmp_path / "cloud.npy"
+    np.save(path, cloud.astype(np.float32))
+    args = ["pose", str(path), "--model", "tiny", "--model-dir", str(verifying_dir), "--json"]
+    out = CliRunner().invoke(app, [*args, "--ensemble", "3", "--max-iterations", "2", "--verify"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["verified"] is True
+    out = CliRunner().invoke(app, [*args, "--max-iterations", "2", "--verify"])
+    assert out.exit_code != 0 and "ensemble > 1" in out.output
+
+
+def test_the_card_command_sets_verify_fused(tiny_model_dir, tmp_path):
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+
+    out = tmp_path / "v.onnx"
+    done = CliRunner().invoke(
+        app, ["card", str(tiny_model_dir / "tiny.onnx"), "--verify-fused", "--out", str(out)]
+    )
+    assert done.exit_code == 0, done.output
+    assert load_model(out, warm_up=False).card.verify_fused is True
+    assert load_model(tiny_model_dir / "tiny.onnx", warm_up=False).card.verify_fused is False
