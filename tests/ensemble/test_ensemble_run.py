@@ -11,16 +11,6 @@ from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.runtime import load_model
 
 
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
-
-
-@pytest.fixture
-def cloud(rng):
-    return rng.normal(size=(700, 3)) * [1.0, 0.5, 0.3] + [2.0, -1.0, 4.0]
-
-
 def test_every_estimate_is_the_fused_pose_of_the_runs(model, cloud):
     run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4)
     estimates = list(run)

@@ -13,16 +13,6 @@ from itnet.service.engine import AnytimeRun, BadCloudError
 from itnet.service.runtime import load_model
 
 
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
-
-
-@pytest.fixture
-def cloud(rng):
-    return rng.normal(size=(700, 3)) * [1.0, 0.5, 0.3] + [2.0, -1.0, 4.0]
-
-
 def _anchored(model, run: AnytimeRun) -> np.ndarray:
     """What verify should answer for a finished run, computed here from its runs' poses."""
     drift = basin_drift(
