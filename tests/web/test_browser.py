@@ -76,6 +76,8 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert np.allclose(shown["T_canonical_from_input"], api["T_canonical_from_input"], atol=1e-6)
     assert "4 runs fused" in page.text_content("#status")
     assert api["centre"] is True and "centre corrected" in page.text_content("#status")
+    assert api["verified"] is True and shown["verified"] is True  # the chair's card: verify_fused
+    assert "anchored by the firmest run" in page.text_content("#status")
     # Back to the model's count (one run for the chair): the request carries no ensemble, and
     # the URL forgets it.
     page.select_option("#ensemble", "")
