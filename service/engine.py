@@ -277,10 +277,11 @@ class AnytimeRun(Iterator[Estimate]):
             )
         self.mirror = bool(mirror)
         self.mirror_planes: list[str] | None = None  # once finished: the planes that finished it
-        # Anchor the fused pose by the run that sits most firmly in its basin (itnet.basin),
-        # after the last step and before the mirror, where the budget still holds the probes: by
-        # default where the card says so (verify_fused; session 33's validation, the chair, 8
-        # runs: paper views +1.7 ± 0.4 points, occluded +1.8 ± 0.6), never for runs held upright.
+        # Where the fusion's medoid does not hold its pose, anchor the fused pose by the run that
+        # sits most firmly in its basin (itnet.basin), after the last step and before the
+        # mirror, where the budget still holds the probes: by default where the card says so
+        # (verify_fused; the chair, session 33: 4 runs on the test views, paper +1.4 ± 0.5
+        # points, occluded +1.2 ± 0.6; docs/ensemble.md), never for runs held upright.
         if verify and ensemble == 1:
             raise BadCloudError(
                 "verify weighs fused runs against each other: it needs ensemble > 1"
