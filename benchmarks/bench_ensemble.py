@@ -120,6 +120,14 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     return out
 
 
+SWITCH = {"default": None, "on": True, "off": False}  # the engine's default, always, never
+
+
+def add_switch(parser: argparse.ArgumentParser, name: str, help: str) -> None:
+    """An engine option the benchmark can leave to the engine (default), force on, or off."""
+    parser.add_argument(name, choices=list(SWITCH), default="default", help=help)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--model", type=Path, default=Path("itnet/models/chair.onnx"))
@@ -140,18 +148,16 @@ def main() -> None:
     parser.add_argument(
         "--points-per-step", type=int, default=None, help="one run's subset (K = 1 only)"
     )
-    parser.add_argument(
+    add_switch(
+        parser,
         "--mirror",
-        choices=["default", "on", "off"],
-        default="default",
-        help="finish by the card's mirror planes: the engine's default (single runs), always, never",
+        "finish by the card's mirror planes: the engine's default (single runs), always, never",
     )
-    parser.add_argument(
+    add_switch(
+        parser,
         "--centre",
-        choices=["default", "on", "off"],
-        default="default",
-        help="finish the centre by the card's correction: the engine's default (where the card "
-        "has one), always, never",
+        "finish the centre by the card's correction: the engine's default (where the card has "
+        "one), always, never",
     )
     parser.add_argument(
         "--viewpoint",
@@ -173,20 +179,18 @@ def main() -> None:
         default=None,
         help="a JSON of this benchmark on the same scans: adds each setting's paired gain over it",
     )
-    parser.add_argument(
+    add_switch(
+        parser,
         "--verify",
-        choices=["default", "on", "off"],
-        default="default",
-        help="anchor fused runs by the firmest one (itnet.basin): the card's default, always "
-        "(K > 1), never",
+        "anchor fused runs by the firmest one (itnet.basin): the card's default, always (K > 1), "
+        "never",
     )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
     args = parser.parse_args()
     views = args.views or (4 if args.split == "val" else 5)
-    switch = {"default": None, "on": True, "off": False}  # the engine's default, always, never
-    mirror, centre = switch[args.mirror], switch[args.centre]
+    mirror, centre = SWITCH[args.mirror], SWITCH[args.centre]
     baseline = json.loads(args.baseline.read_text()) if args.baseline else None
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
@@ -217,7 +221,7 @@ def main() -> None:
                 baseline,
                 args.viewpoint,
                 args.up,
-                switch[args.verify],
+                SWITCH[args.verify],
             )
             for s in args.scanners
         },
