@@ -115,10 +115,12 @@ class AsyncItnetClient:
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
         up: list[float] | None = None,
+        ensemble: int | None = None,
+        verify: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
         fields = request_fields(
-            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up
+            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up, ensemble, verify
         )
         try:
             if binary:
@@ -142,11 +144,24 @@ class AsyncItnetClient:
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
         up: list[float] | None = None,
+        ensemble: int | None = None,
+        verify: bool | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up),
+            request_fields(
+                budget_ms,
+                max_iterations,
+                model,
+                units,
+                mirror,
+                centre,
+                viewpoint,
+                up,
+                ensemble,
+                verify,
+            ),
         )
         try:
             url = websocket_url(self.base_url)

@@ -113,15 +113,20 @@ class ItnetClient:
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
         up: list[float] | None = None,
+        ensemble: int | None = None,
+        verify: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
         point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
         cloud's size; ``mirror`` (default: the model's) finishes the pose by the category's mirror
         symmetry or not, ``centre`` (default: the model's) its object centre by the model's centre
-        correction or not; ``up`` (x, y, z), which way is up in the cloud, holds the pose upright.
+        correction or not; ``up`` (x, y, z), which way is up in the cloud, holds the pose upright;
+        ``ensemble`` K (default: the model's) fuses K runs on different subsets into each
+        estimate, and ``verify`` (default: the model's, for K > 1) anchors that fusion on the run
+        that holds its pose when knocked off (``EstimateResult.ensemble``, ``.verified``).
         Raises ItnetRequestError (refused), ItnetConnectionError."""
         fields = request_fields(
-            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up
+            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up, ensemble, verify
         )
         try:
             if binary:
@@ -145,15 +150,30 @@ class ItnetClient:
         centre: bool | None = None,
         viewpoint: list[float] | None = None,
         up: list[float] | None = None,
+        ensemble: int | None = None,
+        verify: bool | None = None,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up),
+            request_fields(
+                budget_ms,
+                max_iterations,
+                model,
+                units,
+                mirror,
+                centre,
+                viewpoint,
+                up,
+                ensemble,
+                verify,
+            ),
         )
         try:
             url = websocket_url(self.base_url)
-            connection = connect(url, open_timeout=self.timeout, max_size=None)
+            # Entered as a context manager (websockets >= 17.1 warns about a bare connect(); a
+            # later release's bare connect() reconnects), left by EstimateStream's close().
+            connection = connect(url, open_timeout=self.timeout, max_size=None).__enter__()
         except (OSError, InvalidHandshake, InvalidURI, TimeoutError) as err:
             raise ItnetConnectionError(f"{self.base_url}: cannot open the stream ({err})") from None
         connection.send(json.dumps(request))

@@ -92,6 +92,18 @@ class EstimateResult:
                    float(data["elapsed_ms"]), str(data.get("model", "")), estimates,
                    data)  # fmt: skip
 
+    @property
+    def ensemble(self) -> int:
+        """Runs fused into each estimate (1: a single run)."""
+        return int(self.raw.get("ensemble") or 1)
+
+    @property
+    def verified(self) -> bool | None:
+        """Where ``verify`` was on: True if its probes ran and the fusion was anchored by the
+        firmest run, False if the budget could not hold them; None where it was off."""
+        verified = self.raw.get("verified")
+        return None if verified is None else bool(verified)
+
 
 def _pose_arrays(data: dict[str, Any]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     try:
@@ -119,10 +131,12 @@ def request_fields(
     centre: bool | None = None,
     viewpoint: list[float] | None = None,
     up: list[float] | None = None,
+    ensemble: int | None = None,
+    verify: bool | None = None,
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations, units, mirror, centre, viewpoint and up
-    only when given; the viewpoint and up as 'x,y,z', which a binary request's query also
-    takes)."""
+    """The request's non-point fields (max_iterations, units, mirror, centre, viewpoint, up,
+    ensemble and verify only when given; the viewpoint and up as 'x,y,z', which a binary
+    request's query also takes)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
@@ -136,6 +150,10 @@ def request_fields(
         out["viewpoint"] = ",".join(repr(float(v)) for v in viewpoint)
     if up is not None:
         out["up"] = ",".join(repr(float(v)) for v in up)
+    if ensemble is not None:
+        out["ensemble"] = ensemble
+    if verify is not None:
+        out["verify"] = verify
     return out
 
 

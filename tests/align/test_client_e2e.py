@@ -48,6 +48,10 @@ def test_stream_yields_every_iteration_then_the_result(server, cloud):
         posted = client.estimate(cloud, model="tiny", budget_ms=1000, max_iterations=5)
         with client.stream(cloud, model="tiny", budget_ms=1000, max_iterations=5) as stream:
             iterations = [e.iteration for e in stream]
+        with client.stream(cloud, model="tiny", budget_ms=5_000, max_iterations=2,
+                           ensemble=3, verify=False) as fused:  # fmt: skip
+            assert [e.iteration for e in fused] == [1, 2]
+    assert (fused.result.ensemble, fused.result.verified) == (3, None)
     assert iterations == [1, 2, 3, 4, 5]
     result = stream.result
     assert result is not None and result.stopped_by == "max_iterations"
@@ -96,6 +100,11 @@ def test_async_client(server, cloud):
             stream = await client.stream(cloud, model="tiny", max_iterations=3, budget_ms=5_000)
             async with stream:
                 iterations = [e.iteration async for e in stream]
+            fused = await client.stream(cloud, model="tiny", max_iterations=2, budget_ms=5_000,
+                                        ensemble=2, verify=True)  # fmt: skip
+            async with fused:
+                assert [e.iteration async for e in fused] == [1, 2]
+            assert (fused.result.ensemble, fused.result.verified) == (2, True)
             with pytest.raises(ItnetRequestError):
                 await client.estimate(cloud[:5], model="tiny")
             return posted, iterations, stream.result

@@ -143,3 +143,30 @@ def test_the_card_command_sets_verify_fused(tiny_model_dir, tmp_path):
     assert done.exit_code == 0, done.output
     assert load_model(out, warm_up=False).card.verify_fused is True
     assert load_model(tiny_model_dir / "tiny.onnx", warm_up=False).card.verify_fused is False
+
+
+def test_the_python_clients_send_ensemble_and_verify(verifying_dir, cloud):
+    """Both bodies of ItnetClient.estimate carry the two fields (JSON, and the binary body's
+    query); the result says how many runs were fused and whether verify ran."""
+    from fastapi.testclient import TestClient
+
+    from itnet.clients import ItnetClient, ItnetRequestError
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    with TestClient(create_app(Settings(model_dir=verifying_dir))) as served:
+        http = ItnetClient("http://testserver")
+        http._http = served  # the app in-process: TestClient is an httpx.Client
+        kw = {"model": "tiny", "budget_ms": 5000, "max_iterations": 2}
+        for binary in (False, True):
+            fused = http.estimate(cloud, ensemble=3, verify=True, binary=binary, **kw)
+            assert (fused.ensemble, fused.verified) == (3, True)
+            unverified = http.estimate(cloud, ensemble=3, verify=False, binary=binary, **kw)
+            assert (unverified.ensemble, unverified.verified) == (3, None)
+            single = http.estimate(cloud, binary=binary, **kw)
+            assert (single.ensemble, single.verified) == (1, None)
+            with pytest.raises(ItnetRequestError, match="ensemble > 1"):
+                http.estimate(cloud, verify=True, binary=binary, **kw)
+            with pytest.raises(ItnetRequestError, match="ensemble") as too_many:
+                http.estimate(cloud, ensemble=99, binary=binary, **kw)
+            assert too_many.value.status == 422

@@ -15,6 +15,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from itnet.service.app import create_app
 from itnet.service.metrics import Metrics
 from itnet.service.runtime import LoadedModel
+from itnet.service.schemas import EstimateParams
 from itnet.service.server import settings_to_env
 from itnet.service.settings import LimitSettings, Settings
 from itnet.service.state import ServiceState
@@ -92,9 +93,12 @@ def test_openapi_documents_both_bodies_with_examples(client: TestClient) -> None
     content = post["requestBody"]["content"]
     assert set(content) == {"application/json", "application/octet-stream"}
     assert len(content["application/json"]["example"]["points"]) >= 32
-    assert {p["name"] for p in post["parameters"]} == {
-        "budget_ms", "max_iterations", "model", "viewpoint", "up",
-    }  # fmt: skip
+    # a binary body's query takes every field of the JSON body but the points
+    assert [p["name"] for p in post["parameters"]] == list(EstimateParams.model_fields)
+    assert {"ensemble", "verify", "mirror", "centre", "units"} <= set(EstimateParams.model_fields)
+    query = {p["name"]: p for p in post["parameters"]}
+    assert query["up"]["schema"]["type"] == "string"  # 'x,y,z'
+    assert query["ensemble"]["schema"]["maximum"] == 16
     assert {"200", "400", "404", "413", "415", "422", "503"} <= set(post["responses"])
     assert "/v1/models" in spec["paths"] and "/readyz" in spec["paths"]
     assert client.get("/docs").status_code == 200

@@ -13,7 +13,13 @@ from fastapi import APIRouter, Request, Response
 
 from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
 from itnet.service.engine import AnytimeRun, estimates_to_dicts
-from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
+from itnet.service.schemas import (
+    EXAMPLE_REQUEST,
+    ErrorResponse,
+    EstimateParams,
+    EstimateRequest,
+    EstimateResponse,
+)
 from itnet.service.state import ServiceState
 
 router = APIRouter(prefix="/v1", tags=["estimate"])
@@ -27,23 +33,25 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     503: {"model": ErrorResponse, "description": "not ready, or busy (see Retry-After)"},
 }
 
-_QUERY = [
-    {"name": "budget_ms", "in": "query", "required": False,
-     "schema": {"type": "number", "exclusiveMinimum": 0, "default": 50},
-     "description": "binary bodies only: time budget, milliseconds"},
-    {"name": "max_iterations", "in": "query", "required": False,
-     "schema": {"type": "integer", "minimum": 1},
-     "description": "binary bodies only: iteration cap (default: the model's)"},
-    {"name": "model", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "binary bodies only: model name (default: 'chair' or the only model)"},
-    {"name": "viewpoint", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "binary bodies only: the sensor's position, 'x,y,z'"},
-    {"name": "up", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "binary bodies only: which way is up in the cloud, 'x,y,z'"},
-]  # fmt: skip
+
+def _query_parameters() -> list[dict[str, Any]]:
+    """EstimateParams as the query parameters of a binary request (one source for both bodies):
+    each field's JSON schema without its null branch; three numbers as the string 'x,y,z'."""
+    out = []
+    for name, field in EstimateParams.model_json_schema()["properties"].items():
+        branches = [b for b in field.get("anyOf", [field]) if b.get("type") != "null"]
+        schema = {k: v for k, v in branches[0].items() if k not in ("title", "description")}
+        if schema.get("type") == "array":
+            schema = {"type": "string", "pattern": r"^[^,]+,[^,]+,[^,]+$"}
+        if field.get("default") is not None:
+            schema["default"] = field["default"]
+        out.append({"name": name, "in": "query", "required": False, "schema": schema,
+                    "description": f"binary bodies only: {field['description']}"})  # fmt: skip
+    return out
+
 
 OPENAPI_EXTRA = {
-    "parameters": _QUERY,
+    "parameters": _query_parameters(),
     "requestBody": {
         "required": True,
         "content": {
