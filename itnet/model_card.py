@@ -65,6 +65,9 @@ class ModelCard(BaseModel):
         "most firmly in its basin (itnet.basin), by default, where the budget holds its probes: "
         "chosen per category on validation",
     )
+    verify_evaluation: str = Field(
+        "", description="verify's measured effect as served: fused runs without and with it"
+    )
     centre_correction: dict | None = Field(
         None,
         description="a linear correction of the object centre, applied after the last step "
@@ -276,22 +279,33 @@ def describe_up(report: dict, k: int) -> str:
     )
 
 
+def _paired_rows(without: dict, with_it: dict, fused: bool) -> list[tuple[str, str, dict, dict]]:
+    """(kind, runs, row without, row with) of two ``benchmarks.bench_ensemble`` JSONs of the
+    same views: the one-run rows, or (``fused``) those of more than one run. Raises ValueError
+    where they share none or measured different scans."""
+    pairs = []
+    for kind, rows in with_it.items():
+        if not isinstance(rows, dict) or not isinstance(without.get(kind), dict):
+            continue
+        for runs, row in rows.items():
+            if not runs.isdigit() or (int(runs) > 1) != fused or runs not in without[kind]:
+                continue
+            plain = without[kind][runs]
+            if plain["scans"] != row["scans"] or without.get("split") != with_it.get("split"):
+                raise ValueError(f"{kind}: the two reports measured different scans")
+            pairs.append((kind, runs, plain, row))
+    if not pairs:
+        many = "more than one run" if fused else "one run"
+        raise ValueError(f"the reports share no kind of view measured with {many}")
+    return pairs
+
+
 def describe_mirror(without: dict, with_planes: dict) -> str:
     """The card's ``mirror_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of one
     run (K = 1) on the same views, the card without and with its mirror planes. Raises
     ValueError where they share no such measurement or measured different scans."""
-    kinds = [
-        name
-        for name, rows in with_planes.items()
-        if isinstance(rows, dict) and "1" in rows and "1" in without.get(name, {})
-    ]
-    if not kinds:
-        raise ValueError("the reports share no kind of view measured with one run")
     parts = []
-    for kind in kinds:
-        plain, mirrored = without[kind]["1"], with_planes[kind]["1"]
-        if plain["scans"] != mirrored["scans"] or without.get("split") != with_planes.get("split"):
-            raise ValueError(f"{kind}: the two reports measured different scans")
+    for kind, _, plain, mirrored in _paired_rows(without, with_planes, fused=False):
         finished = mirrored.get("mirror_finished")
         done = "" if finished is None else f", {100 * finished:.0f}% finished in time"
         parts.append(
@@ -303,4 +317,27 @@ def describe_mirror(without: dict, with_planes: dict) -> str:
         "without and with the mirror planes, at (10 deg, 0.1 radius): "
         + ", ".join(parts)
         + f" [{with_planes['machine']}]"
+    )
+
+
+def describe_verify(without: dict, with_verify: dict) -> str:
+    """The card's ``verify_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of
+    fused runs (K > 1) on the same views, ``--verify off`` and ``on``; the paired gain where the
+    second was measured against the first (``--baseline``). Raises ValueError where they share
+    no such measurement or measured different scans."""
+    parts = []
+    for kind, runs, plain, verified in _paired_rows(without, with_verify, fused=True):
+        paired = verified.get("versus_baseline")
+        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
+        done = verified.get("verified")
+        held = "" if done is None else f", {100 * done:.0f}% verified in time"
+        parts.append(
+            f"{kind} {runs} runs {plain['accuracy']:.1f}% -> {verified['accuracy']:.1f}% "
+            f"({gain}{verified['scans']} scans{held})"
+        )
+    return (
+        f"fused runs within {with_verify['budget_ms']:g} ms on the {with_verify['split']} views, "
+        "without and with verify, at (10 deg, 0.1 radius): "
+        + ", ".join(parts)
+        + f" [{with_verify['machine']}]"
     )

@@ -246,6 +246,7 @@ class ModelInfo(BaseModel):
         description="fused runs are anchored by the run that sits most firmly in its basin, "
         "where the budget holds the probes, unless a request says 'verify': false",
     )
+    verify_evaluation: str = Field("", description="verify's measured effect on fused runs")
     centre: bool = Field(
         False,
         description="the model has a centre correction: the final pose's object centre "

@@ -33,7 +33,15 @@ def card(
         None,
         "--verify-fused/--no-verify-fused",
         help="Anchor fused runs by the one that sits most firmly in its basin (itnet.basin), "
-        "by default, where the budget holds the probes.",
+        "by default, where the budget holds the probes; needs its measurement (--with-verify).",
+    ),
+    without_verify: Path | None = typer.Option(
+        None, help="`benchmarks.bench_ensemble --verify off` JSON of fused runs ..."
+    ),
+    with_verify: Path | None = typer.Option(
+        None,
+        help="... and `--verify on` on the same views (`--baseline` the first for the paired "
+        "gain): recorded as the card's verify_evaluation.",
     ),
     recommended_ensemble: int | None = typer.Option(
         None,
@@ -74,7 +82,13 @@ def card(
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model_card import ModelCard, describe_anytime, describe_mirror, describe_up
+    from itnet.model_card import (
+        ModelCard,
+        describe_anytime,
+        describe_mirror,
+        describe_up,
+        describe_verify,
+    )
     from itnet.service.runtime import ModelLoadError, load_any
 
     try:
@@ -99,7 +113,18 @@ def card(
         if mirror_fused and not planes:
             raise typer.BadParameter("--mirror-fused needs mirror planes on the card")
         update["mirror_fused"] = mirror_fused
+    if (without_verify is None) != (with_verify is None):
+        raise typer.BadParameter("give both --without-verify and --with-verify, or neither")
+    if without_verify is not None and with_verify is not None:
+        try:
+            update["verify_evaluation"] = describe_verify(
+                json.loads(without_verify.read_text()), json.loads(with_verify.read_text())
+            )
+        except (KeyError, ValueError) as err:
+            raise typer.BadParameter(f"--with-verify: {err}") from None
     if verify_fused is not None:
+        if verify_fused and not (update.get("verify_evaluation") or current.verify_evaluation):
+            raise typer.BadParameter("--verify-fused needs its measurement: --with-verify")
         update["verify_fused"] = verify_fused
     if (without_mirror is None) != (with_mirror is None):
         raise typer.BadParameter("give both --without-mirror and --with-mirror, or neither")

@@ -131,18 +131,60 @@ def test_http_stream_and_cli_verify(verifying_dir, tmp_path, cloud):
     assert out.exit_code != 0 and "ensemble > 1" in out.output
 
 
-def test_the_card_command_sets_verify_fused(tiny_model_dir, tmp_path):
+def _fused_report(verify: str, accuracy: float, verified: float | None = None) -> dict:
+    """A ``benchmarks.bench_ensemble`` JSON: one run and 4 fused runs on 40 paper views."""
+    four = {"accuracy": accuracy, "gain": 2.0, "gain_stderr": 1.0, "scans": 40}
+    if verified is not None:
+        four |= {"verified": verified,
+                 "versus_baseline": {"accuracy": accuracy, "gain": 2.5, "gain_stderr": 0.5}}  # fmt: skip
+    one = {"accuracy": 60.0, "gain": 0.0, "gain_stderr": 0.0, "scans": 40}
+    return {"machine": "test", "budget_ms": 200.0, "split": "val", "verify": verify,
+            "paper": {"1": one, "4": four}}  # fmt: skip
+
+
+def test_the_card_command_sets_verify_fused_with_its_measurement(tiny_model_dir, tmp_path):
     from typer.testing import CliRunner
 
     from itnet.cli import app
 
-    out = tmp_path / "v.onnx"
-    done = CliRunner().invoke(
-        app, ["card", str(tiny_model_dir / "tiny.onnx"), "--verify-fused", "--out", str(out)]
-    )
+    out, source = tmp_path / "v.onnx", str(tiny_model_dir / "tiny.onnx")
+    bare = CliRunner().invoke(app, ["card", source, "--verify-fused", "--out", str(out)])
+    assert bare.exit_code == 2 and "--with-verify" in bare.output and not out.exists()
+    (tmp_path / "off.json").write_text(json.dumps(_fused_report("off", 65.0)))
+    (tmp_path / "on.json").write_text(json.dumps(_fused_report("on", 67.5, verified=0.95)))
+    measured = ["--without-verify", str(tmp_path / "off.json"),
+                "--with-verify", str(tmp_path / "on.json")]  # fmt: skip
+    half = CliRunner().invoke(app, ["card", source, "--verify-fused", *measured[2:]])
+    assert half.exit_code == 2 and "neither" in half.output
+    done = CliRunner().invoke(app, ["card", source, "--verify-fused", *measured, "--out", str(out)])
     assert done.exit_code == 0, done.output
-    assert load_model(out, warm_up=False).card.verify_fused is True
+    card = load_model(out, warm_up=False).card
+    assert card.verify_fused is True
+    assert card.verify_evaluation.startswith("fused runs within 200 ms on the val views")
+    # the fused rows only, with the paired gain: the one-run row is not verify's to report
+    assert "paper 4 runs 65.0% -> 67.5% (+2.5 ± 0.5, 40 scans, 95% verified in time)" in (
+        card.verify_evaluation
+    )
+    assert "60.0" not in card.verify_evaluation
     assert load_model(tiny_model_dir / "tiny.onnx", warm_up=False).card.verify_fused is False
+    # the measurement stays on the card: turning the default off and on again needs no report
+    for flag in ("--no-verify-fused", "--verify-fused"):
+        again = CliRunner().invoke(app, ["card", str(out), flag])
+        assert again.exit_code == 0, again.output
+    assert load_model(out, warm_up=False).card.verify_fused is True
+
+
+def test_describe_verify_needs_fused_runs_on_the_same_scans():
+    from itnet.model_card import describe_verify
+
+    off, on = _fused_report("off", 65.0), _fused_report("on", 67.5)
+    on["paper"]["4"]["scans"] = 41
+    with pytest.raises(ValueError, match="different scans"):
+        describe_verify(off, on)
+    for report in (off, on):
+        del report["paper"]["4"]
+    with pytest.raises(ValueError, match="more than one run"):
+        describe_verify(off, on)
 
 
 def test_the_python_clients_send_ensemble_and_verify(verifying_dir, cloud):

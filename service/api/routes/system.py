@@ -39,6 +39,7 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_evaluation=m.card.mirror_evaluation,
             mirror_fused=m.card.mirror_fused,
             verify_fused=m.card.verify_fused,
+            verify_evaluation=m.card.verify_evaluation,
             centre=m.centre is not None,
             centre_viewpoint=m.centre_viewpoint is not None,
             centre_up=m.centre_up is not None,
