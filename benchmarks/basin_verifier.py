@@ -1,7 +1,7 @@
 """The ensemble's runs anchored by the one that sits most firmly in its basin, on *validation* views.
 
 K runs per scan as the engine runs an ensemble (turned starts, own subsets, 10 iterations, no
-time limit; ``benchmarks.ensemble_starts.run_poses``), then three answers on the same runs:
+time limit; ``itnet.model.evaluate.run_poses``), then three answers on the same runs:
 
 * ``fused``: the fusion as served (``itnet.fusion``: the medoid's inliers);
 * ``anchored``: the fusion anchored by the run with the least drift (``itnet.basin``: each pose
@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.ensemble_starts import run_poses
 from itnet.basin import PROBE_DEG, PROBE_STEPS, basin_drift, firm_anchor, probe_turns
 from itnet.fusion import fuse_poses, medoid_index
 from itnet.geometry import viewing_axis_turns
@@ -32,7 +31,7 @@ from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.categories import category
 from itnet.model.category_set import validation_scans
 from itnet.model.data import ScanSet
-from itnet.model.evaluate import report
+from itnet.model.evaluate import report, run_poses
 from itnet.model.scanner import VIEW_RULES, scan_config
 from itnet.preprocess import pose_from_normalized
 from itnet.service.runtime import load_model

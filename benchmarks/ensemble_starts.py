@@ -29,19 +29,12 @@ from itnet.geometry import viewing_axis_turns
 from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.categories import category
 from itnet.model.category_set import validation_scans
-from itnet.model.evaluate import report
+from itnet.model.evaluate import report, run_poses
 from itnet.model.scanner import VIEW_RULES, scan_config
 from itnet.preprocess import (
-    Normalization,
-    cap_points,
-    estimate_normalization,
     pose_from_normalized,
 )
-from itnet.service.engine import ENSEMBLE_SUBSET, Limits
 from itnet.service.runtime import LoadedModel, load_model
-
-ITERATIONS = 10
-MIN_POINTS = Limits().min_points  # the engine's floor on an ensemble run's subset
 
 
 def start_rules(k: int) -> dict[str, NDArray | None]:
@@ -58,28 +51,6 @@ def pose_of(model: LoadedModel, cloud: NDArray, starts: NDArray | None, seed: in
     """One scan (N, 3), input units -> the fused T_canonical_from_input (4, 4)."""
     pose, _, norm = run_poses(model, cloud, starts, seed)
     return pose_from_normalized(fuse_poses(pose, model.card.symmetry), norm)
-
-
-def run_poses(
-    model: LoadedModel, cloud: NDArray, starts: NDArray | None, seed: int
-) -> tuple[NDArray, NDArray, Normalization]:
-    """One scan (N, 3), input units -> each run's pose after the iterations (K, 4, 4), its
-    points (K, n, 3), both in the normalised frame, and the normalisation."""
-    rng = np.random.default_rng(seed)
-    norm = estimate_normalization(cloud)
-    normalized = norm.apply(cloud)
-    if starts is None:
-        x = cap_points(normalized, model.card.points, rng)[None]
-        pose = np.eye(4, dtype=np.float32)[None]
-    else:
-        size = min(model.card.points, max(MIN_POINTS, int(ENSEMBLE_SUBSET * len(cloud))))
-        x = np.stack([cap_points(normalized, size, rng) for _ in starts])
-        pose = np.tile(np.eye(4, dtype=np.float32), (len(starts), 1, 1))
-        pose[:, :3, :3] = starts
-    x = x.astype(np.float32)
-    for _ in range(ITERATIONS):
-        pose, _ = model.step(x, pose)
-    return pose, x, norm
 
 
 def main() -> None:

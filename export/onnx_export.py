@@ -13,7 +13,7 @@ import onnx
 import torch
 
 from itnet.model.network import ExportableStep, ITNet
-from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard
+from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, VerifierCard
 
 INPUT_NAMES = ["points", "pose"]
 OUTPUT_NAMES = ["pose_next", "delta"]
@@ -39,7 +39,9 @@ def export_step(net: ITNet, card: ModelCard, path: Path, opset: int = 20) -> Pat
     return save_with_card(program.model_proto, card, path)
 
 
-def save_with_card(model: onnx.ModelProto, card: ModelCard | ClassifierCard, path: Path) -> Path:
+def save_with_card(
+    model: onnx.ModelProto, card: ModelCard | ClassifierCard | VerifierCard, path: Path
+) -> Path:
     """Write ``model`` to ``path`` as one file with ``card`` as its only itnet metadata, and
     check it. Returns the path."""
     for i in reversed(range(len(model.metadata_props))):

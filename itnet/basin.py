@@ -9,6 +9,12 @@ on average, those steps end from where the run was. Where the fusion's medoid dr
 ``UNSURE_DEG`` (the majority does not hold its pose), the run that drifts least anchors the
 fusion instead (``firm_anchor``, ``fusion.fuse_poses(anchor=...)``); a medoid that holds keeps
 its place, and with it the majority's mean.
+
+Where the category has a learned verifier (``model/verifier.py``: a PointNet trained on the
+pose model's own runs on training shapes to tell a right pose from a wrong one by how the
+cloud looks where the pose puts it), its scores replace the probes: each run's points are put
+where its pose says (``canonical_points``), one forward pass scores them all, and the likeliest
+run anchors the fusion (``likeliest_run``).
 """
 
 from __future__ import annotations
@@ -59,3 +65,16 @@ def firm_anchor(drift: NDArray, medoid: int, unsure_deg: float = UNSURE_DEG) -> 
     """Each run's drift (K,) and the fusion's medoid -> the run to anchor the fusion on: the
     medoid while it holds (drift at most ``unsure_deg``), else the run that drifts least."""
     return medoid if drift[medoid] <= unsure_deg else int(np.argmin(drift))
+
+
+def canonical_points(points: NDArray, poses: NDArray) -> NDArray[np.float32]:
+    """K runs' points (K, N, 3) and poses T (K, 4, 4), normalised frame -> each run's points
+    where its pose puts them, T p (K, N, 3): what a learned verifier judges."""
+    rotations, shifts = poses[:, :3, :3], poses[:, None, :3, 3]
+    return (points @ rotations.transpose(0, 2, 1) + shifts).astype(np.float32)
+
+
+def likeliest_run(scores: NDArray) -> int:
+    """A learned verifier's scores (K,), one a run (the logit of its pose being right) -> the run
+    to anchor the fusion on: the one it finds likeliest."""
+    return int(np.argmax(scores))

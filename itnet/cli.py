@@ -18,6 +18,7 @@ from itnet.commands import (
     pose,
     serve,
     train,
+    verifier,
 )
 
 app = typer.Typer(
@@ -59,6 +60,8 @@ app.command("classify-export")(classify.classify_export)
 app.command("classify-train")(classify.classify_train)
 app.command("classify-size-prior")(classify.classify_size_prior)
 app.command("models")(models.models)
+app.command("verifier-train")(verifier.verifier_train)
+app.command("verifier-export")(verifier.verifier_export)
 
 align_app = typer.Typer(add_completion=False)
 align_app.command()(align.align)

@@ -198,9 +198,26 @@ class ClassifierCard(BaseModel):
     )
 
 
-def parse_card(text: str) -> ModelCard | ClassifierCard:
-    """The card stored in a model file (JSON): a classifier's when its kind says so, else a pose
-    step's (cards written before ``kind`` existed are pose steps). Raises pydantic's
+class VerifierCard(BaseModel):
+    """Metadata of an exported verifier (``model/verifier.py``): one graph, a run's points where
+    its pose puts them, normalised canonical frame [B, N, 3] -> the logit of the pose being
+    right [B]. Served beside the pose models of its category: their fused runs' ``verify``
+    anchors on the run it finds likeliest."""
+
+    kind: Literal["verifier"] = "verifier"
+    name: str
+    version: str = "1"
+    category: str
+    precision: str = "float32"
+    points: int = Field(256, description="points of a run it was trained to see")
+    trained_on: str = Field("", description="the pose model whose runs it learned from")
+    evaluation: str = ""
+    training: dict[str, object] = Field(default_factory=dict)
+
+
+def parse_card(text: str) -> ModelCard | ClassifierCard | VerifierCard:
+    """The card stored in a model file (JSON): a classifier's or a verifier's when its kind says
+    so, else a pose step's (cards written before ``kind`` existed are pose steps). Raises pydantic's
     ValidationError (a ValueError) for a corrupt card."""
     import json
 
@@ -210,6 +227,8 @@ def parse_card(text: str) -> ModelCard | ClassifierCard:
         kind = "pose"  # let the pose card's validation say what is wrong
     if kind == "classifier":
         return ClassifierCard.model_validate_json(text)
+    if kind == "verifier":
+        return VerifierCard.model_validate_json(text)
     return ModelCard.model_validate_json(text)
 
 

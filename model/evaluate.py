@@ -8,6 +8,7 @@ to the model's point count with a seeded generator.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,9 +16,18 @@ from pydantic import BaseModel
 
 from itnet.metrics import is_correct, pose_errors
 from itnet.model.data import ScanSet
-from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
+from itnet.preprocess import (
+    Normalization,
+    cap_points,
+    estimate_normalization,
+    pose_from_normalized,
+    resample,
+)
 from itnet.symmetry import symmetric_rotation_error_deg
 from itnet.upright import UP, held_upright, rotation_onto
+
+if TYPE_CHECKING:
+    from itnet.service.runtime import LoadedModel
 
 # (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
 StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]
@@ -114,3 +124,33 @@ def torch_step(net) -> StepFn:  # type: ignore[no-untyped-def]
         return nxt.cpu().numpy()
 
     return step
+
+
+def run_poses(
+    model: LoadedModel,
+    cloud: NDArray,
+    starts: NDArray | None,
+    seed: int,
+    iterations: int = 10,
+) -> tuple[NDArray, NDArray, Normalization]:
+    """One scan (N, 3), input units -> each run's pose after ``iterations`` steps (K, 4, 4),
+    its points (K, n, 3), both in the normalised frame, and the normalisation: the runs as the
+    engine runs them (the whole cloud sets the normalisation; one run of the card's points, or
+    ``starts`` (K, 3, 3) each on its own random subset of ``min(points, 0.8 N)``), no clock."""
+    from itnet.service.engine import ENSEMBLE_SUBSET, Limits
+
+    rng = np.random.default_rng(seed)
+    norm = estimate_normalization(cloud)
+    normalized = norm.apply(cloud)
+    if starts is None:
+        x = cap_points(normalized, model.card.points, rng)[None]
+        pose = np.eye(4, dtype=np.float32)[None]
+    else:
+        size = min(model.card.points, max(Limits().min_points, int(ENSEMBLE_SUBSET * len(cloud))))
+        x = np.stack([cap_points(normalized, size, rng) for _ in starts])
+        pose = np.tile(np.eye(4, dtype=np.float32), (len(starts), 1, 1))
+        pose[:, :3, :3] = starts
+    x = x.astype(np.float32)
+    for _ in range(iterations):
+        pose, _ = model.step(x, pose)
+    return pose, x, norm

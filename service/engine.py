@@ -26,7 +26,15 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.basin import PROBE_DEG, PROBE_STEPS, basin_drift, firm_anchor, probe_turns
+from itnet.basin import (
+    PROBE_DEG,
+    PROBE_STEPS,
+    basin_drift,
+    canonical_points,
+    firm_anchor,
+    likeliest_run,
+    probe_turns,
+)
 from itnet.centre import centre_finished
 from itnet.fusion import fuse_poses, medoid_index
 from itnet.geometry import (
@@ -471,33 +479,42 @@ class AnytimeRun(Iterator[Estimate]):
             self.centred = True
 
     def _finish_verify(self) -> None:
-        """``last`` fused anew around the firmest run where the fusion's medoid does not hold its
-        pose when knocked off by the probe turns and the network steps back (itnet.basin), where
-        the budget left (less the reserve) holds the probes' steps at their predicted time.
+        """``last`` fused anew around a run chosen by how right it looks: by the model's learned
+        verifier where it has one (the run it finds likeliest; one call), else where the
+        fusion's medoid does not hold its pose when knocked off by the probe turns and the
+        network steps back, the firmest run (itnet.basin), where the budget left (less the
+        reserve) holds the verifier's call or the probes' steps at their predicted time.
         ``verified``: they ran."""
         if not self.verify or self.verified is not None:
             return
         self.verified = False
         if self.stopped_by == "cancelled" or self.iteration == 0:
             return
-        turns = probe_turns(PROBE_DEG)
-        predicted = PROBE_STEPS * self.model.predicted_step_ms() * self._load * len(turns)
-        slack = self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
-        if slack < 0:
-            return
-        deadline = self.started + self.budget_ms / 1e3
-        with self.model.step_slot(slack / 1e3, deadline) as free:
-            if not free or self._cancel.is_set():
+        verifier, symmetry = self.model.verifier, self.model.card.symmetry
+        if verifier is not None:
+            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms()
+            if slack < verifier.predicted_ms(*self.points.shape[:2]) or self._cancel.is_set():
                 return
-            drift = basin_drift(
-                lambda x, pose: self.model.step(x, pose)[0],
-                self.points,
-                self.pose_normalized,
-                turns,
-                PROBE_STEPS,
-            )
-        symmetry = self.model.card.symmetry
-        anchor = firm_anchor(drift, medoid_index(self.pose_normalized, symmetry))
+            scores = verifier.scores(canonical_points(self.points, self.pose_normalized))
+            anchor = likeliest_run(scores)
+        else:
+            turns = probe_turns(PROBE_DEG)
+            predicted = PROBE_STEPS * self.model.predicted_step_ms() * self._load * len(turns)
+            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
+            if slack < 0:
+                return
+            deadline = self.started + self.budget_ms / 1e3
+            with self.model.step_slot(slack / 1e3, deadline) as free:
+                if not free or self._cancel.is_set():
+                    return
+                drift = basin_drift(
+                    lambda x, pose: self.model.step(x, pose)[0],
+                    self.points,
+                    self.pose_normalized,
+                    turns,
+                    PROBE_STEPS,
+                )
+            anchor = firm_anchor(drift, medoid_index(self.pose_normalized, symmetry))
         self.last = self._moved_to(fuse_poses(self.pose_normalized, symmetry, anchor=anchor))
         self.verified = True
 

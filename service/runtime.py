@@ -22,7 +22,7 @@ import onnxruntime as ort
 from numpy.typing import NDArray
 
 from itnet.centre import CentreCorrection
-from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, parse_card
+from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, VerifierCard, parse_card
 from itnet.service.step_slots import StepSlots
 
 
@@ -78,6 +78,9 @@ class LoadedModel:
     # running estimate of one mirror plane's refinement (itnet.mirror; EWMA): measured by
     # warm_up, else a conservative start (3-5 ms on 2 cores for a 256-point subset)
     mirror_ms: float = 10.0
+    # the learned verifier of the card's category, where the model folder has one (load_all):
+    # fused runs' verify anchors on the run it finds likeliest instead of running the probes
+    verifier: LoadedVerifier | None = None
 
     def __post_init__(self) -> None:
         self._slots = StepSlots(self.concurrent_steps)
@@ -243,6 +246,39 @@ class LoadedClassifier:
             self.probabilities(x)
 
 
+WARM_RUNS = 8  # a verifier's warm-up call: as many runs as the usual ensemble
+
+
+@dataclass
+class LoadedVerifier:
+    """A category's learned verifier (``model/verifier.py``): each run's points where its pose
+    puts them -> the logit of the pose being right."""
+
+    card: VerifierCard
+    path: Path
+    session: ort.InferenceSession
+    score_ms: float = 5.0  # one call of WARM_RUNS runs of card.points, measured by warm_up
+
+    def scores(self, points: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Canonical-frame points (K, N, 3) float32 -> logits (K,)."""
+        (logits,) = self.session.run(None, {"points": np.ascontiguousarray(points, np.float32)})
+        return np.asarray(logits).reshape(-1)
+
+    def predicted_ms(self, runs: int, points: int) -> float:
+        """One call's time for ``runs`` runs of ``points`` points each (it scales with both)."""
+        return self.score_ms * runs * points / (WARM_RUNS * self.card.points)
+
+    def warm_up(self, runs: int = 3) -> None:
+        shape = (WARM_RUNS, self.card.points, 3)
+        x = np.random.default_rng(0).normal(size=shape).astype(np.float32)
+        times = []
+        for _ in range(runs):
+            start = time.perf_counter()
+            self.scores(x)
+            times.append((time.perf_counter() - start) * 1e3)
+        self.score_ms = min(times)
+
+
 def _session(path: Path, threads: int) -> ort.InferenceSession:
     if not path.is_file():
         raise ModelLoadError(f"{path}: model file not found")
@@ -256,20 +292,24 @@ def _session(path: Path, threads: int) -> ort.InferenceSession:
 
 def load_any(
     path: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
-) -> LoadedModel | LoadedClassifier:
-    """One .onnx file: a pose step (see :func:`load_model`) or the category classifier, as its
-    card says. Raises ModelLoadError with the reason."""
+) -> LoadedModel | LoadedClassifier | LoadedVerifier:
+    """One .onnx file: a pose step (see :func:`load_model`), the category classifier or a
+    verifier, as its card says. Raises ModelLoadError with the reason."""
     session = _session(path, threads)
     card = read_card(session, path)
     if isinstance(card, ModelCard):
         return load_model(path, threads, warm_up, concurrent_steps, session=session)
     names = [i.name for i in session.get_inputs()]
     if names != ["points"]:
-        raise ModelLoadError(f"{path}: a classifier takes ['points'], found {names}")
-    classifier = LoadedClassifier(card, path, session)
+        raise ModelLoadError(f"{path}: a {card.kind} takes ['points'], found {names}")
+    loaded: LoadedClassifier | LoadedVerifier
+    if isinstance(card, VerifierCard):
+        loaded = LoadedVerifier(card, path, session)
+    else:
+        loaded = LoadedClassifier(card, path, session)
     if warm_up:
-        classifier.warm_up()
-    return classifier
+        loaded.warm_up()
+    return loaded
 
 
 def load_model(
@@ -314,7 +354,37 @@ def load_all(
     models = {m.card.name: m for m in loaded if isinstance(m, LoadedModel)}
     if not models:
         raise ModelLoadError(f"{directory}: no .onnx models found")
+    attach_verifiers(models, [m for m in loaded if isinstance(m, LoadedVerifier)], directory)
     return models, _paired([m for m in loaded if isinstance(m, LoadedClassifier)], directory)
+
+
+def attach_verifiers(
+    models: dict[str, LoadedModel], verifiers: list[LoadedVerifier], directory: Path
+) -> None:
+    """Give each pose model the verifier of its card's category. Raises ModelLoadError for two
+    verifiers of one category."""
+    by_category: dict[str, LoadedVerifier] = {}
+    for verifier in verifiers:
+        other = by_category.setdefault(verifier.card.category, verifier)
+        if other is not verifier:
+            raise ModelLoadError(
+                f"{directory}: two verifiers of {verifier.card.category} "
+                f"({other.path.name}, {verifier.path.name})"
+            )
+    for model in models.values():
+        model.verifier = by_category.get(model.card.category)
+
+
+def load_verifiers(
+    directory: Path, threads: int = 2, warm_up: bool = True, skip: frozenset[Path] = frozenset()
+) -> list[LoadedVerifier]:
+    """The verifiers of a directory; files in ``skip`` are not opened."""
+    paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
+    found = [load_any(p, threads, warm_up=False) for p in paths if p.resolve() not in skip]
+    verifiers = [v for v in found if isinstance(v, LoadedVerifier)]
+    for verifier in verifiers if warm_up else []:
+        verifier.warm_up()
+    return verifiers
 
 
 def _paired(classifiers: list[LoadedClassifier], directory: Path) -> LoadedClassifier | None:

@@ -247,6 +247,12 @@ class ModelInfo(BaseModel):
         "where the budget holds the probes, unless a request says 'verify': false",
     )
     verify_evaluation: str = Field("", description="verify's measured effect on fused runs")
+    verifier: str | None = Field(
+        None,
+        description="the learned verifier of the model's category, where one is loaded: verify "
+        "then anchors the fused runs on the run it finds likeliest (one call) instead of the "
+        "network's probes",
+    )
     centre: bool = Field(
         False,
         description="the model has a centre correction: the final pose's object centre "

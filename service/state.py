@@ -27,8 +27,10 @@ from itnet.service.runtime import (
     LoadedClassifier,
     LoadedModel,
     ModelLoadError,
+    attach_verifiers,
     load_all,
     load_classifier,
+    load_verifiers,
 )
 from itnet.service.schemas import EstimateParams
 from itnet.service.settings import Settings
@@ -113,6 +115,13 @@ class ServiceState:
                 )
             except ModelLoadError as err:
                 log.error("no classifier loaded (model 'auto' is off): %s", err)
+            try:  # and the verifiers of their categories
+                found = load_verifiers(
+                    self.settings.model_dir, self.settings.threads, self.settings.warm_up, loaded
+                )
+                attach_verifiers(self.models, found, self.settings.model_dir)
+            except ModelLoadError as err:
+                log.error("no verifier loaded (verify runs the probes): %s", err)
         wanted = self.settings.default_model
         if wanted is not None and wanted not in self.models:
             self.load_error = (

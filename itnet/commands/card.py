@@ -97,7 +97,8 @@ def card(
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     if not isinstance(current, ModelCard):
-        typer.echo(f"error: {model} is the classifier; its card is written by classify-export",
+        writer = "classify-export" if current.kind == "classifier" else "verifier-export"
+        typer.echo(f"error: {model} is a {current.kind}; its card is written by {writer}",
                    err=True)  # fmt: skip
         raise typer.Exit(2)
     update: dict[str, object] = {}

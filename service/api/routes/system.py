@@ -40,6 +40,7 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_fused=m.card.mirror_fused,
             verify_fused=m.card.verify_fused,
             verify_evaluation=m.card.verify_evaluation,
+            verifier=None if m.verifier is None else m.verifier.card.name,
             centre=m.centre is not None,
             centre_viewpoint=m.centre_viewpoint is not None,
             centre_up=m.centre_up is not None,

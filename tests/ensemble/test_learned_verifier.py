@@ -1,0 +1,183 @@
+"""The learned verifier (model/verifier.py): its training batches, its command, its export, how
+the service loads it beside its category's pose models, and verify anchoring fused runs on the
+run it finds likeliest instead of running the probes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from itnet.basin import canonical_points, likeliest_run
+from itnet.cli import app
+from itnet.fusion import fuse_poses
+from itnet.geometry import random_rotation, rotation_error_deg
+from itnet.model.verifier import PoseRuns, VerifierConfig, cube_turns, hypothesis_batch
+from itnet.preprocess import pose_from_normalized
+from itnet.service.engine import AnytimeRun
+from itnet.service.runtime import (
+    LoadedVerifier,
+    ModelLoadError,
+    load_all,
+    load_any,
+    load_model,
+)
+
+runner = CliRunner()
+
+
+def _best_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation R minimising |R a_i - b_i| over centred point sets (N, 3) (Kabsch)."""
+    a, b = a - a.mean(0), b - b.mean(0)
+    u, _, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def test_cube_turns_are_the_24_rotations_identity_first():
+    turns = cube_turns()
+    assert turns.shape == (24, 3, 3) and np.allclose(turns[0], np.eye(3))
+    assert np.allclose(turns @ turns.transpose(0, 2, 1), np.eye(3))
+    assert np.allclose(np.linalg.det(turns), 1.0)
+    assert len({tuple(np.round(t).astype(int).ravel()) for t in turns}) == 24
+
+
+def _runs(rng: np.random.Generator, scans: int = 6, k: int = 3) -> PoseRuns:
+    points = rng.normal(size=(scans, k, 64, 3)) * [1.0, 0.6, 0.3]
+    truths = np.tile(np.eye(4), (scans, 1, 1))
+    truths[:, :3, :3] = random_rotation(rng, scans)
+    truths[:, :3, 3] = rng.normal(size=(scans, 3)) * 0.1
+    poses = np.repeat(truths[:, None], k, axis=1)
+    poses[:, 1:, :3, :3] = random_rotation(rng, scans * (k - 1)).reshape(scans, k - 1, 3, 3)
+    errors = rotation_error_deg(poses[..., :3, :3], truths[:, None, :3, :3])
+    return PoseRuns(points.astype(np.float16), poses.astype(np.float32),
+                    errors.astype(np.float32), truths.astype(np.float32))  # fmt: skip
+
+
+def test_a_batch_of_the_runs_themselves_is_labelled_by_their_errors(rng):
+    runs = _runs(rng)
+    config = VerifierConfig(pose_model=Path("x.onnx"), batch=64, synthetic=0.0)
+    x, labels, weights = hypothesis_batch(runs, config, "none", np.random.default_rng(3))
+    pick = np.random.default_rng(3)
+    s, k = pick.integers(6, size=64), pick.integers(3, size=64)
+    expected = canonical_points(runs.points[s, k].astype(np.float32), runs.poses[s, k])
+    assert np.allclose(x, expected, atol=1e-5)
+    assert np.array_equal(labels, (runs.errors[s, k] < 15).astype(np.float32))
+    band = (runs.errors[s, k] >= 15) & (runs.errors[s, k] <= 25)
+    assert np.array_equal(weights, (~band).astype(np.float32))
+    assert labels.sum() > 0 and (1 - labels).sum() > 0
+
+
+def test_knocked_off_truths_are_right_within_10_degrees_and_wrong_beyond_25(rng):
+    """Each synthetic hypothesis, recovered from the points it puts (Kabsch against the truth's
+    placement), is as far from the truth as its label says."""
+    runs = _runs(rng)
+    config = VerifierConfig(pose_model=Path("x.onnx"), batch=400, synthetic=1.0)
+    x, labels, weights = hypothesis_batch(runs, config, "none", np.random.default_rng(5))
+    pick = np.random.default_rng(5)
+    s, k = pick.integers(6, size=400), pick.integers(3, size=400)
+    truth_placed = canonical_points(runs.points[s, k].astype(np.float32), runs.truths[s])
+    angles = np.array([
+        rotation_error_deg(_best_rotation(t, h), np.eye(3)) for t, h in zip(truth_placed, x)
+    ])  # fmt: skip
+    assert 0.3 < labels.mean() < 0.5  # 40% a few degrees off; the rest turned away
+    assert angles[labels == 1].max() < 10.5
+    assert angles[(labels == 0) & (weights == 1)].min() > 25
+    assert np.isclose(weights[labels == 1].min(), 1.0)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, make_net):  # type: ignore[no-untyped-def]
+    """A tiny pose model of bathtubs, its verifier trained 30 steps by the command, exported."""
+    from modelnet_tree import write_modelnet_tree
+    from test_centre_fit_cli import _tub
+
+    from itnet.export.onnx_export import export_step
+    from itnet.model_card import ModelCard
+
+    root = tmp_path_factory.mktemp("verifier")
+    data = write_modelnet_tree(
+        root / "data", {"bathtub": _tub}, np.random.default_rng(0), train=12, test=1
+    )
+    models = root / "models"
+    card = ModelCard(name="tub", category="bathtub", symmetry="yaw180", points=256,
+                     recommended_iterations=2, verify_fused=True)  # fmt: skip
+    export_step(make_net(), card, models / "tub.onnx")
+    args = ["verifier-train", "--pose-model", str(models / "tub.onnx"), "--out",
+            str(root / "run"), "--steps", "30", "--batch", "16", "--views", "1", "--scanners",
+            "paper", "--ensemble", "2", "--data", str(data), "--cache", str(root / "cache")]  # fmt: skip
+    done = runner.invoke(app, args)
+    assert done.exit_code == 0, done.output
+    exported = runner.invoke(app, ["verifier-export", str(root / "run" / "verifier.pt"),
+                                   "--out", str(models / "tub-verifier.onnx")])  # fmt: skip
+    assert exported.exit_code == 0, exported.output
+    return root, models
+
+
+def test_the_command_trains_on_the_runs_and_the_export_scores_as_the_network(trained):
+    from itnet.model.verifier import load_verifier
+
+    root, models = trained
+    rows = [json.loads(line) for line in (root / "run" / "log.jsonl").read_text().splitlines()]
+    assert rows[-1]["step"] == 30 and np.isfinite(rows[-1]["loss"])
+    assert list((root / "cache").glob("verifier-runs-*-bathtub-paper-1-2-*.npz"))
+    loaded = load_any(models / "tub-verifier.onnx", warm_up=True)
+    assert isinstance(loaded, LoadedVerifier) and loaded.score_ms > 0
+    assert loaded.card.category == "bathtub" and loaded.card.trained_on == "tub.onnx"
+    net, config = load_verifier(root / "run" / "verifier.pt")
+    assert config.ensemble == 2 and config.scanners == ["paper"]
+    x = np.random.default_rng(0).normal(size=(5, 100, 3)).astype(np.float32)
+    with torch.no_grad():
+        expected = net(torch.from_numpy(x))[:, 0].numpy()
+    assert np.allclose(loaded.scores(x), expected, atol=1e-4)
+    refused = runner.invoke(app, ["card", str(models / "tub-verifier.onnx"), "--verify-fused"])
+    assert refused.exit_code == 2 and "verifier-export" in refused.stderr
+
+
+def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeypatch):
+    _, models = trained
+    loaded, _ = load_all(models, warm_up=False)
+    model = loaded["tub"]
+    assert model.verifier is not None and model.verifier.card.name == "bathtub-verifier"
+
+    def no_probes(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise AssertionError("the probes ran although a verifier is loaded")
+
+    monkeypatch.setattr("itnet.service.engine.basin_drift", no_probes)
+    cloud = np.random.default_rng(2).normal(size=(600, 3)) * [1.0, 0.45, 0.35]
+    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
+    assert run.verify  # the card's verify_fused
+    run.run_to_end()
+    assert run.result()["verified"] is True
+    scores = model.verifier.scores(canonical_points(run.points, run.pose_normalized))
+    anchored = fuse_poses(run.pose_normalized, "yaw180", anchor=likeliest_run(scores))
+    expected = pose_from_normalized(anchored, run.normalization)
+    assert np.allclose(run.result()["T_canonical_from_input"], expected, atol=1e-5)
+    tight = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
+    model.verifier.score_ms = 1e9  # a call the budget cannot hold: the fusion stays as it is
+    tight.run_to_end()
+    assert tight.result()["verified"] is False
+
+
+def test_the_service_lists_the_verifier_and_refuses_two_of_a_category(trained, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    _, models = trained
+    with TestClient(create_app(Settings(model_dir=models, warm_up=False))) as client:
+        (info,) = client.get("/v1/models").json()["models"]
+        assert info["name"] == "tub" and info["verifier"] == "bathtub-verifier"
+    twice = tmp_path / "twice"
+    shutil.copytree(models, twice)
+    shutil.copy(twice / "tub-verifier.onnx", twice / "another-verifier.onnx")
+    with pytest.raises(ModelLoadError, match="two verifiers of bathtub"):
+        load_all(twice, warm_up=False)
+    alone = load_model(models / "tub.onnx", warm_up=False)  # one file: no verifier beside it
+    assert alone.verifier is None
