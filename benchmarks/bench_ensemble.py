@@ -43,16 +43,20 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             points_per_step: int | None = None,
             mirror: bool | None = None, centre: bool | None = None,
             baseline: dict | None = None, viewpoint: bool = False,
-            up_error_deg: float | None = None, verify: bool | None = None) -> dict:  # fmt: skip
+            up_error_deg: float | None = None, verify: bool | None = None,
+            verifier: Path | None = None, recheck: bool | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
     from itnet.model.scanner import VIEW_RULES, scan_config
     from itnet.service.engine import AnytimeRun
-    from itnet.service.runtime import load_model
+    from itnet.service.runtime import LoadedVerifier, load_any, load_model
 
     model = load_model(model_path)
+    if verifier is not None:  # verify then anchors on the run it finds likeliest
+        model.verifier = load_any(verifier)
+        assert isinstance(model.verifier, LoadedVerifier), f"{verifier}: not a verifier"
     cat = category(model.card.category, model.card.symmetry)
     config = scan_config(VIEW_RULES[scanner])
     if split == "val":  # where a choice is made; the test split measures it once
@@ -63,6 +67,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     out, first = {}, None
     for k in ensembles:
         poses, iterations, elapsed, mirrored, runs, verified = [], [], [], [], [], []
+        rechecked = []
         for i, cloud in enumerate(scans.clouds):
             run = AnytimeRun(
                 model,
@@ -75,9 +80,11 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 viewpoint=[0.0, 0.0, 0.0] if viewpoint else None,  # the scanner's camera
                 up=None if ups is None else ups[i],
                 verify=verify if k != 1 else None,
+                recheck=recheck if k == 1 else None,
             )
             last = run.run_to_end()
             verified.append(run.verified)
+            rechecked.append(run.rechecked)
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
@@ -106,6 +113,15 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             **(
                 {"mirror_finished": round(float(np.mean([m is True for m in mirrored])), 3)}
                 if any(m is not None for m in mirrored)
+                else {}
+            ),
+            # where recheck was on: the share of runs the verifier doubted, and rechecked in time
+            **(
+                {
+                    "doubted": round(float(np.mean([r is not None for r in rechecked])), 3),
+                    "rechecked": round(float(np.mean([r is True for r in rechecked])), 3),
+                }
+                if run.recheck
                 else {}
             ),
             # where verify was on: the share of runs whose probes the budget held
@@ -185,6 +201,18 @@ def main() -> None:
         "anchor fused runs by the firmest one (itnet.basin): the card's default, always (K > 1), "
         "never",
     )
+    add_switch(
+        parser,
+        "--recheck",
+        "recheck a single run the verifier doubts: the card's default, always, never",
+    )
+    parser.add_argument(
+        "--verifier",
+        type=Path,
+        default=None,
+        help="a learned verifier (.onnx of itnet verifier-export) beside the model, as the "
+        "service loads one from the model folder: verify then uses it instead of the probes",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
@@ -204,6 +232,8 @@ def main() -> None:
         "viewpoint": args.viewpoint,
         "up_error_deg": args.up,
         "verify": args.verify,
+        "recheck": args.recheck,
+        "verifier": None if args.verifier is None else str(args.verifier),
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -222,6 +252,8 @@ def main() -> None:
                 args.viewpoint,
                 args.up,
                 SWITCH[args.verify],
+                args.verifier,
+                SWITCH[args.recheck],
             )
             for s in args.scanners
         },

@@ -65,6 +65,17 @@ class ModelCard(BaseModel):
         "most firmly in its basin (itnet.basin), by default, where the budget holds its probes: "
         "chosen per category on validation",
     )
+    recheck_runs: int = Field(
+        0,
+        ge=0,
+        le=16,
+        description="a single run that the category's learned verifier doubts is rechecked "
+        "with this many runs from turned starts, by default, where the budget holds them "
+        "(0: not by default; chosen per category on validation)",
+    )
+    recheck_evaluation: str = Field(
+        "", description="the recheck's measured effect as served: one run without and with it"
+    )
     verify_evaluation: str = Field(
         "", description="verify's measured effect as served: fused runs without and with it"
     )
@@ -336,6 +347,28 @@ def describe_mirror(without: dict, with_planes: dict) -> str:
         "without and with the mirror planes, at (10 deg, 0.1 radius): "
         + ", ".join(parts)
         + f" [{with_planes['machine']}]"
+    )
+
+
+def describe_recheck(without: dict, with_recheck: dict) -> str:
+    """The card's ``recheck_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of one
+    run (K = 1) on the same views, ``--recheck off`` and ``on``; the paired gain where the second
+    was measured against the first (``--baseline``). Raises ValueError as ``describe_verify``."""
+    parts = []
+    for kind, _, plain, rechecked in _paired_rows(without, with_recheck, fused=False):
+        paired = rechecked.get("versus_baseline")
+        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
+        share = rechecked.get("rechecked")
+        doubted = "" if share is None else f", {100 * share:.0f}% rechecked"
+        parts.append(
+            f"{kind} {plain['accuracy']:.1f}% -> {rechecked['accuracy']:.1f}% "
+            f"({gain}{rechecked['scans']} scans{doubted})"
+        )
+    return (
+        f"one run within {with_recheck['budget_ms']:g} ms on the {with_recheck['split']} views, "
+        "without and with the recheck, at (10 deg, 0.1 radius): "
+        + ", ".join(parts)
+        + f" [{with_recheck['machine']}]"
     )
 
 

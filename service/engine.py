@@ -60,6 +60,7 @@ STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
 # would be called degenerate; 1e12 leaves float64 room for any physical unit.
 MAX_COORDINATE = 1e12
 MAX_ENSEMBLE = 16  # runs one request may fuse (each costs a share of the step)
+RECHECK_RUNS = 4  # runs a doubted single run is rechecked with, where the card gives none
 ENSEMBLE_SUBSET = 0.8  # an ensemble run's share of a cloud no larger than the model's point count
 
 
@@ -229,6 +230,7 @@ class AnytimeRun(Iterator[Estimate]):
         viewpoint: ArrayLike | None = None,
         up: ArrayLike | None = None,
         verify: bool | None = None,
+        recheck: bool | None = None,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -300,6 +302,25 @@ class AnytimeRun(Iterator[Estimate]):
             verify = model.card.verify_fused and ensemble > 1 and up is None
         self.verify = bool(verify)
         self.verified: bool | None = None  # once finished: whether the probes ran
+        # A single run the model's learned verifier doubts (its logit below 0) is rechecked,
+        # where the budget holds it: the card's recheck_runs runs from turned starts on their own
+        # subsets, as many steps as it took, and the fused pose of all of them anchored on the
+        # likeliest (model/verifier.py; docs/ensemble.md). By default where the card says so.
+        plain = ensemble == 1 and starts is None and points_per_step is None and up is None
+        if recheck and model.verifier is None:
+            raise BadCloudError(
+                f"model {model.card.name!r} has no verifier loaded: recheck needs one"
+            )
+        if recheck and not plain:
+            raise BadCloudError(
+                "recheck is for a single run (no ensemble, starts, points_per_step or up)"
+            )
+        if recheck is None:
+            recheck = model.card.recheck_runs > 0 and model.verifier is not None and plain
+        self.recheck = bool(recheck)
+        self.recheck_runs = model.card.recheck_runs or RECHECK_RUNS
+        self.rechecked: bool | None = None  # once finished, where doubted: whether runs ran
+        self._cloud, self._seed, self._min_points = cloud, seed, limits.min_points
         # Which way is up in the cloud (itnet.upright): the runs start stood up, yaw turns
         # 360/K apart, and every step's pose is stood back up, so only yaw and position remain.
         self.up = None if up is None else validate_up(up)
@@ -451,6 +472,7 @@ class AnytimeRun(Iterator[Estimate]):
         free = 0 < self.iteration <= self.up_free and self.stopped_by != "cancelled"
         if self.up is not None and free:
             self.last = self._moved_to(held_upright(self.last.pose_normalized, self.up))
+        self._finish_recheck()
         self._finish_verify()
         self._finish_mirror()
         if not self.centre or self.centred is not None:
@@ -477,6 +499,49 @@ class AnytimeRun(Iterator[Estimate]):
         if finished is not None:
             self.last = self._moved_to(finished)
             self.centred = True
+
+    def _finish_recheck(self) -> None:
+        """A single run the verifier doubts: ``recheck_runs`` runs from turned starts, each on
+        its own subset of the cloud (normalised as the run's), take as many steps as the run
+        took, where the budget left (less the reserve) holds them at their predicted time; then
+        ``last`` is all of them fused around the one the verifier finds likeliest.
+        ``rechecked``: None where not doubted, else whether the runs ran."""
+        verifier = self.model.verifier
+        if not self.recheck or verifier is None or self.rechecked is not None:
+            return
+        if self.stopped_by == "cancelled" or self.iteration == 0:
+            return
+        first = canonical_points(self.points[:1], self.pose_normalized[:1])
+        doubt = float(verifier.scores(first)[0])
+        if doubt >= 0.0:
+            return
+        self.rechecked = False
+        k, card = self.recheck_runs, self.model.card
+        size = _run_subset(card.points, self._min_points, len(self._cloud))
+        load = max(k * size / card.points, 0.25)
+        predicted = self.iteration * self.model.predicted_step_ms() * load + verifier.predicted_ms(
+            k, size
+        )
+        if self.budget_ms - self.reserve_ms - self.elapsed_ms() < predicted:
+            return
+        rng = np.random.default_rng(self._seed + 1)
+        x = np.stack(
+            [self.normalization.apply(cap_points(self._cloud, size, rng)) for _ in range(k)]
+        ).astype(np.float32)
+        poses = np.tile(np.eye(4, dtype=np.float32), (k, 1, 1))
+        poses[:, :3, :3] = viewing_axis_turns(k)
+        deadline = self.started + self.budget_ms / 1e3
+        for _ in range(self.iteration):
+            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms()
+            with self.model.step_slot(max(slack, 0.0) / 1e3, deadline) as free:
+                if slack <= 0 or not free or self._cancel.is_set():
+                    return
+                poses, _ = self.model.step(x, poses)
+        scores = np.concatenate([[doubt], verifier.scores(canonical_points(x, poses))])
+        runs = np.concatenate([self.pose_normalized[:1], poses])
+        anchor = likeliest_run(scores)
+        self.last = self._moved_to(fuse_poses(runs, card.symmetry, anchor=anchor))
+        self.rechecked = True
 
     def _finish_verify(self) -> None:
         """``last`` fused anew around a run chosen by how right it looks: by the model's learned
@@ -622,6 +687,7 @@ class AnytimeRun(Iterator[Estimate]):
                 else {}
             ),
             **({"verified": bool(self.verified)} if self.verify else {}),
+            **({"rechecked": self.rechecked} if self.rechecked is not None else {}),
             **({"centre": bool(self.centred)} if self.centre else {}),
             **(
                 {"centre_viewpoint": self.centred_by_viewpoint}

@@ -83,6 +83,15 @@ class EstimateParams(BaseModel):
         "only if budget_ms still holds them); default: where the model's card says so (GET "
         "/v1/models: 'verify_fused'); refused for a single run and with 'up'",
     )
+    recheck: bool | None = Field(
+        default=None,
+        description="a single run that the model's learned verifier doubts (GET /v1/models: "
+        "'verifier') is rechecked after its last step: 'recheck_runs' runs from turned starts, "
+        "each on its own subset, as many steps, and the likeliest answer among all kept "
+        "(taken only if budget_ms still holds them); default: where the model's card says so "
+        "(GET /v1/models: 'recheck_runs' above 0); refused without a verifier, and with an "
+        "ensemble or 'up'",
+    )
     centre: bool | None = Field(
         default=None,
         description="finish the final pose's object centre by the model's centre correction "
@@ -175,6 +184,12 @@ class EstimateResponse(Pose):
         description="where verify was on: true if the fused pose was anchored by the run that "
         "sits most firmly in its basin, false if the budget could not hold the probes",
     )
+    rechecked: bool | None = Field(
+        None,
+        description="where recheck was on and the verifier doubted the run: true if the "
+        "recheck's runs ran (the pose is the likeliest of all), false if the budget could not "
+        "hold them",
+    )
     mirror_planes: list[str] | None = Field(
         None,
         description="where the mirror refinement was on: the planes that finished the pose, in "
@@ -247,6 +262,10 @@ class ModelInfo(BaseModel):
         "where the budget holds the probes, unless a request says 'verify': false",
     )
     verify_evaluation: str = Field("", description="verify's measured effect on fused runs")
+    recheck_runs: int = Field(
+        0, description="runs a doubted single run is rechecked with by default (0: not by default)"
+    )
+    recheck_evaluation: str = Field("", description="the recheck's measured effect, one run")
     verifier: str | None = Field(
         None,
         description="the learned verifier of the model's category, where one is loaded: verify "

@@ -212,6 +212,7 @@ class ServiceState:
                 ensemble=params.ensemble,
                 mirror=params.mirror,
                 verify=params.verify,
+                recheck=params.recheck,
                 centre=params.centre,
                 viewpoint=params.viewpoint,
                 up=params.up,

@@ -43,6 +43,21 @@ def card(
         help="... and `--verify on` on the same views (`--baseline` the first for the paired "
         "gain): recorded as the card's verify_evaluation.",
     ),
+    recheck_runs: int | None = typer.Option(
+        None,
+        min=0,
+        max=16,
+        help="Recheck a single run the category's verifier doubts with this many runs, by "
+        "default (0: not by default); above 0 it needs its measurement (--with-recheck).",
+    ),
+    without_recheck: Path | None = typer.Option(
+        None, help="`benchmarks.bench_ensemble --recheck off` JSON of one run ..."
+    ),
+    with_recheck: Path | None = typer.Option(
+        None,
+        help="... and `--recheck on` on the same views (`--baseline` the first): recorded as the "
+        "card's recheck_evaluation.",
+    ),
     recommended_ensemble: int | None = typer.Option(
         None,
         min=1,
@@ -86,6 +101,7 @@ def card(
         ModelCard,
         describe_anytime,
         describe_mirror,
+        describe_recheck,
         describe_up,
         describe_verify,
     )
@@ -123,6 +139,19 @@ def card(
             )
         except (KeyError, ValueError) as err:
             raise typer.BadParameter(f"--with-verify: {err}") from None
+    if (without_recheck is None) != (with_recheck is None):
+        raise typer.BadParameter("give both --without-recheck and --with-recheck, or neither")
+    if without_recheck is not None and with_recheck is not None:
+        try:
+            update["recheck_evaluation"] = describe_recheck(
+                json.loads(without_recheck.read_text()), json.loads(with_recheck.read_text())
+            )
+        except (KeyError, ValueError) as err:
+            raise typer.BadParameter(f"--with-recheck: {err}") from None
+    if recheck_runs is not None:
+        if recheck_runs and not (update.get("recheck_evaluation") or current.recheck_evaluation):
+            raise typer.BadParameter("--recheck-runs needs its measurement: --with-recheck")
+        update["recheck_runs"] = recheck_runs
     if verify_fused is not None:
         if verify_fused and not (update.get("verify_evaluation") or current.verify_evaluation):
             raise typer.BadParameter("--verify-fused needs its measurement: --with-verify")

@@ -52,6 +52,13 @@ def pose(
         "within --budget-ms). Default: where the model's card says so (`itnet models --json`: "
         "verify_fused).",
     ),
+    recheck: bool | None = typer.Option(
+        None,
+        "--recheck/--no-recheck",
+        help="A single run the model's learned verifier doubts is rechecked by a few runs from "
+        "turned starts (within --budget-ms), and the likeliest answer kept. Default: where the "
+        "model's card says so (`itnet models --json`: recheck_runs).",
+    ),
     centre: bool | None = typer.Option(
         None,
         "--centre/--no-centre",
@@ -94,11 +101,12 @@ def pose(
             return auto_run(
                 classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
                 ensemble=ensemble, units=units, mirror=mirror, centre=centre, viewpoint=viewpoint,
-                up=up, verify=verify,
+                up=up, verify=verify, recheck=recheck,
             )  # fmt: skip
         return AnytimeRun(
             loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
             mirror=mirror, centre=centre, viewpoint=viewpoint, up=up, verify=verify,
+            recheck=recheck,
         )  # fmt: skip
 
     failed = False

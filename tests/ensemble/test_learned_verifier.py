@@ -181,3 +181,119 @@ def test_the_service_lists_the_verifier_and_refuses_two_of_a_category(trained, t
         load_all(twice, warm_up=False)
     alone = load_model(models / "tub.onnx", warm_up=False)  # one file: no verifier beside it
     assert alone.verifier is None
+
+
+class _FakeVerifier:
+    """Scores a single run ``single`` and a recheck's runs ``runs``; predicts ``ms`` a call."""
+
+    def __init__(self, single: float, runs: list[float], ms: float = 0.0) -> None:
+        self.card = type("Card", (), {"name": "fake", "category": "bathtub", "points": 256})()
+        self.single, self.runs, self.ms = single, np.array(runs, np.float32), ms
+
+    def scores(self, points: np.ndarray) -> np.ndarray:
+        return np.array([self.single], np.float32) if len(points) == 1 else self.runs
+
+    def predicted_ms(self, runs: int, points: int) -> float:
+        return self.ms
+
+
+@pytest.fixture
+def tub(trained):  # type: ignore[no-untyped-def]
+    return load_model(trained[1] / "tub.onnx", warm_up=False)
+
+
+def test_a_doubted_single_run_is_rechecked_and_the_likeliest_anchors(tub):
+    cloud = np.random.default_rng(4).normal(size=(500, 3)) * [1.0, 0.45, 0.35]
+    kw = {"budget_ms": 5000, "max_iterations": 3, "seed": 7}
+    tub.verifier = _FakeVerifier(-1.0, [-3.0, 2.0, -3.0, -3.0])
+    run = AnytimeRun(tub, cloud, recheck=True, **kw)
+    run.run_to_end()
+    reply = run.result()
+    assert reply["rechecked"] is True and reply["iterations"] == 3
+    # the recheck's runs are an ensemble's: the same subsets (seed + 1), starts and steps
+    tub.verifier = None
+    runs = AnytimeRun(tub, cloud, ensemble=4, **{**kw, "seed": 8})
+    runs.run_to_end()
+    plain = AnytimeRun(tub, cloud, **kw)
+    plain.run_to_end()
+    everyone = np.concatenate([plain.pose_normalized[:1], runs.pose_normalized])
+    expected = pose_from_normalized(fuse_poses(everyone, "yaw180", anchor=2), plain.normalization)
+    assert np.allclose(reply["T_canonical_from_input"], expected, atol=1e-5)
+    assert not np.allclose(
+        reply["T_canonical_from_input"], plain.result()["T_canonical_from_input"]
+    )
+
+
+@pytest.mark.parametrize(
+    ("fake", "rechecked"),
+    [(_FakeVerifier(0.5, []), None), (_FakeVerifier(-1.0, [1, 1, 1, 1], ms=1e9), False)],
+    ids=["not doubted", "no time"],
+)
+def test_a_trusted_run_or_a_tight_budget_keeps_the_single_run(tub, fake, rechecked):
+    cloud = np.random.default_rng(4).normal(size=(500, 3)) * [1.0, 0.45, 0.35]
+    kw = {"budget_ms": 5000, "max_iterations": 3, "seed": 7}
+    plain = AnytimeRun(tub, cloud, **kw)
+    plain.run_to_end()
+    tub.verifier = fake
+    run = AnytimeRun(tub, cloud, recheck=True, **kw)
+    run.run_to_end()
+    assert run.rechecked is rechecked and ("rechecked" in run.result()) == (rechecked is not None)
+    assert np.allclose(run.result()["T_canonical_from_input"],
+                       plain.result()["T_canonical_from_input"])  # fmt: skip
+
+
+def test_recheck_is_refused_without_a_verifier_or_beside_an_ensemble_and_follows_the_card(tub):
+    from itnet.service.engine import BadCloudError
+
+    cloud = np.random.default_rng(4).normal(size=(500, 3))
+    tub.verifier = None
+    with pytest.raises(BadCloudError, match="no verifier"):
+        AnytimeRun(tub, cloud, recheck=True)
+    tub.verifier = _FakeVerifier(-1.0, [0.0] * 4)
+    with pytest.raises(BadCloudError, match="single run"):
+        AnytimeRun(tub, cloud, recheck=True, ensemble=2)
+    with pytest.raises(BadCloudError, match="single run"):
+        AnytimeRun(tub, cloud, recheck=True, up=[0.0, 1.0, 0.0])
+    assert not AnytimeRun(tub, cloud).recheck  # the card's recheck_runs is 0
+    tub.card = tub.card.model_copy(update={"recheck_runs": 2})
+    by_card = AnytimeRun(tub, cloud)
+    assert by_card.recheck and by_card.recheck_runs == 2
+    assert not AnytimeRun(tub, cloud, ensemble=2).recheck  # fused runs: verify's job
+
+
+def test_http_and_the_card_command_recheck(trained, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    _, models = trained
+    one = {"accuracy": 60.0, "gain": 0.0, "gain_stderr": 0.0, "scans": 40}
+    off = {"machine": "test", "budget_ms": 50.0, "split": "val", "paper": {"1": one}}
+    on = {**off, "paper": {"1": {**one, "accuracy": 64.0, "rechecked": 0.2,
+                                 "versus_baseline": {"gain": 4.0, "gain_stderr": 1.5}}}}  # fmt: skip
+    (tmp_path / "off.json").write_text(json.dumps(off))
+    (tmp_path / "on.json").write_text(json.dumps(on))
+    served = tmp_path / "served"
+    shutil.copytree(models, served)
+    card = ["card", str(served / "tub.onnx"), "--recheck-runs", "4"]
+    bare = runner.invoke(app, card)
+    assert bare.exit_code == 2 and "--with-recheck" in bare.output
+    done = runner.invoke(app, [*card, "--without-recheck", str(tmp_path / "off.json"),
+                               "--with-recheck", str(tmp_path / "on.json")])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    with TestClient(create_app(Settings(model_dir=served, warm_up=False))) as client:
+        (info,) = client.get("/v1/models").json()["models"]
+        assert info["recheck_runs"] == 4
+        assert (
+            "paper 60.0% -> 64.0% (+4.0 ± 1.5, 40 scans, 20% rechecked)"
+            in (info["recheck_evaluation"])
+        )
+        cloud = np.random.default_rng(4).normal(size=(500, 3)).tolist()
+        body = {"points": cloud, "model": "tub", "budget_ms": 5000, "max_iterations": 2}
+        reply = client.post("/v1/estimate", json=body)
+        assert reply.status_code == 200, reply.text
+        # the tiny verifier doubts the run or not; where it does, the recheck had the time
+        assert reply.json().get("rechecked", True) is True
+        refused = client.post("/v1/estimate", json={**body, "recheck": True, "ensemble": 2})
+        assert refused.status_code == 422 and "single run" in refused.text

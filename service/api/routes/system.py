@@ -40,6 +40,8 @@ async def models(state: StateDep) -> ModelsResponse:
             mirror_fused=m.card.mirror_fused,
             verify_fused=m.card.verify_fused,
             verify_evaluation=m.card.verify_evaluation,
+            recheck_runs=m.card.recheck_runs,
+            recheck_evaluation=m.card.recheck_evaluation,
             verifier=None if m.verifier is None else m.verifier.card.name,
             centre=m.centre is not None,
             centre_viewpoint=m.centre_viewpoint is not None,
