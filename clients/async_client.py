@@ -117,10 +117,21 @@ class AsyncItnetClient:
         up: list[float] | None = None,
         ensemble: int | None = None,
         verify: bool | None = None,
+        recheck: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
         fields = request_fields(
-            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up, ensemble, verify
+            budget_ms,
+            max_iterations,
+            model,
+            units,
+            mirror,
+            centre,
+            viewpoint,
+            up,
+            ensemble,
+            verify,
+            recheck,
         )
         try:
             if binary:
@@ -146,6 +157,7 @@ class AsyncItnetClient:
         up: list[float] | None = None,
         ensemble: int | None = None,
         verify: bool | None = None,
+        recheck: bool | None = None,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
@@ -161,6 +173,7 @@ class AsyncItnetClient:
                 up,
                 ensemble,
                 verify,
+                recheck,
             ),
         )
         try:

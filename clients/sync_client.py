@@ -115,6 +115,7 @@ class ItnetClient:
         up: list[float] | None = None,
         ensemble: int | None = None,
         verify: bool | None = None,
+        recheck: bool | None = None,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
         point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
@@ -126,7 +127,17 @@ class ItnetClient:
         that holds its pose when knocked off (``EstimateResult.ensemble``, ``.verified``).
         Raises ItnetRequestError (refused), ItnetConnectionError."""
         fields = request_fields(
-            budget_ms, max_iterations, model, units, mirror, centre, viewpoint, up, ensemble, verify
+            budget_ms,
+            max_iterations,
+            model,
+            units,
+            mirror,
+            centre,
+            viewpoint,
+            up,
+            ensemble,
+            verify,
+            recheck,
         )
         try:
             if binary:
@@ -152,6 +163,7 @@ class ItnetClient:
         up: list[float] | None = None,
         ensemble: int | None = None,
         verify: bool | None = None,
+        recheck: bool | None = None,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
@@ -167,6 +179,7 @@ class ItnetClient:
                 up,
                 ensemble,
                 verify,
+                recheck,
             ),
         )
         try:

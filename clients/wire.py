@@ -104,6 +104,13 @@ class EstimateResult:
         verified = self.raw.get("verified")
         return None if verified is None else bool(verified)
 
+    @property
+    def rechecked(self) -> bool | None:
+        """Where the verifier doubted a single run: True if the recheck's runs ran, False if
+        the budget could not hold them; None where it did not doubt it (or recheck was off)."""
+        rechecked = self.raw.get("rechecked")
+        return None if rechecked is None else bool(rechecked)
+
 
 def _pose_arrays(data: dict[str, Any]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     try:
@@ -133,9 +140,10 @@ def request_fields(
     up: list[float] | None = None,
     ensemble: int | None = None,
     verify: bool | None = None,
+    recheck: bool | None = None,
 ) -> dict[str, Any]:
     """The request's non-point fields (max_iterations, units, mirror, centre, viewpoint, up,
-    ensemble and verify only when given; the viewpoint and up as 'x,y,z', which a binary
+    ensemble, verify and recheck only when given; the viewpoint and up as 'x,y,z', which a binary
     request's query also takes)."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
@@ -154,6 +162,8 @@ def request_fields(
         out["ensemble"] = ensemble
     if verify is not None:
         out["verify"] = verify
+    if recheck is not None:
+        out["recheck"] = recheck
     return out
 
 

@@ -297,3 +297,12 @@ def test_http_and_the_card_command_recheck(trained, tmp_path):
         assert reply.json().get("rechecked", True) is True
         refused = client.post("/v1/estimate", json={**body, "recheck": True, "ensemble": 2})
         assert refused.status_code == 422 and "single run" in refused.text
+        from itnet.clients import ItnetClient, ItnetRequestError
+
+        http = ItnetClient("http://testserver")
+        http._http = client  # the app in-process: TestClient is an httpx.Client
+        kw = {"model": "tub", "budget_ms": 5000, "max_iterations": 2}
+        for binary in (False, True):  # the field reaches the service in both bodies
+            with pytest.raises(ItnetRequestError, match="single run"):
+                http.estimate(cloud, recheck=True, ensemble=2, binary=binary, **kw)
+            assert http.estimate(cloud, recheck=False, binary=binary, **kw).rechecked is None
