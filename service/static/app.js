@@ -156,9 +156,11 @@ function onMessage(message) {
     $('timing').textContent = `(${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, model ${result.model})`;
     const runs = result.ensemble ? `, ${result.ensemble} runs fused` : '';
     const verified = result.verified ? ', anchored by the firmest run (verify)' : '';
+    const rechecked = result.rechecked === true ? ', doubted and rechecked by more runs'
+      : result.rechecked === false ? ', doubted (no time to recheck)' : '';
     const mirror = result.mirror ? ', finished by the mirror symmetry' : '';
     const centre = result.centre ? ', centre corrected' : '';
-    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms${runs}${verified}${mirror}${centre}, stopped by ${result.stopped_by}`);
+    setStatus(`done: ${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms${runs}${verified}${rechecked}${mirror}${centre}, stopped by ${result.stopped_by}`);
     pump();
   } else if (message.type === 'error') {
     setStatus(`refused: ${message.detail}`, true);

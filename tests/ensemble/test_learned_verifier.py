@@ -306,3 +306,17 @@ def test_http_and_the_card_command_recheck(trained, tmp_path):
             with pytest.raises(ItnetRequestError, match="single run"):
                 http.estimate(cloud, recheck=True, ensemble=2, binary=binary, **kw)
             assert http.estimate(cloud, recheck=False, binary=binary, **kw).rechecked is None
+
+
+def test_the_pose_command_rechecks_or_refuses(trained, tmp_path):
+    _, models = trained
+    path = tmp_path / "cloud.npy"
+    np.save(path, np.random.default_rng(4).normal(size=(500, 3)).astype(np.float32))
+    args = ["pose", str(path), "--model", "tub", "--model-dir", str(models), "--json",
+            "--max-iterations", "2", "--budget-ms", "5000"]  # fmt: skip
+    done = runner.invoke(app, [*args, "--recheck"])
+    assert done.exit_code == 0, done.output
+    row = json.loads(done.output.strip().splitlines()[-1])
+    assert row.get("rechecked", True) is True  # where the tiny verifier doubts it: in time
+    refused = runner.invoke(app, [*args, "--recheck", "--ensemble", "2"])
+    assert refused.exit_code != 0 and "single run" in refused.output
