@@ -44,18 +44,27 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             mirror: bool | None = None, centre: bool | None = None,
             baseline: dict | None = None, viewpoint: bool = False,
             up_error_deg: float | None = None, verify: bool | None = None,
-            verifier: Path | None = None, recheck: bool | None = None) -> dict:  # fmt: skip
+            verifier: str = "beside", recheck: bool | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
     from itnet.model.scanner import VIEW_RULES, scan_config
     from itnet.service.engine import AnytimeRun
-    from itnet.service.runtime import LoadedVerifier, load_any, load_model
+    from itnet.service.runtime import (
+        LoadedVerifier,
+        attach_verifiers,
+        load_any,
+        load_model,
+        load_verifiers,
+    )
 
     model = load_model(model_path)
-    if verifier is not None:  # verify then anchors on the run it finds likeliest
-        model.verifier = load_any(verifier)
+    if verifier == "beside":  # as the service loads the model's folder
+        found = load_verifiers(model_path.parent, skip=frozenset({model_path.resolve()}))
+        attach_verifiers({model.card.name: model}, found, model_path.parent)
+    elif verifier != "none":  # verify then anchors on the run it finds likeliest
+        model.verifier = load_any(Path(verifier))
         assert isinstance(model.verifier, LoadedVerifier), f"{verifier}: not a verifier"
     cat = category(model.card.category, model.card.symmetry)
     config = scan_config(VIEW_RULES[scanner])
@@ -208,10 +217,10 @@ def main() -> None:
     )
     parser.add_argument(
         "--verifier",
-        type=Path,
-        default=None,
-        help="a learned verifier (.onnx of itnet verifier-export) beside the model, as the "
-        "service loads one from the model folder: verify then uses it instead of the probes",
+        default="beside",
+        help="the learned verifier beside the model: 'beside' (default: the one of its category "
+        "in the model's folder, as the service loads it), 'none' (verify runs the probes; no "
+        "recheck), or a path (.onnx of itnet verifier-export)",
     )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
@@ -233,7 +242,7 @@ def main() -> None:
         "up_error_deg": args.up,
         "verify": args.verify,
         "recheck": args.recheck,
-        "verifier": None if args.verifier is None else str(args.verifier),
+        "verifier": args.verifier,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(

@@ -13,6 +13,7 @@ from itnet.clients.wire import (
     ItnetClientError,
     ItnetConnectionError,
     ItnetRequestError,
+    RequestOptions,
 )
 
 __all__ = [
@@ -25,4 +26,5 @@ __all__ = [
     "ItnetClientError",
     "ItnetConnectionError",
     "ItnetRequestError",
+    "RequestOptions",
 ]

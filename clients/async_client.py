@@ -16,7 +16,7 @@ import contextlib
 import json
 from collections.abc import AsyncIterator
 from types import TracebackType
-from typing import Any
+from typing import Any, Unpack
 
 import httpx
 from numpy.typing import ArrayLike
@@ -30,6 +30,7 @@ from itnet.clients.wire import (
     EstimateResult,
     ItnetClientError,
     ItnetConnectionError,
+    RequestOptions,
     binary_body,
     json_request,
     parse_message,
@@ -110,29 +111,10 @@ class AsyncItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         binary: bool = False,
-        units: str | None = None,
-        mirror: bool | None = None,
-        centre: bool | None = None,
-        viewpoint: list[float] | None = None,
-        up: list[float] | None = None,
-        ensemble: int | None = None,
-        verify: bool | None = None,
-        recheck: bool | None = None,
+        **options: Unpack[RequestOptions],
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(
-            budget_ms,
-            max_iterations,
-            model,
-            units,
-            mirror,
-            centre,
-            viewpoint,
-            up,
-            ensemble,
-            verify,
-            recheck,
-        )
+        fields = request_fields(budget_ms, max_iterations, model, **options)
         try:
             if binary:
                 reply = await self._http.post(
@@ -150,31 +132,12 @@ class AsyncItnetClient:
         budget_ms: float = 50.0,
         max_iterations: int | None = None,
         model: str = "chair",
-        units: str | None = None,
-        mirror: bool | None = None,
-        centre: bool | None = None,
-        viewpoint: list[float] | None = None,
-        up: list[float] | None = None,
-        ensemble: int | None = None,
-        verify: bool | None = None,
-        recheck: bool | None = None,
+        **options: Unpack[RequestOptions],
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(
-                budget_ms,
-                max_iterations,
-                model,
-                units,
-                mirror,
-                centre,
-                viewpoint,
-                up,
-                ensemble,
-                verify,
-                recheck,
-            ),
+            request_fields(budget_ms, max_iterations, model, **options),
         )
         try:
             url = websocket_url(self.base_url)

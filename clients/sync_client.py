@@ -15,7 +15,7 @@ import contextlib
 import json
 from collections.abc import Iterator
 from types import TracebackType
-from typing import Any
+from typing import Any, Unpack
 
 import httpx
 from numpy.typing import ArrayLike
@@ -29,6 +29,7 @@ from itnet.clients.wire import (
     EstimateResult,
     ItnetClientError,
     ItnetConnectionError,
+    RequestOptions,
     binary_body,
     json_request,
     parse_message,
@@ -108,37 +109,13 @@ class ItnetClient:
         max_iterations: int | None = None,
         model: str = "chair",
         binary: bool = False,
-        units: str | None = None,
-        mirror: bool | None = None,
-        centre: bool | None = None,
-        viewpoint: list[float] | None = None,
-        up: list[float] | None = None,
-        ensemble: int | None = None,
-        verify: bool | None = None,
-        recheck: bool | None = None,
+        **options: Unpack[RequestOptions],
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
-        point) instead of JSON; ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the
-        cloud's size; ``mirror`` (default: the model's) finishes the pose by the category's mirror
-        symmetry or not, ``centre`` (default: the model's) its object centre by the model's centre
-        correction or not; ``up`` (x, y, z), which way is up in the cloud, holds the pose upright;
-        ``ensemble`` K (default: the model's) fuses K runs on different subsets into each
-        estimate, and ``verify`` (default: the model's, for K > 1) anchors that fusion on the run
-        that holds its pose when knocked off (``EstimateResult.ensemble``, ``.verified``).
-        Raises ItnetRequestError (refused), ItnetConnectionError."""
-        fields = request_fields(
-            budget_ms,
-            max_iterations,
-            model,
-            units,
-            mirror,
-            centre,
-            viewpoint,
-            up,
-            ensemble,
-            verify,
-            recheck,
-        )
+        point) instead of JSON; ``options`` are the request's optional fields (RequestOptions:
+        units, mirror, centre, viewpoint, up, ensemble, verify, recheck; the result's
+        ``ensemble``, ``verified`` and ``rechecked`` say what ran). Raises ItnetRequestError (refused), ItnetConnectionError."""
+        fields = request_fields(budget_ms, max_iterations, model, **options)
         try:
             if binary:
                 reply = self._http.post(
@@ -156,31 +133,12 @@ class ItnetClient:
         budget_ms: float = 50.0,
         max_iterations: int | None = None,
         model: str = "chair",
-        units: str | None = None,
-        mirror: bool | None = None,
-        centre: bool | None = None,
-        viewpoint: list[float] | None = None,
-        up: list[float] | None = None,
-        ensemble: int | None = None,
-        verify: bool | None = None,
-        recheck: bool | None = None,
+        **options: Unpack[RequestOptions],
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(
-                budget_ms,
-                max_iterations,
-                model,
-                units,
-                mirror,
-                centre,
-                viewpoint,
-                up,
-                ensemble,
-                verify,
-                recheck,
-            ),
+            request_fields(budget_ms, max_iterations, model, **options),
         )
         try:
             url = websocket_url(self.base_url)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, Unpack
 from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
@@ -129,41 +129,40 @@ def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
     return cloud
 
 
+class RequestOptions(TypedDict, total=False):
+    """A request's optional fields, as the clients' keyword arguments (None: the service's
+    default). ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the cloud's size;
+    ``mirror`` and ``centre`` finish the pose by the category's mirror symmetry and the model's
+    centre correction or not; ``viewpoint`` (x, y, z), the sensor's position; ``up`` (x, y, z),
+    which way is up in the cloud, holds the pose upright; ``ensemble`` K fuses K runs on
+    different subsets into each estimate; ``verify`` anchors that fusion on the likeliest run;
+    ``recheck`` rechecks a single run the model's verifier doubts (docs/service.md)."""
+
+    units: str | None
+    mirror: bool | None
+    centre: bool | None
+    viewpoint: list[float] | None
+    up: list[float] | None
+    ensemble: int | None
+    verify: bool | None
+    recheck: bool | None
+
+
+XYZ_FIELDS = ("viewpoint", "up")  # sent as 'x,y,z', which a binary request's query also takes
+
+
 def request_fields(
-    budget_ms: float,
-    max_iterations: int | None,
-    model: str,
-    units: str | None = None,
-    mirror: bool | None = None,
-    centre: bool | None = None,
-    viewpoint: list[float] | None = None,
-    up: list[float] | None = None,
-    ensemble: int | None = None,
-    verify: bool | None = None,
-    recheck: bool | None = None,
+    budget_ms: float, max_iterations: int | None, model: str, **options: Unpack[RequestOptions]
 ) -> dict[str, Any]:
-    """The request's non-point fields (max_iterations, units, mirror, centre, viewpoint, up,
-    ensemble, verify and recheck only when given; the viewpoint and up as 'x,y,z', which a binary
-    request's query also takes)."""
+    """The request's non-point fields: the budget and the model, the others only when given."""
     out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
     if max_iterations is not None:
         out["max_iterations"] = max_iterations
-    if units is not None:
-        out["units"] = units
-    if mirror is not None:
-        out["mirror"] = mirror
-    if centre is not None:
-        out["centre"] = centre
-    if viewpoint is not None:
-        out["viewpoint"] = ",".join(repr(float(v)) for v in viewpoint)
-    if up is not None:
-        out["up"] = ",".join(repr(float(v)) for v in up)
-    if ensemble is not None:
-        out["ensemble"] = ensemble
-    if verify is not None:
-        out["verify"] = verify
-    if recheck is not None:
-        out["recheck"] = recheck
+    for name, value in options.items():
+        if name not in RequestOptions.__annotations__:
+            raise TypeError(f"unknown request option {name!r}")
+        if value is not None:
+            out[name] = ",".join(repr(float(v)) for v in value) if name in XYZ_FIELDS else value
     return out
 
 

@@ -23,7 +23,7 @@ from itnet.export.onnx_export import save_with_card
 from itnet.model.classify.local import LocalHead, nearest_neighbours, neighbour_max
 from itnet.model.classify.network import Classifier, PointNetHead, transformer_state
 from itnet.model.network import ExportableStep, _bn_scale, _folded, _folded_mlp
-from itnet.model_card import ClassifierCard
+from itnet.model_card import ClassifierCard, VerifierCard
 from itnet.upright import UPRIGHT_EVAL_DEG
 
 if TYPE_CHECKING:
@@ -191,14 +191,26 @@ def export_classifier(
             f"the card names {len(card.classes)} classes, the net has {net.config.classes}"
         )
     graph = ExportableClassifier(net, card.canonical_points, fused).eval()
+    return export_points_graph(graph, "probabilities", card, path, opset)
+
+
+def export_points_graph(
+    graph: nn.Module,
+    output: str,
+    card: ClassifierCard | VerifierCard,
+    path: Path,
+    opset: int = 20,
+) -> Path:
+    """Write ``path`` (.onnx): a graph of points (B, N, 3) -> ``output``, any B and N, with
+    ``card`` as metadata (the classifier's and the verifier's). Returns the path."""
     batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
     program = torch.onnx.export(
-        graph,
+        graph.eval(),
         (torch.randn(2, 64, 3),),
         dynamo=True,
         opset_version=opset,
         input_names=["points"],
-        output_names=["probabilities"],
+        output_names=[output],
         dynamic_shapes={"points": {0: batch, 1: count}},
         external_data=False,
         verbose=False,

@@ -9,11 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
 from torch import Tensor, nn
 
-from itnet.export.classifier_export import FoldedPointNet
-from itnet.export.onnx_export import save_with_card
+from itnet.export.classifier_export import FoldedPointNet, export_points_graph
 from itnet.model.classify.network import PointNetHead
 from itnet.model_card import VerifierCard
 
@@ -31,17 +29,4 @@ class ExportableVerifier(nn.Module):
 
 def export_verifier(net: PointNetHead, card: VerifierCard, path: Path, opset: int = 20) -> Path:
     """Write ``path`` (.onnx): the verifier graph with ``card`` as metadata. Returns the path."""
-    graph = ExportableVerifier(net).eval()
-    batch, count = torch.export.Dim("batch", min=1, max=4096), torch.export.Dim("points", min=1)
-    program = torch.onnx.export(
-        graph,
-        (torch.randn(2, 64, 3),),
-        dynamo=True,
-        opset_version=opset,
-        input_names=["points"],
-        output_names=["logits"],
-        dynamic_shapes={"points": {0: batch, 1: count}},
-        external_data=False,
-        verbose=False,
-    )
-    return save_with_card(program.model_proto, card, path)  # type: ignore[union-attr]
+    return export_points_graph(ExportableVerifier(net), "logits", card, path, opset)

@@ -330,66 +330,46 @@ def _paired_rows(without: dict, with_it: dict, fused: bool) -> list[tuple[str, s
     return pairs
 
 
-def describe_mirror(without: dict, with_planes: dict) -> str:
-    """The card's ``mirror_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of one
-    run (K = 1) on the same views, the card without and with its mirror planes. Raises
-    ValueError where they share no such measurement or measured different scans."""
+def describe_switch(
+    without: dict, with_it: dict, fused: bool, switch: str, share: tuple[str, str]
+) -> str:
+    """A card's evaluation line of a finish the engine can switch on or off, from two
+    ``benchmarks.bench_ensemble`` JSONs of the same views without and with it: each kind's
+    accuracy before and after, with the paired gain where the second was measured against the
+    first (``--baseline``) and the share of runs the finish got to (``share``: the JSON's key,
+    its words); one run's rows, or (``fused``) those of more. Raises ValueError where they
+    share no such measurement or measured different scans."""
     parts = []
-    for kind, _, plain, mirrored in _paired_rows(without, with_planes, fused=False):
-        finished = mirrored.get("mirror_finished")
-        done = "" if finished is None else f", {100 * finished:.0f}% finished in time"
+    for kind, runs, plain, row in _paired_rows(without, with_it, fused):
+        paired = row.get("versus_baseline")
+        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
+        done = row.get(share[0])
+        held = "" if done is None else f", {100 * done:.0f}% {share[1]}"
+        label = f"{kind} {runs} runs" if fused else kind
         parts.append(
-            f"{kind} {plain['accuracy']:.1f}% -> {mirrored['accuracy']:.1f}% "
-            f"({mirrored['scans']} scans{done})"
+            f"{label} {plain['accuracy']:.1f}% -> {row['accuracy']:.1f}% "
+            f"({gain}{row['scans']} scans{held})"
         )
     return (
-        f"one run within {with_planes['budget_ms']:g} ms on the {with_planes['split']} views, "
-        "without and with the mirror planes, at (10 deg, 0.1 radius): "
+        f"{'fused runs' if fused else 'one run'} within {with_it['budget_ms']:g} ms on the "
+        f"{with_it['split']} views, without and with {switch}, at (10 deg, 0.1 radius): "
         + ", ".join(parts)
-        + f" [{with_planes['machine']}]"
+        + f" [{with_it['machine']}]"
+    )
+
+
+def describe_mirror(without: dict, with_planes: dict) -> str:
+    """The card's ``mirror_evaluation``: one run without and with its mirror planes."""
+    return describe_switch(
+        without, with_planes, False, "the mirror planes", ("mirror_finished", "finished in time")
     )
 
 
 def describe_recheck(without: dict, with_recheck: dict) -> str:
-    """The card's ``recheck_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of one
-    run (K = 1) on the same views, ``--recheck off`` and ``on``; the paired gain where the second
-    was measured against the first (``--baseline``). Raises ValueError as ``describe_verify``."""
-    parts = []
-    for kind, _, plain, rechecked in _paired_rows(without, with_recheck, fused=False):
-        paired = rechecked.get("versus_baseline")
-        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
-        share = rechecked.get("rechecked")
-        doubted = "" if share is None else f", {100 * share:.0f}% rechecked"
-        parts.append(
-            f"{kind} {plain['accuracy']:.1f}% -> {rechecked['accuracy']:.1f}% "
-            f"({gain}{rechecked['scans']} scans{doubted})"
-        )
-    return (
-        f"one run within {with_recheck['budget_ms']:g} ms on the {with_recheck['split']} views, "
-        "without and with the recheck, at (10 deg, 0.1 radius): "
-        + ", ".join(parts)
-        + f" [{with_recheck['machine']}]"
-    )
+    """The card's ``recheck_evaluation``: one run without and with the recheck."""
+    return describe_switch(without, with_recheck, False, "the recheck", ("rechecked", "rechecked"))
 
 
 def describe_verify(without: dict, with_verify: dict) -> str:
-    """The card's ``verify_evaluation`` line from two ``benchmarks.bench_ensemble`` JSONs of
-    fused runs (K > 1) on the same views, ``--verify off`` and ``on``; the paired gain where the
-    second was measured against the first (``--baseline``). Raises ValueError where they share
-    no such measurement or measured different scans."""
-    parts = []
-    for kind, runs, plain, verified in _paired_rows(without, with_verify, fused=True):
-        paired = verified.get("versus_baseline")
-        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
-        done = verified.get("verified")
-        held = "" if done is None else f", {100 * done:.0f}% verified in time"
-        parts.append(
-            f"{kind} {runs} runs {plain['accuracy']:.1f}% -> {verified['accuracy']:.1f}% "
-            f"({gain}{verified['scans']} scans{held})"
-        )
-    return (
-        f"fused runs within {with_verify['budget_ms']:g} ms on the {with_verify['split']} views, "
-        "without and with verify, at (10 deg, 0.1 radius): "
-        + ", ".join(parts)
-        + f" [{with_verify['machine']}]"
-    )
+    """The card's ``verify_evaluation``: fused runs without and with verify."""
+    return describe_switch(without, with_verify, True, "verify", ("verified", "verified in time"))
