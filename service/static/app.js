@@ -155,7 +155,7 @@ function onMessage(message) {
     $('stopped-by').textContent = result.stopped_by;
     $('timing').textContent = `(${result.iterations} iterations in ${result.elapsed_ms.toFixed(2)} ms, model ${result.model})`;
     const runs = result.ensemble ? `, ${result.ensemble} runs fused` : '';
-    const verified = result.verified ? ', anchored by the firmest run (verify)' : '';
+    const verified = result.verified ? ', fused around the run verify found likeliest' : '';
     const rechecked = result.rechecked === true ? ', doubted and rechecked by more runs'
       : result.rechecked === false ? ', doubted (no time to recheck)' : '';
     const mirror = result.mirror ? ', finished by the mirror symmetry' : '';

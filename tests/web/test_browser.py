@@ -77,13 +77,14 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert "4 runs fused" in page.text_content("#status")
     assert api["centre"] is True and "centre corrected" in page.text_content("#status")
     assert api["verified"] is True and shown["verified"] is True  # the chair's card: verify_fused
-    assert "anchored by the firmest run" in page.text_content("#status")
-    # Back to the model's count (one run for the chair): the request carries no ensemble, and
-    # the URL forgets it.
+    assert "fused around the run verify found likeliest" in page.text_content("#status")
+    # Back to the model's count (8 runs for the chair since session 34): the request carries no
+    # ensemble, the URL forgets it, and the reply says how many the card's default ran.
     page.select_option("#ensemble", "")
     page.click("#run")
-    single = result(page)
-    assert "ensemble" not in single and "ensemble=" not in page.url
+    default = result(page)
+    assert default["ensemble"] == 8 and "ensemble=" not in page.url
+    assert "8 runs fused" in page.text_content("#status")
 
 
 def test_the_unit_control_lets_auto_count_the_size(live_server, browser_page):
