@@ -127,6 +127,13 @@ def main(
         -1.0, help="After a 503, wait this long (negative: honour Retry-After)."
     ),
     fresh: bool = typer.Option(False, help="A new connection per request (else keep-alive)."),
+    ensemble: int | None = typer.Option(
+        None,
+        min=1,
+        max=16,
+        help="'ensemble' of every request (default: none, the card's; the chair's is 8 runs "
+        "since session 34, one run before: docs/service.md's earlier tables are one run)",
+    ),
 ) -> None:
     """Run the load test and print its table."""
     folder = model_dir(models)
@@ -135,7 +142,8 @@ def main(
     env = {"ITNET_THREADS": str(threads), "ITNET_GC_FREEZE": str(gc_freeze).lower(),
            "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max_concurrent)}  # fmt: skip
     cloud = sample_cloud(points)
-    body = json.dumps({"points": cloud.tolist(), "budget_ms": budget_ms}).encode()
+    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
+    body = json.dumps({"points": cloud.tolist(), **fields}).encode()
     rows = []
     with serve(folder, log, env, args=["--workers", str(workers)]) as server:
         for _ in range(20 * workers):  # warm up (each worker)
@@ -155,7 +163,8 @@ def main(
         health = httpx.get(f"{server.url}/healthz", timeout=5).status_code
         rss_after = server.rss_mb()
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points (JSON, "
-               f"{len(body):,} bytes); budget {budget_ms:g} ms; {workers} server process(es), "
+               f"{len(body):,} bytes); budget {budget_ms:g} ms; ensemble {ensemble or 'by the card'}; "
+               f"{workers} server process(es), "
                f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip
     typer.echo(table(rows, margin_ms))

@@ -231,6 +231,7 @@ class AnytimeRun(Iterator[Estimate]):
         up: ArrayLike | None = None,
         verify: bool | None = None,
         recheck: bool | None = None,
+        sharing: float = 1.0,
     ) -> None:
         # The budget clock: from ``started`` (a time.perf_counter() value, e.g. when the request
         # arrived, so that decoding and queueing count against the budget), else from now.
@@ -256,7 +257,10 @@ class AnytimeRun(Iterator[Estimate]):
             own = starts is not None or points_per_step is not None  # its own starts or subsets
             size = _run_subset(model.card.points, limits.min_points, len(cloud))
             available = budget_ms - self.reserve_ms - (time.perf_counter() - self.started) * 1e3
+            # ``sharing``: estimates in flight per step slot (the service's count): each step
+            # waits for the others', so the budget holds that many times fewer runs' steps
             run_ms = model.predicted_step_ms() * max(size / model.card.points, 0.25)
+            run_ms *= max(1.0, sharing)
             ensemble = (
                 1
                 if own

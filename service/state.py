@@ -166,7 +166,9 @@ class ServiceState:
         reserve_ms: float = 0.0,
     ) -> AnytimeRun:
         """Validate and normalise the cloud and set up the run (CPU: call from a worker thread).
-        The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in)."""
+        The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in).
+        The card's default ensemble is fitted to the budget as shared with the estimates in
+        flight (each model's step slots serve them all)."""
         auto = params.model == AUTO and AUTO not in self.models
         model = None if auto else self.model(params.model)
         limits = self.settings.limits
@@ -216,6 +218,7 @@ class ServiceState:
                 centre=params.centre,
                 viewpoint=params.viewpoint,
                 up=params.up,
+                sharing=self.gate.active / max(1, model.concurrent_steps),
             )
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", str(err)) from None

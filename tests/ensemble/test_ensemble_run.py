@@ -184,3 +184,35 @@ def test_a_tight_budget_gets_fewer_default_runs_and_an_explicit_ensemble_is_kept
     # the reply says how many ran
     run = AnytimeRun(fused, cloud, budget_ms=25, max_iterations=10)
     assert run.run_to_end() is not None and run.result()["ensemble"] == 2
+
+
+def test_the_default_ensemble_is_fitted_to_the_budget_as_shared(fused_model_dir, cloud):
+    """Four estimates in flight on one step slot: each step waits for the others', so a budget
+    that holds 4 runs' 10 steps alone holds one run's when shared four ways (the service
+    passes ``sharing``, the estimates in flight per slot)."""
+    fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
+    fused.step_ms = 1.0
+    fused._recent.clear()
+    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
+    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=2).ensemble == 4
+    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=4).ensemble == 2
+    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=12).ensemble == 1
+    explicit = AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=12, ensemble=4)
+    assert explicit.ensemble == 4  # a request that names its runs gets them
+
+
+def test_the_service_fits_the_default_ensemble_to_the_estimates_in_flight(fused_model_dir, cloud):
+    from itnet.service.metrics import Metrics
+    from itnet.service.schemas import EstimateParams
+    from itnet.service.settings import Settings
+    from itnet.service.state import ServiceState
+
+    state = ServiceState(Settings(model_dir=fused_model_dir, warm_up=False), Metrics())
+    state.load()
+    model = state.models["tiny4"]
+    model.step_ms, model.concurrent_steps = 1.0, 1
+    model._recent.clear()
+    params = EstimateParams(model="tiny4", budget_ms=100, max_iterations=10)
+    assert state.start_run(cloud, params).ensemble == 4  # nothing else in flight
+    state.gate.active = 12  # twelve estimates share the slot
+    assert state.start_run(cloud, params).ensemble == 1
