@@ -80,7 +80,9 @@ def client_estimator(
                 model=model,
                 binary=True,
                 mirror=False,  # as in-process: a hypothesis' pose is the network's,
-                centre=False,  # not finished by the mirror or the centre correction
+                centre=False,  # not finished by the mirror or the centre correction,
+                ensemble=1,  # one run from this start (not the card's default ensemble),
+                recheck=False,  # and not rechecked by the verifier
                 up=None if up is None else turn @ np.asarray(up, dtype=np.float64),
             )
             back = rigid_from_rotation_translation(turn, np.zeros(3))

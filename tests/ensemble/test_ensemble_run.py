@@ -216,3 +216,26 @@ def test_the_service_fits_the_default_ensemble_to_the_estimates_in_flight(fused_
     assert state.start_run(cloud, params).ensemble == 4  # nothing else in flight
     state.gate.active = 12  # twelve estimates share the slot
     assert state.start_run(cloud, params).ensemble == 1
+
+
+def test_alignment_through_the_service_runs_one_run_a_start_as_in_process(fused_model_dir, cloud):
+    """itnet-align --server: each start is one run, never the card's default ensemble, so the
+    service's hypotheses are the in-process ones (tiny4's card recommends 4 runs)."""
+    from fastapi.testclient import TestClient
+
+    from itnet.alignment.estimators import client_estimator, in_process_estimator
+    from itnet.clients import ItnetClient
+    from itnet.geometry import viewing_axis_turns
+    from itnet.service.app import create_app
+    from itnet.service.settings import Settings
+
+    with TestClient(create_app(Settings(model_dir=fused_model_dir, warm_up=False))) as served:
+        http = ItnetClient("http://testserver")
+        http._http = served  # the app in-process: TestClient is an httpx.Client
+        model = served.app.state.service.models["tiny4"]  # type: ignore[attr-defined]
+        turns = viewing_axis_turns(2)
+        remote = client_estimator(http, "tiny4", budget_ms=5000, max_iterations=3)(cloud, turns)
+        local = in_process_estimator(model, budget_ms=5000, max_iterations=3)(cloud, turns)
+    assert len(remote) == len(local) == 2
+    for r, here in zip(remote, local, strict=True):
+        assert np.allclose(r.T_canonical_from_input, here.T_canonical_from_input, atol=1e-4)
