@@ -41,7 +41,7 @@ def models(
         return
     rows = [
         ("name", "category", "symmetry", "mirror", "centre", "up", "precision", "points", "runs",
-         "accuracy", "step", ""),
+         "verifier", "accuracy", "step", ""),
     ]  # fmt: skip
     for info in reply.models:
         rows.append(
@@ -55,6 +55,7 @@ def models(
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
+                _verifier(info.verifier, info.verify_fused, info.recheck_runs),
                 _accuracy(info.accuracy, info.recommended_iterations),
                 f"{info.step_ms:.2f} ms",
                 "default" if info.default else "",
@@ -79,9 +80,19 @@ def models(
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
         "the final pose's object centre is finished by the card's correction (+vp: another for "
         "requests that give the sensor's position, +up for those that give up); up: 'needed' "
-        "where a request must say which way is up in its cloud (--up); "
+        "where a request must say which way is up in its cloud (--up); verifier: where the "
+        "category has a learned verifier, what it does by default (verify: fused runs anchored "
+        "on the likeliest; recheck:N, a doubted single run rechecked by N runs); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
+
+
+def _verifier(name: str | None, verify: bool, recheck_runs: int) -> str:
+    """The verifier column: '-' without one, else what the card has it do by default."""
+    if name is None:
+        return "-"
+    uses = (["verify"] if verify else []) + ([f"recheck:{recheck_runs}"] if recheck_runs else [])
+    return "+".join(uses) or "loaded"
 
 
 def _accuracy(accuracy: dict[str, float], iterations: int) -> str:

@@ -51,7 +51,8 @@ def test_models_table_shows_the_shipped_cards():
     assert table.exit_code == 0, table.output
     header, *rows = table.stdout.splitlines()
     assert header.split() == ["name", "category", "symmetry", "mirror", "centre", "up",
-                              "precision", "points", "runs", "accuracy", "step"]  # fmt: skip
+                              "precision", "points", "runs", "verifier", "accuracy",
+                              "step"]  # fmt: skip
     for name in ("chair", "bed"):  # the bed's card recommends 8 runs fused (session 19)
         row = next(r for r in rows if r.startswith(f"{name} "))
         card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
@@ -63,6 +64,8 @@ def test_models_table_shows_the_shipped_cards():
                                    str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
+        # the chair's learned verifier (session 34): verify for fused runs, recheck for one run
+        assert row.split()[9] == ("verify+recheck:4" if name == "chair" else "-")
     # the night stand is served only with the up direction (session 22): its row says so
     night = next(r for r in rows if r.startswith("night_stand "))
     assert night.split()[5] == "needed"
