@@ -55,13 +55,13 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         LoadedVerifier,
         attach_verifiers,
         load_any,
+        load_beside,
         load_model,
-        load_verifiers,
     )
 
     model = load_model(model_path)
     if verifier == "beside":  # as the service loads the model's folder
-        found = load_verifiers(model_path.parent, skip=frozenset({model_path.resolve()}))
+        found = load_beside(model_path.parent, skip=frozenset({model_path.resolve()}))[1]
         attach_verifiers({model.card.name: model}, found, model_path.parent)
     elif verifier != "none":  # verify then anchors on the run it finds likeliest
         model.verifier = load_any(Path(verifier))

@@ -114,7 +114,8 @@ class ItnetClient:
         """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
         point) instead of JSON; ``options`` are the request's optional fields (RequestOptions:
         units, mirror, centre, viewpoint, up, ensemble, verify, recheck; the result's
-        ``ensemble``, ``verified`` and ``rechecked`` say what ran). Raises ItnetRequestError (refused), ItnetConnectionError."""
+        ``ensemble``, ``verified`` and ``rechecked`` say what ran). Raises ItnetRequestError
+        (refused), ItnetConnectionError."""
         fields = request_fields(budget_ms, max_iterations, model, **options)
         try:
             if binary:

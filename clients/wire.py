@@ -99,8 +99,9 @@ class EstimateResult:
 
     @property
     def verified(self) -> bool | None:
-        """Where ``verify`` was on: True if its probes ran and the fusion was anchored by the
-        firmest run, False if the budget could not hold them; None where it was off."""
+        """Where ``verify`` was on: True if it ran and anchored the fusion (on the run the
+        verifier found likeliest, or the firmest by the probes), False if the budget could not
+        hold it; None where it was off."""
         verified = self.raw.get("verified")
         return None if verified is None else bool(verified)
 

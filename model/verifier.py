@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -38,6 +39,10 @@ from itnet.geometry import axis_angle_to_matrix, random_rotation, viewing_axis_t
 from itnet.model.classify.network import PointNetHead
 from itnet.preprocess import pose_to_normalized, resample
 from itnet.symmetry import symmetric_rotation_error_deg
+
+if TYPE_CHECKING:
+    from itnet.model.data import ScanSet
+    from itnet.service.runtime import LoadedModel
 
 
 class VerifierConfig(BaseModel):
@@ -82,7 +87,9 @@ class PoseRuns:
 _FIELDS = ("points", "poses", "errors", "truths")
 
 
-def pose_runs(model, scans, ensemble: int, points: int, seed: int = 0) -> PoseRuns:  # type: ignore[no-untyped-def]
+def pose_runs(
+    model: LoadedModel, scans: ScanSet, ensemble: int, points: int, seed: int = 0
+) -> PoseRuns:
     """A LoadedModel's runs on a ScanSet as the engine fuses them (``ensemble`` turned starts,
     each on its own subset), every run's points resampled to ``points``."""
     from itnet.model.evaluate import run_poses
@@ -108,15 +115,16 @@ def pose_runs(model, scans, ensemble: int, points: int, seed: int = 0) -> PoseRu
     )
 
 
-def training_runs(config: VerifierConfig, log: Callable[[str], None] = print) -> PoseRuns:
-    """The pose model's runs on the category's training scans of every view rule (cached under
-    ``config.cache``, keyed by the model file's bytes and the settings that shape them)."""
+def training_runs(
+    model: LoadedModel, config: VerifierConfig, log: Callable[[str], None] = print
+) -> PoseRuns:
+    """A LoadedModel's (``config.pose_model``) runs on the category's training scans of every
+    view rule (cached under ``config.cache``, keyed by the model file's bytes and the settings
+    that shape them)."""
     from itnet.model.categories import category
     from itnet.model.category_set import training_scans
     from itnet.model.scanner import VIEW_RULES, scan_config
-    from itnet.service.runtime import load_model
 
-    model = load_model(config.pose_model, threads=config.threads, warm_up=False)
     cat = category(config.category, model.card.symmetry)
     digest = hashlib.sha256(config.pose_model.read_bytes()).hexdigest()[:12]
     parts = []
@@ -210,9 +218,10 @@ def train_verifier(config: VerifierConfig, out: Path, log: Callable[[str], None]
     torch.manual_seed(config.seed)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(config.model_dump_json(indent=1))
-    symmetry = load_model(config.pose_model, warm_up=False).card.symmetry
+    model = load_model(config.pose_model, threads=config.threads, warm_up=False)
+    symmetry = model.card.symmetry
     category(config.category, symmetry)  # an unknown category fails before the runs
-    runs = training_runs(config, log)
+    runs = training_runs(model, config, log)
     net = make_verifier(config)
     optimiser = torch.optim.Adam(net.parameters(), config.lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps)

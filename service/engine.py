@@ -77,6 +77,12 @@ def fitting_ensemble(recommended: int, run_step_ms: float, iterations: int,
     return k
 
 
+def _step_load(runs: int, points: int, model_points: int) -> float:
+    """A step's cost in steps of one run of the model's point count: about proportional to the
+    points, with a floor for the fixed part."""
+    return max(runs * points / model_points, 0.25)
+
+
 def _run_subset(model_points: int, min_points: int, cloud_points: int) -> int:
     """Points of one ensemble run's subset: ENSEMBLE_SUBSET of the cloud, within [min_points,
     the model's point count]."""
@@ -409,7 +415,7 @@ class AnytimeRun(Iterator[Estimate]):
         self.points = np.stack(inputs)
         # A step's cost is about proportional to its points, with a floor for the fixed part:
         # the model's step-time record is kept at the card's point count, scaled by this.
-        self._load = max(self.points.shape[0] * self.points.shape[1] / model.card.points, 0.25)
+        self._load = _step_load(*self.points.shape[:2], model.card.points)
         self.model = model
         self.budget_ms, self.max_iterations = float(budget_ms), max_iterations
         self.converge = (converge_rotation_deg, converge_translation)
@@ -522,11 +528,11 @@ class AnytimeRun(Iterator[Estimate]):
         self.rechecked = False
         k, card = self.recheck_runs, self.model.card
         size = _run_subset(card.points, self._min_points, len(self._cloud))
-        load = max(k * size / card.points, 0.25)
+        load = _step_load(k, size, card.points)
         predicted = self.iteration * self.model.predicted_step_ms() * load + verifier.predicted_ms(
             k, size
         )
-        if self.budget_ms - self.reserve_ms - self.elapsed_ms() < predicted:
+        if self._left_ms() < predicted:
             return
         rng = np.random.default_rng(self._seed + 1)
         x = np.stack(
@@ -536,7 +542,7 @@ class AnytimeRun(Iterator[Estimate]):
         poses[:, :3, :3] = viewing_axis_turns(k)
         deadline = self.started + self.budget_ms / 1e3
         for _ in range(self.iteration):
-            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms()
+            slack = self._left_ms()
             with self.model.step_slot(max(slack, 0.0) / 1e3, deadline) as free:
                 if slack <= 0 or not free or self._cancel.is_set():
                     return
@@ -561,7 +567,7 @@ class AnytimeRun(Iterator[Estimate]):
             return
         verifier, symmetry = self.model.verifier, self.model.card.symmetry
         if verifier is not None:
-            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms()
+            slack = self._left_ms()
             if slack < verifier.predicted_ms(*self.points.shape[:2]) or self._cancel.is_set():
                 return
             scores = verifier.scores(canonical_points(self.points, self.pose_normalized))
@@ -569,7 +575,7 @@ class AnytimeRun(Iterator[Estimate]):
         else:
             turns = probe_turns(PROBE_DEG)
             predicted = PROBE_STEPS * self.model.predicted_step_ms() * self._load * len(turns)
-            slack = self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
+            slack = self._left_ms() - predicted
             if slack < 0:
                 return
             deadline = self.started + self.budget_ms / 1e3
@@ -599,10 +605,7 @@ class AnytimeRun(Iterator[Estimate]):
         pose = self.last.pose_normalized.astype(np.float64)
         points = self.points[0].astype(np.float64)
         for plane in self.model.card.mirror_planes:
-            if (
-                self.budget_ms - self.reserve_ms - self.elapsed_ms()
-                < self.model.predicted_mirror_ms()
-            ):
+            if self._left_ms() < self.model.predicted_mirror_ms():
                 break
             start = time.perf_counter()
             pose = mirror_finished(points, pose, [plane])
@@ -647,11 +650,15 @@ class AnytimeRun(Iterator[Estimate]):
             return "budget"
         return None
 
+    def _left_ms(self) -> float:
+        """Budget left, less the reserve for the reply (negative: overrun)."""
+        return self.budget_ms - self.reserve_ms - self.elapsed_ms()
+
     def _slack_ms(self) -> float:
         """Budget left after the predicted next step and the reserve (negative: the step would
         overrun)."""
         predicted = max(self.model.predicted_step_ms() * self._load, self._last_step_ms)
-        return self.budget_ms - self.reserve_ms - self.elapsed_ms() - predicted
+        return self._left_ms() - predicted
 
     def _estimate(
         self, pose_normalized: NDArray, rotation_deg: float, translation: float

@@ -355,7 +355,8 @@ def load_all(
     if not models:
         raise ModelLoadError(f"{directory}: no .onnx models found")
     attach_verifiers(models, [m for m in loaded if isinstance(m, LoadedVerifier)], directory)
-    return models, _paired([m for m in loaded if isinstance(m, LoadedClassifier)], directory)
+    classifiers = [m for m in loaded if isinstance(m, LoadedClassifier)]
+    return models, pair_classifiers(classifiers, directory)
 
 
 def attach_verifiers(
@@ -375,19 +376,9 @@ def attach_verifiers(
         model.verifier = by_category.get(model.card.category)
 
 
-def load_verifiers(
-    directory: Path, threads: int = 2, warm_up: bool = True, skip: frozenset[Path] = frozenset()
-) -> list[LoadedVerifier]:
-    """The verifiers of a directory; files in ``skip`` are not opened."""
-    paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
-    found = [load_any(p, threads, warm_up=False) for p in paths if p.resolve() not in skip]
-    verifiers = [v for v in found if isinstance(v, LoadedVerifier)]
-    for verifier in verifiers if warm_up else []:
-        verifier.warm_up()
-    return verifiers
-
-
-def _paired(classifiers: list[LoadedClassifier], directory: Path) -> LoadedClassifier | None:
+def pair_classifiers(
+    classifiers: list[LoadedClassifier], directory: Path
+) -> LoadedClassifier | None:
     """A directory's classifiers -> the one for any orientation, with the upright one (if any)
     beside it; None without classifiers. Raises ModelLoadError for two of a kind, or an upright
     classifier alone (a cloud without up would have nothing to classify it)."""
@@ -413,20 +404,19 @@ def _paired(classifiers: list[LoadedClassifier], directory: Path) -> LoadedClass
     return kinds.get(False)
 
 
-def load_classifier(
+def load_beside(
     directory: Path, threads: int = 2, warm_up: bool = True, skip: frozenset[Path] = frozenset()
-) -> LoadedClassifier | None:
-    """The category classifier of a directory (with its upright partner, if any), or None.
-    Files in ``skip`` (pose models already loaded) are not opened again; other pose steps are
-    opened, read and dropped. Raises ModelLoadError as :func:`load_all`."""
+) -> tuple[list[LoadedClassifier], list[LoadedVerifier]]:
+    """The classifiers and the verifiers of a directory, in one pass (:func:`pair_classifiers`
+    and :func:`attach_verifiers` put them to work). Files in ``skip`` (pose models already
+    loaded) are not opened again; other pose steps are opened, read and dropped. Raises
+    ModelLoadError for a file that does not load."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
-    found = []
-    for path in paths:
-        if path.resolve() in skip:
-            continue
-        loaded = load_any(path, threads, warm_up=False)
-        if isinstance(loaded, LoadedClassifier):
-            if warm_up:
-                loaded.warm_up()
-            found.append(loaded)
-    return _paired(found, directory)
+    found = [load_any(p, threads, warm_up=False) for p in paths if p.resolve() not in skip]
+    beside = [f for f in found if isinstance(f, LoadedClassifier | LoadedVerifier)]
+    for loaded in beside if warm_up else []:
+        loaded.warm_up()
+    return (
+        [c for c in beside if isinstance(c, LoadedClassifier)],
+        [v for v in beside if isinstance(v, LoadedVerifier)],
+    )

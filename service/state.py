@@ -26,11 +26,12 @@ from itnet.service.recognition import AUTO, RecognisedRun, recognise, second_loo
 from itnet.service.runtime import (
     LoadedClassifier,
     LoadedModel,
+    LoadedVerifier,
     ModelLoadError,
     attach_verifiers,
     load_all,
-    load_classifier,
-    load_verifiers,
+    load_beside,
+    pair_classifiers,
 )
 from itnet.service.schemas import EstimateParams
 from itnet.service.settings import Settings
@@ -107,19 +108,25 @@ class ServiceState:
                 self.load_error = str(err)
                 log.error("no model loaded: %s", err)
                 return
-        elif self.classifier is None:  # pose models handed in (itnet serve): the classifier too
+        elif self.classifier is None:  # pose models handed in (itnet serve): what lies beside
+            folder, loaded = (
+                self.settings.model_dir,
+                frozenset(m.path.resolve() for m in self.models.values()),
+            )
+            classifiers: list[LoadedClassifier] = []
+            verifiers: list[LoadedVerifier] = []
             try:
-                loaded = frozenset(m.path.resolve() for m in self.models.values())
-                self.classifier = load_classifier(
-                    self.settings.model_dir, self.settings.threads, self.settings.warm_up, loaded
+                classifiers, verifiers = load_beside(
+                    folder, self.settings.threads, self.settings.warm_up, loaded
                 )
+            except ModelLoadError as err:
+                log.error("no classifier or verifier loaded (model 'auto' is off): %s", err)
+            try:
+                self.classifier = pair_classifiers(classifiers, folder)
             except ModelLoadError as err:
                 log.error("no classifier loaded (model 'auto' is off): %s", err)
             try:  # and the verifiers of their categories
-                found = load_verifiers(
-                    self.settings.model_dir, self.settings.threads, self.settings.warm_up, loaded
-                )
-                attach_verifiers(self.models, found, self.settings.model_dir)
+                attach_verifiers(self.models, verifiers, folder)
             except ModelLoadError as err:
                 log.error("no verifier loaded (verify runs the probes): %s", err)
         wanted = self.settings.default_model

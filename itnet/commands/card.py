@@ -4,6 +4,7 @@ category, without touching its weights (the card is the graph's metadata)."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
@@ -130,24 +131,12 @@ def card(
         if mirror_fused and not planes:
             raise typer.BadParameter("--mirror-fused needs mirror planes on the card")
         update["mirror_fused"] = mirror_fused
-    if (without_verify is None) != (with_verify is None):
-        raise typer.BadParameter("give both --without-verify and --with-verify, or neither")
-    if without_verify is not None and with_verify is not None:
-        try:
-            update["verify_evaluation"] = describe_verify(
-                json.loads(without_verify.read_text()), json.loads(with_verify.read_text())
-            )
-        except (KeyError, ValueError) as err:
-            raise typer.BadParameter(f"--with-verify: {err}") from None
-    if (without_recheck is None) != (with_recheck is None):
-        raise typer.BadParameter("give both --without-recheck and --with-recheck, or neither")
-    if without_recheck is not None and with_recheck is not None:
-        try:
-            update["recheck_evaluation"] = describe_recheck(
-                json.loads(without_recheck.read_text()), json.loads(with_recheck.read_text())
-            )
-        except (KeyError, ValueError) as err:
-            raise typer.BadParameter(f"--with-recheck: {err}") from None
+    verify_text = _switch_evaluation("verify", without_verify, with_verify, describe_verify)
+    if verify_text is not None:
+        update["verify_evaluation"] = verify_text
+    recheck_text = _switch_evaluation("recheck", without_recheck, with_recheck, describe_recheck)
+    if recheck_text is not None:
+        update["recheck_evaluation"] = recheck_text
     if recheck_runs is not None:
         if recheck_runs and not (update.get("recheck_evaluation") or current.recheck_evaluation):
             raise typer.BadParameter("--recheck-runs needs its measurement: --with-recheck")
@@ -156,15 +145,9 @@ def card(
         if verify_fused and not (update.get("verify_evaluation") or current.verify_evaluation):
             raise typer.BadParameter("--verify-fused needs its measurement: --with-verify")
         update["verify_fused"] = verify_fused
-    if (without_mirror is None) != (with_mirror is None):
-        raise typer.BadParameter("give both --without-mirror and --with-mirror, or neither")
-    if without_mirror is not None and with_mirror is not None:
-        try:
-            update["mirror_evaluation"] = describe_mirror(
-                json.loads(without_mirror.read_text()), json.loads(with_mirror.read_text())
-            )
-        except (KeyError, ValueError) as err:
-            raise typer.BadParameter(f"--with-mirror: {err}") from None
+    mirror_text = _switch_evaluation("mirror", without_mirror, with_mirror, describe_mirror)
+    if mirror_text is not None:
+        update["mirror_evaluation"] = mirror_text
     if report is not None:
         update["accuracy"], update["evaluation"] = describe_anytime(json.loads(report.read_text()))
     if up_report is not None:
@@ -185,3 +168,21 @@ def card(
     if changed != current:
         save_with_card(onnx.load(str(model)), changed, out or model)
     typer.echo(changed.model_dump_json(indent=1))
+
+
+def _switch_evaluation(
+    name: str,
+    without: Path | None,
+    with_it: Path | None,
+    describe: Callable[[dict, dict], str],
+) -> str | None:
+    """``--without-NAME`` and ``--with-NAME`` (two ``benchmarks.bench_ensemble`` JSONs) -> the
+    card's evaluation line of that finish by ``describe``; None where neither is given."""
+    if (without is None) != (with_it is None):
+        raise typer.BadParameter(f"give both --without-{name} and --with-{name}, or neither")
+    if without is None or with_it is None:
+        return None
+    try:
+        return describe(json.loads(without.read_text()), json.loads(with_it.read_text()))
+    except (KeyError, ValueError) as err:
+        raise typer.BadParameter(f"--with-{name}: {err}") from None
