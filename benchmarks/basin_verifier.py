@@ -33,8 +33,8 @@ from itnet.model.category_set import validation_scans
 from itnet.model.data import ScanSet
 from itnet.model.evaluate import report, run_poses
 from itnet.model.scanner import VIEW_RULES, scan_config
+from itnet.pose.runtime import load_model
 from itnet.preprocess import pose_from_normalized
-from itnet.service.runtime import load_model
 
 
 def main() -> None:

@@ -41,7 +41,7 @@ from itnet.metrics import alignment_errors, is_correct
 from itnet.model import categories
 from itnet.model.scanner import ScanConfig, scan_shape
 from itnet.model.shapes import list_shape_files, load_shape
-from itnet.service.runtime import LoadedModel, default_model_dir, load_models
+from itnet.pose.runtime import LoadedModel, default_model_dir, load_models
 from itnet.upright import tilted
 
 ROOT = Path(__file__).resolve().parents[1]

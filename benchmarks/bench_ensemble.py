@@ -40,7 +40,6 @@ def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:
 
 def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: float,
             views: int, cache: Path, data: Path, split: str = "test",
-            points_per_step: int | None = None,
             mirror: bool | None = None, centre: bool | None = None,
             baseline: dict | None = None, viewpoint: bool = False,
             up_error_deg: float | None = None, verify: bool | None = None,
@@ -50,8 +49,10 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
     from itnet.model.scanner import VIEW_RULES, scan_config
-    from itnet.service.engine import AnytimeRun
-    from itnet.service.runtime import (
+    from itnet.pose.loop import AnytimeRun
+    from itnet.pose.plan import plan
+    from itnet.pose.request import PoseRequest
+    from itnet.pose.runtime import (
         LoadedVerifier,
         attach_verifiers,
         load_any,
@@ -78,27 +79,26 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         poses, iterations, elapsed, mirrored, runs, verified = [], [], [], [], [], []
         rechecked = []
         for i, cloud in enumerate(scans.clouds):
-            run = AnytimeRun(
-                model,
-                cloud,
+            request = PoseRequest(
                 budget_ms=budget_ms,
-                ensemble=k or None,  # 0: the engine's default (the card's, as the budget holds)
-                points_per_step=points_per_step,
+                ensemble=k or None,  # 0: the plan's default (the card's, as the budget holds)
                 mirror=mirror,
                 centre=centre,
                 viewpoint=[0.0, 0.0, 0.0] if viewpoint else None,  # the scanner's camera
-                up=None if ups is None else ups[i],
+                up=None if ups is None else [float(v) for v in ups[i]],
                 verify=verify if k != 1 else None,
                 recheck=recheck if k == 1 else None,
             )
+            run = AnytimeRun(plan(model, request), cloud)
             last = run.run_to_end()
-            verified.append(run.verified)
-            rechecked.append(run.rechecked)
+            result = run.result()
+            verified.append(result.get("verified"))
+            rechecked.append(result.get("rechecked"))
             poses.append(last.pose)
             iterations.append(run.iteration)
             elapsed.append(run.elapsed_ms())
-            mirrored.append(run.mirrored)
-            runs.append(run.ensemble)
+            mirrored.append(result.get("mirror"))
+            runs.append(result["ensemble"])
         _, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
         correct = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         first = correct if first is None else first
@@ -170,9 +170,6 @@ def main() -> None:
         help="val: itnet train's validation views (held-out training shapes)",
     )
     parser.add_argument("--scanners", nargs="+", default=["occluded", "surface", "paper"])
-    parser.add_argument(
-        "--points-per-step", type=int, default=None, help="one run's subset (K = 1 only)"
-    )
     add_switch(
         parser,
         "--mirror",
@@ -235,7 +232,6 @@ def main() -> None:
         "budget_ms": args.budget_ms,
         "split": args.split,
         "views": views,
-        "points_per_step": args.points_per_step,
         "mirror": args.mirror,
         "centre": args.centre,
         "viewpoint": args.viewpoint,
@@ -254,7 +250,6 @@ def main() -> None:
                 args.cache,
                 args.data,
                 args.split,
-                args.points_per_step,
                 mirror,
                 centre,
                 baseline,

@@ -86,7 +86,7 @@ def main() -> None:
         run_views,
     )
     from itnet.model_card import ClassifierCard
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     with tempfile.TemporaryDirectory() as tmp:
         run = run_of_checkpoint(args.checkpoint, Path(tmp) / "run")

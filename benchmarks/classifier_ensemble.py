@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.metrics import paired_accuracy
-from itnet.service.recognition import mean_log_probability
+from itnet.pose.recognition import mean_log_probability
 
 
 def summary(scores: NDArray, labels: NDArray, baseline: NDArray) -> dict:

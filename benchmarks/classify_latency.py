@@ -69,8 +69,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     args = parser.parse_args()
 
-    from itnet.service.recognition import classify
-    from itnet.service.runtime import default_model_dir, load_all
+    from itnet.pose.recognition import classify
+    from itnet.pose.runtime import default_model_dir, load_all
 
     _, classifier = load_all(args.model_dir or default_model_dir(), threads=args.threads)
     other = None if args.versus is None else load_all(args.versus, threads=args.threads)[1]

@@ -37,9 +37,9 @@ from itnet.metrics import paired_accuracy
 from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
 from itnet.model.classify.size_prior import INCH_M, source_radii
 from itnet.model.scanner import scan_config, scan_of
+from itnet.pose.recognition import classify, mean_log_probability, turned_looks
+from itnet.pose.runtime import LoadedClassifier, load_any
 from itnet.preprocess import estimate_normalization, shuffled_subset
-from itnet.service.recognition import classify, mean_log_probability, turned_looks
-from itnet.service.runtime import LoadedClassifier, load_any
 from itnet.size_prior import with_size
 from itnet.upright import sensed_ups
 

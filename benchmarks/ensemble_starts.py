@@ -31,10 +31,10 @@ from itnet.model.categories import category
 from itnet.model.category_set import validation_scans
 from itnet.model.evaluate import report, run_poses
 from itnet.model.scanner import VIEW_RULES, scan_config
+from itnet.pose.runtime import LoadedModel, load_model
 from itnet.preprocess import (
     pose_from_normalized,
 )
-from itnet.service.runtime import LoadedModel, load_model
 
 
 def start_rules(k: int) -> dict[str, NDArray | None]:

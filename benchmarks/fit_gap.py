@@ -19,7 +19,7 @@ from itnet.model.categories import category
 from itnet.model.data import cached_scan_set, load_shapes, split_files
 from itnet.model.evaluate import anytime_poses, report
 from itnet.model.scanner import VIEW_RULES, scan_config
-from itnet.service.runtime import load_model
+from itnet.pose.runtime import load_model
 
 
 def main() -> None:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from itnet.service.runtime import session_options
+from itnet.pose.runtime import session_options
 
 OPTIONS = {
     "served (2 threads, no spinning)": {"threads": 2},

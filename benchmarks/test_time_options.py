@@ -38,8 +38,8 @@ from itnet.model.categories import category
 from itnet.model.category_set import test_scans, validation_scans
 from itnet.model.evaluate import report
 from itnet.model.scanner import VIEW_RULES, scan_config
+from itnet.pose.runtime import LoadedModel, load_model
 from itnet.preprocess import estimate_normalization, pose_from_normalized, resample
-from itnet.service.runtime import LoadedModel, load_model
 
 ITERATIONS = 10
 MIRRORED = " + mirror"

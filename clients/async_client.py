@@ -16,7 +16,7 @@ import contextlib
 import json
 from collections.abc import AsyncIterator
 from types import TracebackType
-from typing import Any, Unpack
+from typing import Any
 
 import httpx
 from numpy.typing import ArrayLike
@@ -30,14 +30,15 @@ from itnet.clients.wire import (
     EstimateResult,
     ItnetClientError,
     ItnetConnectionError,
-    RequestOptions,
     binary_body,
     json_request,
     parse_message,
+    pose_request,
     reply_json,
     request_fields,
     websocket_url,
 )
+from itnet.pose.request import PoseRequest
 
 
 class AsyncEstimateStream(AsyncIterator[Estimate]):
@@ -107,21 +108,24 @@ class AsyncItnetClient:
     async def estimate(
         self,
         points: ArrayLike,
-        budget_ms: float = 50.0,
-        max_iterations: int | None = None,
-        model: str = "chair",
+        request: PoseRequest | None = None,
         binary: bool = False,
-        **options: Unpack[RequestOptions],
+        **fields: Any,
     ) -> EstimateResult:
         """POST one cloud (N, 3) -> its EstimateResult (see ``ItnetClient.estimate``)."""
-        fields = request_fields(budget_ms, max_iterations, model, **options)
+        sent = pose_request(request, fields)
         try:
             if binary:
                 reply = await self._http.post(
-                    ESTIMATE_PATH, content=binary_body(points), params=fields, headers=BINARY
+                    ESTIMATE_PATH,
+                    content=binary_body(points),
+                    params=sent.to_query(),
+                    headers=BINARY,
                 )
             else:
-                reply = await self._http.post(ESTIMATE_PATH, json=json_request(points, fields))
+                reply = await self._http.post(
+                    ESTIMATE_PATH, json=json_request(points, request_fields(sent))
+                )
         except httpx.TransportError as err:
             raise ItnetConnectionError(f"{self.base_url}: {err}") from None
         return EstimateResult.from_dict(_json(reply))
@@ -129,15 +133,13 @@ class AsyncItnetClient:
     async def stream(
         self,
         points: ArrayLike,
-        budget_ms: float = 50.0,
-        max_iterations: int | None = None,
-        model: str = "chair",
-        **options: Unpack[RequestOptions],
+        request: PoseRequest | None = None,
+        **fields: Any,
     ) -> AsyncEstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, **options),
+            request_fields(pose_request(request, fields)),
         )
         try:
             url = websocket_url(self.base_url)

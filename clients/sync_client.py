@@ -15,7 +15,7 @@ import contextlib
 import json
 from collections.abc import Iterator
 from types import TracebackType
-from typing import Any, Unpack
+from typing import Any
 
 import httpx
 from numpy.typing import ArrayLike
@@ -29,14 +29,15 @@ from itnet.clients.wire import (
     EstimateResult,
     ItnetClientError,
     ItnetConnectionError,
-    RequestOptions,
     binary_body,
     json_request,
     parse_message,
+    pose_request,
     reply_json,
     request_fields,
     websocket_url,
 )
+from itnet.pose.request import PoseRequest
 
 
 class EstimateStream(Iterator[Estimate]):
@@ -105,25 +106,28 @@ class ItnetClient:
     def estimate(
         self,
         points: ArrayLike,
-        budget_ms: float = 50.0,
-        max_iterations: int | None = None,
-        model: str = "chair",
+        request: PoseRequest | None = None,
         binary: bool = False,
-        **options: Unpack[RequestOptions],
+        **fields: Any,
     ) -> EstimateResult:
-        """POST one cloud (N, 3) -> its EstimateResult. ``binary`` sends float32 (12 bytes a
-        point) instead of JSON; ``options`` are the request's optional fields (RequestOptions:
-        units, mirror, centre, viewpoint, up, ensemble, verify, recheck; the result's
-        ``ensemble``, ``verified`` and ``rechecked`` say what ran). Raises ItnetRequestError
-        (refused), ItnetConnectionError."""
-        fields = request_fields(budget_ms, max_iterations, model, **options)
+        """POST one cloud (N, 3) -> its EstimateResult. ``request`` (a PoseRequest) and
+        ``fields`` (any of its fields by name: ``budget_ms=20, model="auto", up=[0, -1, 0]``,
+        set on top of it) say what to ask; ``binary`` sends float32 (12 bytes a point) instead
+        of JSON. The result's ``ensemble``, ``verified`` and ``rechecked`` say what ran. Raises
+        ItnetRequestError (refused), ItnetConnectionError, TypeError for an unknown field."""
+        sent = pose_request(request, fields)
         try:
             if binary:
                 reply = self._http.post(
-                    ESTIMATE_PATH, content=binary_body(points), params=fields, headers=BINARY
+                    ESTIMATE_PATH,
+                    content=binary_body(points),
+                    params=sent.to_query(),
+                    headers=BINARY,
                 )
             else:
-                reply = self._http.post(ESTIMATE_PATH, json=json_request(points, fields))
+                reply = self._http.post(
+                    ESTIMATE_PATH, json=json_request(points, request_fields(sent))
+                )
         except httpx.TransportError as err:
             raise ItnetConnectionError(f"{self.base_url}: {err}") from None
         return EstimateResult.from_dict(_json(reply))
@@ -131,15 +135,13 @@ class ItnetClient:
     def stream(
         self,
         points: ArrayLike,
-        budget_ms: float = 50.0,
-        max_iterations: int | None = None,
-        model: str = "chair",
-        **options: Unpack[RequestOptions],
+        request: PoseRequest | None = None,
+        **fields: Any,
     ) -> EstimateStream:
         """Open the WebSocket and send the request; iterate the returned stream for estimates."""
         request = json_request(
             points,
-            request_fields(budget_ms, max_iterations, model, **options),
+            request_fields(pose_request(request, fields)),
         )
         try:
             url = websocket_url(self.base_url)

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, TypedDict, Unpack
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from itnet.pose.request import PoseRequest
 
 ESTIMATE_PATH = "/v1/estimate"
 STREAM_PATH = "/v1/estimate/stream"
@@ -130,41 +132,26 @@ def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
     return cloud
 
 
-class RequestOptions(TypedDict, total=False):
-    """A request's optional fields, as the clients' keyword arguments (None: the service's
-    default). ``units`` (m, cm, mm, in, ft), if known, lets model "auto" weigh the cloud's size;
-    ``mirror`` and ``centre`` finish the pose by the category's mirror symmetry and the model's
-    centre correction or not; ``viewpoint`` (x, y, z), the sensor's position; ``up`` (x, y, z),
-    which way is up in the cloud, holds the pose upright; ``ensemble`` K fuses K runs on
-    different subsets into each estimate; ``verify`` anchors that fusion on the likeliest run;
-    ``recheck`` rechecks a single run the model's verifier doubts (docs/service.md)."""
-
-    units: str | None
-    mirror: bool | None
-    centre: bool | None
-    viewpoint: list[float] | None
-    up: list[float] | None
-    ensemble: int | None
-    verify: bool | None
-    recheck: bool | None
+def pose_request(request: PoseRequest | None, fields: dict[str, Any]) -> PoseRequest:
+    """The request to send: ``request`` (default: the service's defaults) with ``fields`` (any
+    of PoseRequest's: budget_ms, max_iterations, model, ensemble, mirror, verify, recheck,
+    centre, viewpoint, up, units) set on top. Raises TypeError for a name PoseRequest does not
+    have, ValueError (pydantic's) for a value it refuses."""
+    unknown = sorted(set(fields) - set(PoseRequest.model_fields))
+    if unknown:
+        raise TypeError(f"unknown request option(s) {', '.join(map(repr, unknown))}")
+    base = {} if request is None else request.model_dump(exclude_unset=True)
+    values = {k: v for k, v in {**base, **fields}.items() if v is not None}
+    for name in ("viewpoint", "up"):  # arrays and tuples as the JSON lists PoseRequest takes
+        if name in values:
+            values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
+    return PoseRequest.model_validate(values, strict=False)
 
 
-XYZ_FIELDS = ("viewpoint", "up")  # sent as 'x,y,z', which a binary request's query also takes
-
-
-def request_fields(
-    budget_ms: float, max_iterations: int | None, model: str, **options: Unpack[RequestOptions]
-) -> dict[str, Any]:
-    """The request's non-point fields: the budget and the model, the others only when given."""
-    out: dict[str, Any] = {"budget_ms": budget_ms, "model": model}
-    if max_iterations is not None:
-        out["max_iterations"] = max_iterations
-    for name, value in options.items():
-        if name not in RequestOptions.__annotations__:
-            raise TypeError(f"unknown request option {name!r}")
-        if value is not None:
-            out[name] = ",".join(repr(float(v)) for v in value) if name in XYZ_FIELDS else value
-    return out
+def request_fields(request: PoseRequest) -> dict[str, Any]:
+    """The JSON request's non-point fields (those not left to the service's defaults, and the
+    budget)."""
+    return {"budget_ms": request.budget_ms, **request.model_dump(exclude_none=True)}
 
 
 def json_request(points: ArrayLike, fields: dict[str, Any]) -> dict[str, Any]:

@@ -28,8 +28,10 @@ from itnet.geometry import apply_rigid
 from itnet.metrics import is_correct, paired_accuracy
 from itnet.model.data import ScanSet
 from itnet.model.evaluate import report
-from itnet.service.engine import AnytimeRun
-from itnet.service.runtime import LoadedModel
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.plan import plan
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import LoadedModel
 
 FIT_MAX_ROTATION_DEG = 20.0
 
@@ -66,7 +68,9 @@ def served_centres(
     features, offsets, ratio, poses, toward = [], [], [], [], []
     given = [None] * len(scans.clouds) if ups is None else list(ups)
     for cloud, truth, radius, up in zip(scans.clouds, scans.poses, scans.radii, given):
-        run = AnytimeRun(model, cloud, budget_ms=1000.0, ensemble=ensemble, centre=False, up=up)
+        up_list = None if up is None else [float(v) for v in up]
+        request = PoseRequest(budget_ms=1000.0, ensemble=ensemble, centre=False, up=up_list)
+        run = AnytimeRun(plan(model, request), cloud)
         last = run.run_to_end()
         pose_n = last.pose_normalized.astype(np.float64)
         moved = apply_rigid(pose_n, run.points[0].astype(np.float64))

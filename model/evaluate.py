@@ -27,7 +27,7 @@ from itnet.symmetry import symmetric_rotation_error_deg
 from itnet.upright import UP, held_upright, rotation_onto
 
 if TYPE_CHECKING:
-    from itnet.service.runtime import LoadedModel
+    from itnet.pose.runtime import LoadedModel
 
 # (points B x N x 3 float32, pose B x4x4 float32) -> next pose B x4x4
 StepFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.float32]]
@@ -137,7 +137,8 @@ def run_poses(
     its points (K, n, 3), both in the normalised frame, and the normalisation: the runs as the
     engine runs them (the whole cloud sets the normalisation; one run of the card's points, or
     ``starts`` (K, 3, 3) each on its own random subset of ``min(points, 0.8 N)``), no clock."""
-    from itnet.service.engine import ENSEMBLE_SUBSET, Limits
+    from itnet.pose.cloud import Limits
+    from itnet.pose.plan import ENSEMBLE_SUBSET
 
     rng = np.random.default_rng(seed)
     norm = estimate_normalization(cloud)

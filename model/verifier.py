@@ -42,7 +42,7 @@ from itnet.symmetry import symmetric_rotation_error_deg
 
 if TYPE_CHECKING:
     from itnet.model.data import ScanSet
-    from itnet.service.runtime import LoadedModel
+    from itnet.pose.runtime import LoadedModel
 
 
 class VerifierConfig(BaseModel):
@@ -212,7 +212,7 @@ def train_verifier(config: VerifierConfig, out: Path, log: Callable[[str], None]
     """Train on the pose model's runs; writes ``out/verifier.pt`` (weights and config) every
     500 steps and at the end, ``out/log.jsonl``. Returns the checkpoint's path."""
     from itnet.model.categories import category
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)

@@ -25,7 +25,7 @@ def make_clouds(folder: Path, count: int, seed: int = 0) -> list[str]:
     """``count`` .ply files: the shipped example scans turned and moved at random."""
     from itnet.cloud_io import read_cloud, write_ply
     from itnet.geometry import axis_angle_to_matrix
-    from itnet.service.runtime import default_model_dir
+    from itnet.pose.runtime import default_model_dir
 
     examples = sorted((default_model_dir().parent / "examples").glob("*.ply"))
     clouds = [read_cloud(p) for p in examples]
@@ -66,8 +66,8 @@ def main() -> None:
         for run in args.runs:
             workers, threads = (int(v) for v in run.split("x"))
             out = Path(tmp) / f"poses_{run}.parquet"
-            worker_args = {"model": "chair", "model_dir": None, "budget_ms": 1000.0,
-                           "max_iterations": None}  # fmt: skip
+            worker_args = {"model": "chair", "model_dir": None,
+                           "request": {"budget_ms": 1000.0}}  # fmt: skip
             stats = run_batch(PoseWorker, worker_args, items, BatchTable(out, ("file",)),
                               ("file",), workers, None, threads, args.batch_size,
                               progress=False)  # fmt: skip

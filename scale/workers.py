@@ -20,13 +20,17 @@ from itnet.scale.inputs import InputError
 
 
 def _load(model: str, model_dir: str | None, threads: int):  # type: ignore[no-untyped-def]
-    """The named model with ``threads`` onnxruntime threads (one step at a time)."""
-    from itnet.service.runtime import default_model_dir, load_models
+    """The folder's models (with what lies beside them: the classifier, the verifiers) as the
+    pose pipeline serves them, with ``threads`` onnxruntime threads (one step at a time), and
+    the named model."""
+    from itnet.pose.catalog import Catalog
+    from itnet.pose.runtime import default_model_dir, load_all
 
-    models = load_models(Path(model_dir) if model_dir else default_model_dir(), threads, True, 1)
+    folder = Path(model_dir) if model_dir else default_model_dir()
+    models, classifier = load_all(folder, threads, True, 1)
     if model not in models:
         raise InputError(f"unknown model {model!r} (available: {', '.join(sorted(models))})")
-    return models[model]
+    return Catalog(models, classifier), models[model]
 
 
 def _error_row(fields: dict[str, Any], model: str, err: Exception) -> dict[str, Any]:
@@ -41,25 +45,27 @@ class PoseWorker:
     """``{"file": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet pose --json`` row a file."""
 
     def __init__(
-        self, model: str, model_dir: str | None, threads: int, budget_ms: float,
-        max_iterations: int | None,
+        self, model: str, model_dir: str | None, threads: int, request: dict[str, Any]
     ) -> None:  # fmt: skip
-        self.model = _load(model, model_dir, threads)
-        self.budget_ms, self.max_iterations = budget_ms, max_iterations
+        from itnet.pose.request import PoseRequest
+
+        self.catalog, self.model = _load(model, model_dir, threads)
+        self.request = PoseRequest.model_validate({**request, "model": model})
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         from itnet.cloud_io import CloudReadError
         from itnet.commands.pose import pose_row
-        from itnet.service.engine import AnytimeRun, BadCloudError
+        from itnet.pose.errors import PoseError
+        from itnet.pose.loop import AnytimeRun
 
         def start(cloud: np.ndarray) -> AnytimeRun:
-            return AnytimeRun(self.model, cloud, self.budget_ms, self.max_iterations)
+            return self.catalog.start(cloud, self.request)
 
         rows = []
         for file in batch["file"]:
             try:
                 row = pose_row(Path(str(file)), start)
-            except (CloudReadError, BadCloudError) as err:
+            except (CloudReadError, PoseError) as err:
                 row = _error_row({"file": str(file)}, self.model.card.name, err)
             rows.append(json.dumps(row))
         return _batch(rows)
@@ -71,16 +77,18 @@ class AlignWorker:
     batch writes no moved clouds)."""
 
     def __init__(
-        self, model: str, model_dir: str | None, threads: int, budget_ms: float,
+        self, model: str, model_dir: str | None, threads: int, request: dict[str, Any],
         options: dict[str, Any],
     ) -> None:  # fmt: skip
         from itnet.alignment.estimators import in_process_estimator
         from itnet.alignment.hypotheses import category_symmetry
         from itnet.alignment.pipeline import AlignOptions
+        from itnet.pose.request import PoseRequest
 
-        loaded = _load(model, model_dir, threads)
+        catalog, loaded = _load(model, model_dir, threads)
         self.name = loaded.card.name
-        self.estimate = in_process_estimator(loaded, budget_ms)
+        pose_request = PoseRequest.model_validate({**request, "model": model})
+        self.estimate = in_process_estimator(catalog, pose_request)
         symmetry = options.pop("symmetry", "auto")
         if symmetry == "auto":
             symmetry = category_symmetry(loaded.card.category, loaded.card.symmetry)

@@ -13,11 +13,11 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from itnet import __version__
+from itnet.pose.runtime import LoadedModel
 from itnet.service.api.routes import align, estimate, examples, page, stream, system
 from itnet.service.errors import ServiceError, describe_errors
 from itnet.service.gc_tuning import GcPauseRecorder, freeze_startup_objects
 from itnet.service.metrics import Metrics, RequestMetricsMiddleware
-from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 from itnet.service.state import ServiceState
 

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.service.engine import AnytimeRun
-from itnet.service.runtime import load_model
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.plan import plan
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import load_model
 
 
 def time_step_ms(path: Path, batch: int, points: int, threads: int, repeats: int = 200) -> float:
@@ -41,16 +43,13 @@ def loop_overhead(
     cloud = np.random.default_rng(1).normal(size=(model.card.points, 3))
     per_iteration, setup = [], []
     for _ in range(repeats):
-        run = AnytimeRun(
-            model,
-            cloud,
+        request = PoseRequest(
             budget_ms=10_000,
             max_iterations=iterations,
-            converge_rotation_deg=0.0,
-            converge_translation=0.0,
             ensemble=1,
             up=[0.0, 1.0, 0.0] if model.card.requires_up else None,
         )
+        run = AnytimeRun(plan(model, request), cloud)
         setup.append(run.elapsed_ms())
         estimates = list(run)
         first, last = estimates[0], estimates[-1]

@@ -22,9 +22,11 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
+from itnet.pose.catalog import shorten
+from itnet.pose.request import PoseRequest
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
 from itnet.service.guards.parse_pool import ParsePool
-from itnet.service.schemas import EstimateParams, EstimateRequest
+from itnet.service.schemas import EstimateRequest
 
 JSON_TYPES = ("application/json",)
 BINARY_TYPES = ("application/octet-stream",)
@@ -57,12 +59,10 @@ def decode_json(
     return _non_empty(points), request
 
 
-def decode_binary(
-    body: bytes, query: Mapping[str, str]
-) -> tuple[NDArray[np.float32], EstimateParams]:
+def decode_binary(body: bytes, query: Mapping[str, str]) -> tuple[NDArray[np.float32], PoseRequest]:
     """A float32 body and its query parameters -> cloud (N, 3) float32 and the parameters."""
     try:
-        params = EstimateParams.model_validate(dict(query))
+        params = PoseRequest.from_query(query)
     except ValidationError as err:
         errors = err.errors(include_input=False, include_url=False)
         raise ServiceError(422, "invalid_request", describe_errors(errors)) from None
@@ -79,7 +79,7 @@ def decode_binary(
 
 def decode_http(
     body: bytes, content_type: str | None, query: Mapping[str, str]
-) -> tuple[NDArray[np.floating], EstimateParams]:
+) -> tuple[NDArray[np.floating], PoseRequest]:
     """Dispatch on the Content-Type; anything but JSON or octet-stream is a 415."""
     kind = media_type(content_type)
     if is_json(content_type):
@@ -111,11 +111,6 @@ def no_query_beside_json(query: Mapping[str, str]) -> None:
 def is_json(content_type: str | None) -> bool:
     kind = media_type(content_type)
     return kind in JSON_TYPES or kind.endswith("+json")
-
-
-def shorten(text: str, limit: int = 64) -> str:
-    """``text`` as ``repr`` shows it, cut to about ``limit`` characters (never echo 1 MB)."""
-    return repr(text) if len(text) <= limit else f"{text[:limit]!r}... ({len(text)} characters)"
 
 
 def count_points(body: bytes | str, max_points: int) -> None:
@@ -154,7 +149,7 @@ class Decoder:
 
     def http(
         self, body: bytes, content_type: str | None, query: Mapping[str, str]
-    ) -> tuple[NDArray[np.floating], EstimateParams]:
+    ) -> tuple[NDArray[np.floating], PoseRequest]:
         if not is_json(content_type) or len(body) < self.heavy_bytes:
             if is_json(content_type):
                 count_points(body, self.max_points)

@@ -9,6 +9,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from itnet.pose.errors import OverloadedError, PoseError
+
 # RFC 6455 close codes: policy violation, unsupported data, message too big, try again later,
 # internal error.
 WS_POLICY, WS_UNSUPPORTED, WS_TOO_BIG, WS_TRY_LATER, WS_INTERNAL = 1008, 1003, 1009, 1013, 1011
@@ -24,6 +26,15 @@ class ServiceError(Exception):
         super().__init__(detail)
         self.status, self.kind, self.detail = status, kind, detail
         self.headers = dict(headers or {})
+
+    @classmethod
+    def of(cls, err: PoseError) -> ServiceError:
+        """The reply to a request the pose pipeline refused: its status, kind and message (an
+        overloaded one with its Retry-After)."""
+        headers = {}
+        if isinstance(err, OverloadedError):
+            headers["Retry-After"] = str(err.retry_after_s)
+        return cls(err.status, err.kind, str(err), headers)
 
     @property
     def ws_close_code(self) -> int:

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
-from itnet.size_prior import Unit
+from itnet.pose.request import PoseRequest
 
 # fail_fast: a million bad points give one error, not a million.
 # Strict: a number (integer or not), never a boolean or a numeric string.
@@ -27,101 +27,7 @@ EXAMPLE_POSE = [[1.0, 0.0, 0.0, -0.05], [0.0, 1.0, 0.0, -0.05], [0.0, 0.0, 1.0, 
 EXAMPLE_REQUEST: dict[str, Any] = {"points": EXAMPLE_POINTS * 8, "budget_ms": 50, "model": "chair"}
 
 
-def _split_commas(value: object) -> object:
-    """'0,0,0' (a query string's value) -> ['0', '0', '0']; anything else as it is."""
-    return value.split(",") if isinstance(value, str) else value
-
-
-# Three numbers, [x, y, z] in JSON or 'x,y,z' in a binary request's query (viewpoint, up).
-Xyz = Annotated[
-    Annotated[list[float], Field(min_length=3, max_length=3)] | None,
-    BeforeValidator(_split_commas),
-]
-
-
-class EstimateParams(BaseModel):
-    """How long and with which model to estimate. Query string of a binary request."""
-
-    model_config = ConfigDict(extra="forbid", protected_namespaces=())
-
-    budget_ms: float = Field(
-        default=50.0,
-        gt=0,
-        description="time budget in milliseconds; the engine stops before overrunning",
-    )
-    max_iterations: int | None = Field(
-        default=None, ge=1, description="iteration cap (default: the model's recommended count)"
-    )
-    model: str | None = Field(
-        default=None,
-        description="model name, see GET /v1/models (default: 'chair' or the only model); "
-        "'auto': classify the cloud, then run its category's model",
-    )
-    ensemble: int | None = Field(
-        default=None,
-        ge=1,
-        le=16,
-        description="accuracy mode: K runs from starts turned 360/K degrees about the cloud's z "
-        "axis, each on its own random subset of the cloud, fused robustly after every iteration "
-        "(each estimate is the fused pose); a step costs about K times as much, and the run "
-        "still stops within budget_ms (default: the model's recommended_ensemble, see GET "
-        "/v1/models; 1 for most)",
-    )
-    mirror: bool | None = Field(
-        default=None,
-        description="finish the final pose by the category's mirror symmetries "
-        "(itnet.mirror; a few milliseconds, taken only if budget_ms still holds them); default: "
-        "where the model's card declares the symmetry (GET /v1/models: 'mirror'), for a single "
-        "run, and for fused runs where the card says so ('mirror_fused'); true for a model "
-        "without it is refused",
-    )
-    verify: bool | None = Field(
-        default=None,
-        description="with ensemble > 1: after the last iteration, knock each run's pose off by "
-        "four 30-degree turns, let the network step back 5 times from each, and fuse the runs "
-        "around the one that came back closest (itnet.basin; about twice the runs' steps, taken "
-        "only if budget_ms still holds them); default: where the model's card says so (GET "
-        "/v1/models: 'verify_fused'); refused for a single run and with 'up'",
-    )
-    recheck: bool | None = Field(
-        default=None,
-        description="a single run that the model's learned verifier doubts (GET /v1/models: "
-        "'verifier') is rechecked after its last step: 'recheck_runs' runs from turned starts, "
-        "each on its own subset, as many steps, and the likeliest answer among all kept "
-        "(taken only if budget_ms still holds them); default: where the model's card says so "
-        "(GET /v1/models: 'recheck_runs' above 0); refused without a verifier, and with an "
-        "ensemble or 'up'",
-    )
-    centre: bool | None = Field(
-        default=None,
-        description="finish the final pose's object centre by the model's centre correction "
-        "(itnet.centre, a fraction of a millisecond); default: where the model's card has one "
-        "(GET /v1/models: 'centre'); true for a model without it is refused",
-    )
-    viewpoint: Xyz = Field(
-        default=None,
-        description="where the sensor was, [x, y, z] in the cloud's frame and units ('x,y,z' in "
-        "a binary request's query): [0, 0, 0] for a depth camera's cloud in its own frame. The "
-        "centre correction then also goes by the direction toward the sensor, where the model "
-        "has that correction (GET /v1/models: 'centre_viewpoint'); the pose does not otherwise "
-        "depend on it",
-    )
-    up: Xyz = Field(
-        default=None,
-        description="which way is up in the cloud, [x, y, z] (against gravity: an IMU's or a "
-        "floor plane's; 'x,y,z' in a binary request's query): the pose is then held upright, "
-        "its canonical +y on this direction, and only the turn about it and the position are "
-        "estimated (a box on its side or upside down is ruled out). Any length; not zero",
-    )
-    units: Unit | None = Field(
-        default=None,
-        description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
-        "toward its category as well as its form (a night stand is smaller than a dresser); "
-        "the pose does not depend on it",
-    )
-
-
-class EstimateRequest(EstimateParams):
+class EstimateRequest(PoseRequest):
     """JSON body of POST /v1/estimate, and the first message of the WebSocket stream."""
 
     points: list[Point] = Field(
@@ -173,7 +79,12 @@ class EstimateResponse(Pose):
         None, description='"auto": the probability is below the classifier\'s threshold'
     )
     classify_ms: float | None = Field(None, description='"auto": time the classification took')
-    ensemble: int | None = Field(None, description="runs fused per estimate, when more than 1")
+    ensemble: int = Field(description="runs the pose was estimated with (fused where more than 1)")
+    skipped: list[str] = Field(
+        default_factory=list,
+        description="finishing stages that were on but did not fit the budget left after the "
+        "last step (recheck, verify, mirror, centre)",
+    )
     mirror: bool | None = Field(
         None,
         description="where the mirror refinement was on: true if the final pose was finished by "

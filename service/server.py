@@ -18,11 +18,11 @@ from typing import Any
 
 from fastapi import FastAPI
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
 from itnet.service.guards.protocol import GuardedHttpToolsProtocol
 from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
 from itnet.service.metrics import MULTIPROCESS_DIR_ENV, multiprocess_dir
-from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 
 FACTORY = "itnet.service.server:app_from_env"

@@ -11,9 +11,9 @@ from pathlib import Path
 from pydantic import BaseModel, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from itnet.service.engine import Limits
-from itnet.service.recognition import MAX_LOOKS, SECOND_LOOKS
-from itnet.service.runtime import default_model_dir
+from itnet.pose.cloud import Limits
+from itnet.pose.recognition import MAX_LOOKS, SECOND_LOOKS
+from itnet.pose.runtime import default_model_dir
 
 
 class LimitSettings(BaseModel):

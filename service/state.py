@@ -7,23 +7,17 @@
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from functools import partial
 
 from numpy.typing import ArrayLike
 
-from itnet.service.decode import Decoder, shorten
-from itnet.service.draining import StreamDrain
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.errors import ServiceError
-from itnet.service.guards.byte_budget import ByteBudget
-from itnet.service.handback import HandbackTimer
-from itnet.service.metrics import Metrics
-from itnet.service.recognition import AUTO, RecognisedRun, recognise, second_look_deadline
-from itnet.service.runtime import (
+from itnet.pose.catalog import Catalog
+from itnet.pose.errors import PoseError
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import (
     LoadedClassifier,
     LoadedModel,
     LoadedVerifier,
@@ -33,11 +27,16 @@ from itnet.service.runtime import (
     load_beside,
     pair_classifiers,
 )
-from itnet.service.schemas import EstimateParams
+from itnet.service.admission import Admission
+from itnet.service.decode import Decoder
+from itnet.service.draining import StreamDrain
+from itnet.service.errors import ServiceError
+from itnet.service.guards.byte_budget import ByteBudget
+from itnet.service.handback import HandbackTimer
+from itnet.service.metrics import Metrics
 from itnet.service.settings import Settings
 
 log = logging.getLogger("itnet.service")
-PREFERRED_DEFAULT = "chair"
 
 
 class ConcurrencyGate:
@@ -82,11 +81,14 @@ class ServiceState:
     classifier: LoadedClassifier | None = None  # the category classifier (model "auto")
 
     def __post_init__(self) -> None:
+        self._catalog: Catalog | None = None
+        self._catalog_key: tuple[int, int, int] | None = None
         limits = self.settings.limits
         self.gate = ConcurrencyGate(
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics
         )
         self.handback = HandbackTimer()
+        self.admission = Admission(limits.retry_after_s)
         # Request bytes held at once (service/guards/byte_budget.py), and decoding under the limits.
         self.buffers = ByteBudget(limits.max_buffered_bytes)
         self.decoder = Decoder(limits.max_points, limits.heavy_json_bytes,
@@ -140,92 +142,44 @@ class ServiceState:
     def ready(self) -> bool:
         return bool(self.models) and self.load_error is None
 
+    @property
+    def catalog(self) -> Catalog:
+        """The loaded models as the pose pipeline sees them (rebuilt when the models change)."""
+        key = (id(self.models), len(self.models), id(self.classifier))
+        if self._catalog is None or self._catalog_key != key:
+            self._catalog = Catalog(
+                self.models, self.classifier, self.settings.default_model,
+                self.settings.limits.engine_limits(), self.settings.classify_second_looks,
+            )  # fmt: skip
+            self._catalog_key = key
+        return self._catalog
+
     def default_model_name(self) -> str | None:
         """Settings' default, else 'chair' if loaded, else the only model, else None."""
-        if self.settings.default_model is not None:
-            return self.settings.default_model
-        if PREFERRED_DEFAULT in self.models:
-            return PREFERRED_DEFAULT
-        return next(iter(self.models)) if len(self.models) == 1 else None
+        return self.catalog.default_name()
 
     def model(self, name: str | None) -> LoadedModel:
         """The named (or default) model, or a 503/404/422 that says what is available."""
         if not self.ready:
             raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
-        available = ", ".join(sorted(self.models))
-        if name is None:
-            name = self.default_model_name()
-            if name is None:
-                raise ServiceError(
-                    422, "invalid_request", f"name a model: there is no default among {available}"
-                )
-        if name not in self.models:
-            raise ServiceError(
-                404, "unknown_model", f"unknown model {shorten(name)} (loaded: {available})"
-            )
-        return self.models[name]
+        try:
+            return self.catalog.model(name)
+        except PoseError as err:
+            raise ServiceError.of(err) from None
 
     def start_run(
         self,
         points: ArrayLike,
-        params: EstimateParams,
+        request: PoseRequest,
         arrived: float | None = None,
         reserve_ms: float = 0.0,
     ) -> AnytimeRun:
-        """Validate and normalise the cloud and set up the run (CPU: call from a worker thread).
-        The budget counts from ``arrived`` (``time.perf_counter()`` when the request came in).
-        The card's default ensemble is fitted to the budget as shared with the estimates in
-        flight (each model's step slots serve them all)."""
-        auto = params.model == AUTO and AUTO not in self.models
-        model = None if auto else self.model(params.model)
-        limits = self.settings.limits
-        if params.budget_ms > limits.max_budget_ms:
-            raise ServiceError(
-                422,
-                "invalid_request",
-                f"budget_ms {params.budget_ms:g} is over the limit of {limits.max_budget_ms:g} ms",
-            )
-        if params.max_iterations is not None and params.max_iterations > limits.max_iterations:
-            raise ServiceError(
-                422,
-                "invalid_request",
-                f"max_iterations {params.max_iterations} is over the limit of "
-                f"{limits.max_iterations}",
-            )
-        recognition = None
-        if model is None:  # classify first (its time counts: the run's clock started at arrival)
-            if not self.ready:
-                raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
-            recognition, model = recognise(
-                self.classifier, self.models, points, limits.engine_limits(), params.units,
-                looks=params.ensemble or 1, up=params.up,
-                second_looks=self.settings.classify_second_looks,
-                deadline=second_look_deadline(
-                    time.perf_counter() if arrived is None else arrived, params.budget_ms
-                ),
-            )  # fmt: skip
-        model.relax_step_ms()  # a step-time estimate inflated by a past burst must not stick
-        iterations = params.max_iterations or min(
-            model.card.recommended_iterations, limits.max_iterations
-        )
+        """Resolve the model (classifying for ``auto``), plan the request and set up its run
+        (CPU: call from a worker thread). The budget counts from ``arrived``
+        (``time.perf_counter()`` when the request came in). Raises ServiceError."""
+        if not self.ready:
+            raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
         try:
-            make = AnytimeRun if recognition is None else partial(RecognisedRun, recognition)
-            return make(
-                model,
-                points,
-                budget_ms=params.budget_ms,
-                max_iterations=iterations,
-                limits=limits.engine_limits(),
-                started=arrived,
-                reserve_ms=reserve_ms,
-                ensemble=params.ensemble,
-                mirror=params.mirror,
-                verify=params.verify,
-                recheck=params.recheck,
-                centre=params.centre,
-                viewpoint=params.viewpoint,
-                up=params.up,
-                sharing=self.gate.active / max(1, model.concurrent_steps),
-            )
-        except BadCloudError as err:
-            raise ServiceError(422, "bad_cloud", str(err)) from None
+            return self.catalog.start(points, request, arrived, reserve_ms)
+        except PoseError as err:
+            raise ServiceError.of(err) from None

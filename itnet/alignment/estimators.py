@@ -1,12 +1,9 @@
-"""Pose estimators for ``itnet.alignment.pipeline``: IT-Net in-process, or through a running service.
+"""Pose estimators for ``itnet.alignment.pipeline``: the served pose, in-process or from a service.
 
-Both are callables ``(cloud (N, 3), starts, iterations, subset) -> [PoseEstimate]`` (one
-T_canonical_from_input, 4x4 in the cloud's units, per start), so the alignment code does not
-care where the network runs. ``starts`` (B, 3, 3) are the rotations IT-Net begins from (None:
-the identity only); ``iterations`` caps each run (None: the estimator's own cap, else the
-model's recommendation); ``subset``: each run sees its own seeded random subset of that many
-points (None: the model's point count); ``up``: which way is up in the cloud (None: not known),
-each run then held upright by the engine.
+Both are callables ``(cloud (N, 3), up (3,) or None) -> PoseEstimate``: the cloud's pose as
+``itnet pose`` serves it (the same ``PoseRequest``, planned the same way: the card's runs, its
+verifier, mirror and centre finishes, ``up`` where given), so the alignment code does not care
+where the network runs, and the two give the same answer by construction.
 """
 
 from __future__ import annotations
@@ -17,77 +14,42 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.alignment.pipeline import PoseEstimate, PoseEstimator
-from itnet.geometry import rigid_from_rotation_translation
-from itnet.preprocess import cap_points
+from itnet.pose.request import PoseRequest
 
 if TYPE_CHECKING:
     from itnet.clients import ItnetClient
-    from itnet.service.runtime import LoadedModel
+    from itnet.pose.catalog import Catalog
 
 
-def in_process_estimator(
-    model: LoadedModel, budget_ms: float, max_iterations: int | None = None, seed: int = 0
-) -> PoseEstimator:
-    """IT-Net through ``itnet.service.engine.AnytimeRun`` on a loaded model (``LoadedModel``).
+def _with_up(request: PoseRequest, up: NDArray | None) -> PoseRequest:
+    """The request with this cloud's up (None: the request's own)."""
+    if up is None:
+        return request
+    return request.model_copy(update={"up": [float(v) for v in np.asarray(up).reshape(3)]})
 
-    Raises ``itnet.service.engine.BadCloudError`` for a cloud the engine refuses."""
-    from itnet.service.engine import AnytimeRun
 
-    def estimate(
-        points: NDArray[np.float64],
-        starts: NDArray | None = None,
-        iterations: int | None = None,
-        subset: int | None = None,
-        up: NDArray | None = None,
-    ) -> list[PoseEstimate]:
-        # Every start in one run: the copies of the cloud go through each step as one batch.
-        cap = max_iterations if iterations is None else iterations
-        run = AnytimeRun(model, points, budget_ms=budget_ms, max_iterations=cap, seed=seed,
-                         starts=starts, points_per_step=subset, up=up)  # fmt: skip
+def in_process_estimator(catalog: Catalog, request: PoseRequest) -> PoseEstimator:
+    """The served pose through ``Catalog.start`` (one run of the pose pipeline per cloud).
+    Raises ``itnet.pose.errors.PoseError`` for a cloud or request the pipeline refuses."""
+
+    def estimate(points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
+        run = catalog.start(points, _with_up(request, up))
         run.run_to_end()
-        elapsed, stopped = run.elapsed_ms(), str(run.stopped_by)
-        return [PoseEstimate(pose, run.iteration, elapsed, stopped) for pose in run.poses()]
+        run.check_served()
+        result = run.result()
+        return PoseEstimate(np.asarray(result["T_canonical_from_input"]), run.iteration,
+                            run.elapsed_ms(), str(run.stopped_by), result)  # fmt: skip
 
     return estimate
 
 
-def client_estimator(
-    client: ItnetClient, model: str, budget_ms: float, max_iterations: int | None = None
-) -> PoseEstimator:
-    """IT-Net through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on the wire).
+def client_estimator(client: ItnetClient, request: PoseRequest) -> PoseEstimator:
+    """The served pose through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on
+    the wire). Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
 
-    The HTTP API always starts at the identity (stood up, with ``up``), so each start is a
-    request of its own: the cloud (its subset) and its up turned by it here (about the origin:
-    the service recentres it anyway), the turn composed back into the pose; the engine does the
-    same with the turns in-process.
-    Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
-
-    def estimate(
-        points: NDArray[np.float64],
-        starts: NDArray | None = None,
-        iterations: int | None = None,
-        subset: int | None = None,
-        up: NDArray | None = None,
-    ) -> list[PoseEstimate]:
-        out, cloud, rng = [], np.asarray(points), np.random.default_rng(0)
-        for turn in np.eye(3)[None] if starts is None else np.asarray(starts).reshape(-1, 3, 3):
-            # The same subsets, drawn the same way, as AnytimeRun's points_per_step.
-            seen = cloud if subset is None else cap_points(cloud, subset, rng)
-            reply = client.estimate(
-                seen @ turn.T,
-                budget_ms=budget_ms,
-                max_iterations=max_iterations if iterations is None else iterations,
-                model=model,
-                binary=True,
-                mirror=False,  # as in-process: a hypothesis' pose is the network's,
-                centre=False,  # not finished by the mirror or the centre correction,
-                ensemble=1,  # one run from this start (not the card's default ensemble),
-                recheck=False,  # and not rechecked by the verifier
-                up=None if up is None else turn @ np.asarray(up, dtype=np.float64),
-            )
-            back = rigid_from_rotation_translation(turn, np.zeros(3))
-            out.append(PoseEstimate(reply.T_canonical_from_input @ back, reply.iterations,
-                                    reply.elapsed_ms, reply.stopped_by))  # fmt: skip
-        return out
+    def estimate(points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
+        reply = client.estimate(points, _with_up(request, up), binary=True)
+        return PoseEstimate(reply.T_canonical_from_input, reply.iterations, reply.elapsed_ms,
+                            reply.stopped_by, reply.raw)  # fmt: skip
 
     return estimate

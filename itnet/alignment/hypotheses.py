@@ -144,9 +144,11 @@ def same_alignment(
     return angle < max_deg and float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < max_shift * scale
 
 
-def choose(hypotheses: list[Hypothesis]) -> int:
-    """Index of the hypothesis to report: the best by fitness, then by rmse."""
-    return max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
+def choose(hypotheses: list[Hypothesis], margin: float = 0.0) -> int:
+    """Index of the hypothesis to report: the first (the composed poses) unless the best by
+    fitness, then by rmse, beats its fitness by more than ``margin``."""
+    best = max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
+    return best if hypotheses[best].fitness > hypotheses[0].fitness + margin else 0
 
 
 def confidence(hypotheses: list[Hypothesis], chosen: int, scale: float) -> dict[str, float]:

@@ -1,20 +1,25 @@
 """``itnet align A B`` (also ``itnet-align``): T_b_from_a, the transform that moves cloud A onto B.
 
-Both canonical poses come from IT-Net (in-process, or a running service with ``--server``);
-``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a``. Hypotheses (several IT-Net
-starts per cloud, crossed, times the category's symmetries), optional ICP and the choice
-between them are in ``itnet.alignment.pipeline`` and ``itnet.alignment.hypotheses``.
+Both canonical poses are the ones ``itnet pose`` serves (the same request, planned the same way;
+in-process, or a running service with ``--server``): ``T_b_from_a = inv(T_canonical_from_b) ·
+T_canonical_from_a``. The symmetric hypotheses, optional ICP and the choice between them are in
+``itnet.alignment.pipeline`` and ``itnet.alignment.hypotheses``.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 
 from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.commands.pose import request_from_options
+from itnet.pose.request import field_help
+
+if TYPE_CHECKING:
+    from itnet.pose.request import PoseRequest
 
 SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
 LOW_CONFIDENCE = 0.3
@@ -31,10 +36,8 @@ def align(
         "and use their category's model.",
     ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
-    max_iterations: int | None = typer.Option(
-        None, help="IT-Net iterations per run (default: 6 with several starts, else the model's)."
-    ),
+    budget_ms: float = typer.Option(1000.0, help="Time budget of each cloud's pose, in ms."),
+    max_iterations: int | None = typer.Option(None, help=field_help("max_iterations")),
     server: str | None = typer.Option(
         None, "--server", help="URL of a running itnet service (default: run the model here)."
     ),
@@ -46,8 +49,14 @@ def align(
         "fewer pairs aligned).",
         show_default=False,
     ),
-    starts: int = typer.Option(
-        4, min=1, max=16, help="IT-Net runs per cloud, each from another turn about z."
+    starts: int | None = typer.Option(
+        None,
+        "--starts",
+        "--ensemble",
+        min=1,
+        max=16,
+        help="Runs fused into each cloud's pose, each from another turn about z (the pose "
+        "request's ensemble; default: the model's).",
     ),
     candidates: int = typer.Option(
         12, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
@@ -72,6 +81,12 @@ def align(
     ),
     up_b: str | None = typer.Option(
         None, help="Which way is up in cloud B, 'x,y,z' (overrides --up for B).", callback=check_xyz
+    ),
+    viewpoint: str | None = typer.Option(
+        None,
+        help="Where the sensor was in both clouds' frames, 'x,y,z' ('0,0,0' for depth-camera "
+        "clouds in their own frames): each pose's centre is finished by it.",
+        callback=check_xyz,
     ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
@@ -105,9 +120,11 @@ def align(
     ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
     if model == "auto":
         model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups)
-    estimate, (category, declared, requires_up), close = _estimator(
-        server, model, model_dir, budget_ms
-    )
+    request = request_from_options(
+        budget_ms=budget_ms, max_iterations=max_iterations, model=model, ensemble=starts,
+        viewpoint=viewpoint, units=units,
+    )  # fmt: skip
+    estimate, (category, declared, requires_up), close = _estimator(server, request, model_dir)
     if requires_up and None in ups.values():
         close()
         _fail(
@@ -115,8 +132,6 @@ def align(
             "--up-a and --up-b (its poses are measured, and served, only with it)"
         )
     options = AlignOptions(
-        starts=starts,
-        iterations=max_iterations,
         symmetry=category_symmetry(category, declared) if symmetry == "auto" else symmetry,
         refine=refine,
         candidates=candidates,
@@ -158,10 +173,10 @@ def _fail(message: str, code: int = 2) -> NoReturn:
 def _exit_code(cause: BaseException | None) -> int:
     """2 for a cloud the estimator refused (bad input), 1 for anything else (service down)."""
     from itnet.clients import ItnetRequestError
-    from itnet.service.engine import BadCloudError
+    from itnet.pose.errors import PoseError
 
-    if isinstance(cause, BadCloudError):
-        return 2
+    if isinstance(cause, PoseError):
+        return 2 if cause.status < 500 else 1
     if isinstance(cause, ItnetRequestError) and cause.status is not None and cause.status < 500:
         return 2
     return 1
@@ -178,7 +193,7 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
         with ItnetClient(server) as client:
             try:
                 reply = client.estimate(
-                    points_a, budget_ms, max_iterations=1, model="auto", units=units,
+                    points_a, budget_ms=budget_ms, max_iterations=1, model="auto", units=units,
                     up=ups["up_a"],
                 ).raw  # fmt: skip
             except ItnetClientError as err:
@@ -187,9 +202,9 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
         seen = f"{reply.get('category')} ({reply.get('category_probability', 0):.2f})"
         unsure = bool(reply.get("unsure"))
     else:
-        from itnet.service.engine import BadCloudError
-        from itnet.service.models_in_process import all_models, get_classifier
-        from itnet.service.recognition import classify_together, pose_model_for
+        from itnet.commands.in_process import all_models, get_classifier
+        from itnet.pose.errors import BadCloudError
+        from itnet.pose.recognition import classify_together, pose_model_for
 
         try:
             recognition = classify_together(
@@ -210,17 +225,16 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
     return chosen
 
 
-def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-def]
+def _estimator(server: str | None, request: PoseRequest, model_dir: Path | None):  # type: ignore[no-untyped-def]
     """(pose estimator, (the model's category, its declared symmetry, whether it requires up), a
     close function) for in-process or --server."""
     from itnet.alignment.estimators import client_estimator, in_process_estimator
 
     if server is None:
-        from itnet.service.models_in_process import get_model
+        from itnet.commands.in_process import get_catalog, get_model
 
-        loaded = get_model(model, model_dir)
-        estimate = in_process_estimator(loaded, budget_ms)
-        card = loaded.card
+        card = get_model(str(request.model), model_dir).card
+        estimate = in_process_estimator(get_catalog(model_dir), request)
         return estimate, (card.category, card.symmetry, card.requires_up), lambda: None
 
     from itnet.clients import ItnetClient, ItnetClientError
@@ -232,8 +246,8 @@ def _estimator(server, model, model_dir, budget_ms):  # type: ignore[no-untyped-
         client.close()
         _fail(f"cannot use the service at {server}: {err}", code=1)
     return (
-        client_estimator(client, model, budget_ms),
-        _category(listed, model),
+        client_estimator(client, request),
+        _category(listed, str(request.model)),
         (client.close),
     )
 
@@ -287,6 +301,6 @@ def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
     ):
         typer.echo(
             f"note: of {result.considered} hypotheses, {len(result.hypotheses)} distinct ones were "
-            f"kept; the best-ranked before ICP ({first.source}, fitness {first.fitness:.3f}) lost "
-            f"to {chosen.source}, which fits the geometry better"
+            f"kept; the composed poses ({first.source}, fitness {first.fitness:.3f}) lost to "
+            f"{chosen.source}, which fits the geometry clearly better after ICP"
         )

@@ -61,8 +61,8 @@ def pose(
         files = expand_inputs(inputs)
     except InputError as err:
         _fail(str(err))
-    args = {"model": model, "model_dir": _dir(model_dir), "budget_ms": budget_ms,
-            "max_iterations": max_iterations}  # fmt: skip
+    request = {"budget_ms": budget_ms, "max_iterations": max_iterations}
+    args = {"model": model, "model_dir": _dir(model_dir), "request": request}
     items = [{"file": f} for f in files]
     _run(PoseWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
          progress, "clouds")  # fmt: skip
@@ -82,14 +82,16 @@ def align(
     model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
-    max_iterations: int | None = typer.Option(None, help="IT-Net iterations per run."),
+    max_iterations: int | None = typer.Option(None, help="Iteration cap of each pose."),
     refine: bool | None = typer.Option(
         None,
         "--refine/--no-refine",
         show_default=False,
         help="ICP refinement (open3d), as in itnet align: default on when open3d is installed.",
     ),
-    starts: int = typer.Option(4, min=1, max=16, help="IT-Net runs per cloud."),
+    starts: int | None = typer.Option(
+        None, min=1, max=16, help="Runs fused into each cloud's pose (default: the model's)."
+    ),
     candidates: int = typer.Option(12, min=1, max=64, help="Hypotheses kept after ranking."),
     symmetry: str = typer.Option("auto", help="auto (the model's category), none, yaw180, yaw90."),
     finalists: int = typer.Option(4, min=1, max=64, help="With refinement: ICP's fine stage."),
@@ -119,9 +121,10 @@ def align(
                 _fail(str(err))
             typer.echo(f"note: no ICP refinement: {err}", err=True)
             refine = False
-    options = {"starts": starts, "iterations": max_iterations, "symmetry": symmetry,
-               "refine": refine, "candidates": candidates, "finalists": finalists}  # fmt: skip
-    args = {"model": model, "model_dir": _dir(model_dir), "budget_ms": budget_ms,
+    options = {"symmetry": symmetry, "refine": refine, "candidates": candidates,
+               "finalists": finalists}  # fmt: skip
+    request = {"budget_ms": budget_ms, "max_iterations": max_iterations, "ensemble": starts}
+    args = {"model": model, "model_dir": _dir(model_dir), "request": request,
             "options": options}  # fmt: skip
     items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
     _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,
@@ -135,10 +138,10 @@ def _dir(path: Path | None) -> str | None:
 def _run(worker: type, args: dict[str, Any], items: list[dict[str, str]], key: tuple[str, ...],
          output: Path, workers: int, address: str | None, threads: int | None, batch_size: int,
          progress: bool, what: str) -> None:  # fmt: skip
+    from itnet.commands.in_process import get_model
+    from itnet.pose.runtime import ModelLoadError
     from itnet.scale.batch import run_batch, worker_threads
     from itnet.scale.table import BatchTable, OutputError
-    from itnet.service.models_in_process import get_model
-    from itnet.service.runtime import ModelLoadError
 
     model_dir = args["model_dir"]
     get_model(args["model"], None if model_dir is None else Path(model_dir))  # exit 2 if unknown

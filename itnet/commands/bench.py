@@ -16,9 +16,9 @@ def bench(
     repeats: int = typer.Option(200, help="Timed runs per configuration."),
 ) -> None:
     """Print a markdown table of median step times (onnxruntime) and the loop overhead."""
+    from itnet.commands.in_process import all_models, get_model
     from itnet.cpu import cpu_description
     from itnet.service.benchmark import loop_overhead, time_step_ms
-    from itnet.service.models_in_process import all_models, get_model
 
     typer.echo(f"machine: {cpu_description()}")
     typer.echo(

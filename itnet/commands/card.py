@@ -106,7 +106,7 @@ def card(
         describe_up,
         describe_verify,
     )
-    from itnet.service.runtime import ModelLoadError, load_any
+    from itnet.pose.runtime import ModelLoadError, load_any
 
     try:
         current = load_any(model, warm_up=False).card

@@ -63,7 +63,7 @@ def centre_fit(
     from itnet.model.category_set import training_scans, validation_scans
     from itnet.model.data import ScanSet
     from itnet.model.scanner import VIEW_RULES, scan_config
-    from itnet.service.runtime import ModelLoadError, load_model
+    from itnet.pose.runtime import ModelLoadError, load_model
     from itnet.upright import sensed_ups
 
     try:

@@ -42,9 +42,9 @@ def classify(
 ) -> None:
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
     from itnet.cloud_io import CloudReadError, read_cloud
-    from itnet.service.engine import BadCloudError
-    from itnet.service.models_in_process import get_classifier
-    from itnet.service.recognition import classify as recognise
+    from itnet.commands.in_process import get_classifier
+    from itnet.pose.errors import BadCloudError
+    from itnet.pose.recognition import classify as recognise
 
     classifier = get_classifier(model_dir)
     failed = False
@@ -204,7 +204,7 @@ def classify_export(
     from itnet.export.quantize import quantize_point_layers
     from itnet.model.classify.train import load_classifier, metrics
     from itnet.model_card import ClassifierCard
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     if cascade is not None and not fuse_with:
         raise typer.BadParameter("--cascade needs heads to cascade to (--fuse-with)")
@@ -478,7 +478,7 @@ def classify_size_prior(
     from itnet.export.onnx_export import save_with_card
     from itnet.model.classify.data import class_names, load_splits
     from itnet.model.classify.size_prior import accuracy_with_and_without, sized_views, source_radii
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
     from itnet.size_prior import fit_size_prior
 
     if split not in ("val", "test"):

@@ -74,7 +74,7 @@ def evaluate(
         points = int(state["config"]["points"]) if points is None else points
         trained_on, symmetry = state["config"]["category"], state["config"].get("symmetry")
     else:
-        from itnet.service.runtime import load_model
+        from itnet.pose.runtime import load_model
 
         model = load_model(onnx, warm_up=False)
         step, trained = (lambda x, p: model.step(x, p)[0]), model.card.trained_iterations

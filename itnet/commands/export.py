@@ -63,7 +63,7 @@ def export(
     from itnet.model.categories import model_category
     from itnet.model.train import load_checkpoint
     from itnet.model_card import ModelCard, describe_anytime
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     net, state = load_checkpoint(checkpoint)
     config = state["config"]

@@ -20,9 +20,9 @@ def models(
     """List the models with category, symmetry, precision, points and measured accuracy."""
     import asyncio
 
+    from itnet.pose.runtime import ModelLoadError, default_model_dir, load_models
     from itnet.service.api.routes.system import models as models_route
     from itnet.service.metrics import Metrics
-    from itnet.service.runtime import ModelLoadError, default_model_dir, load_models
     from itnet.service.settings import Settings
     from itnet.service.state import ServiceState
 

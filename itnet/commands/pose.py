@@ -10,12 +10,15 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.pose.request import field_help
 
 if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from itnet.service.engine import AnytimeRun
+    from itnet.pose.catalog import Catalog
+    from itnet.pose.loop import AnytimeRun
+    from itnet.pose.request import PoseRequest
 
 
 def pose(
@@ -27,58 +30,14 @@ def pose(
     ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     budget_ms: float = typer.Option(1000.0, help="Time budget per file, in milliseconds."),
-    max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
-    ensemble: int | None = typer.Option(
-        None,
-        min=1,
-        max=16,
-        help="Accuracy mode: K runs from starts turned 360/K degrees about the cloud's z axis, "
-        "each on its own random subset, fused robustly after every iteration; a step costs about "
-        "K times as much (still within --budget-ms). Default: the model's recommended count "
-        "(`itnet models`; 1 for most), halved until its iterations fit --budget-ms.",
-    ),
-    mirror: bool | None = typer.Option(
-        None,
-        "--mirror/--no-mirror",
-        help="Finish the final pose by the category's mirror symmetries (a few ms, "
-        "within --budget-ms). Default: for a single run, where the model's card declares it "
-        "(`itnet models`).",
-    ),
-    verify: bool | None = typer.Option(
-        None,
-        "--verify/--no-verify",
-        help="With --ensemble: fuse the runs around the one that sits most firmly in its basin "
-        "(each knocked off by four 30-degree turns, 5 steps back; about twice the runs' steps, "
-        "within --budget-ms). Default: where the model's card says so (`itnet models --json`: "
-        "verify_fused).",
-    ),
-    recheck: bool | None = typer.Option(
-        None,
-        "--recheck/--no-recheck",
-        help="A single run the model's learned verifier doubts is rechecked by a few runs from "
-        "turned starts (within --budget-ms), and the likeliest answer kept. Default: where the "
-        "model's card says so (`itnet models --json`: recheck_runs).",
-    ),
-    centre: bool | None = typer.Option(
-        None,
-        "--centre/--no-centre",
-        help="Finish the final pose's object centre by the model's centre correction (a fraction "
-        "of a ms). Default: where the model's card has one (`itnet models`).",
-    ),
-    viewpoint: str | None = typer.Option(
-        None,
-        help="Where the sensor was, 'x,y,z' in the cloud's frame and units ('0,0,0' for a depth "
-        "camera's cloud in its own frame): the centre correction then also goes by the "
-        "direction toward it, where the model has that correction.",
-        callback=check_xyz,
-    ),
-    up: str | None = typer.Option(
-        None,
-        help="Which way is up in the cloud, 'x,y,z' (against gravity: an IMU's, or a floor's "
-        "normal; '0,-1,0' for a camera whose image y points down, held level): the pose is held "
-        "upright and only its turn about up and its position are estimated.",
-        callback=check_xyz,
-    ),
+    max_iterations: int | None = typer.Option(None, help=field_help("max_iterations")),
+    ensemble: int | None = typer.Option(None, min=1, max=16, help=field_help("ensemble")),
+    mirror: bool | None = typer.Option(None, "--mirror/--no-mirror", help=field_help("mirror")),
+    verify: bool | None = typer.Option(None, "--verify/--no-verify", help=field_help("verify")),
+    recheck: bool | None = typer.Option(None, "--recheck/--no-recheck", help=field_help("recheck")),
+    centre: bool | None = typer.Option(None, "--centre/--no-centre", help=field_help("centre")),
+    viewpoint: str | None = typer.Option(None, help=field_help("viewpoint"), callback=check_xyz),
+    up: str | None = typer.Option(None, help=field_help("up"), callback=check_xyz),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
@@ -86,38 +45,29 @@ def pose(
     import numpy as np
 
     from itnet.cloud_io import CloudReadError
+    from itnet.commands.in_process import get_catalog, get_classifier
     from itnet.geometry import rotation_angle_deg
-    from itnet.service.engine import AnytimeRun, BadCloudError
-    from itnet.service.errors import ServiceError
-    from itnet.service.models_in_process import all_models, get_classifier, get_model
-    from itnet.service.recognition import AUTO, auto_run
+    from itnet.pose.errors import PoseError
 
-    auto = model == AUTO and AUTO not in all_models(model_dir)
-    classifier = get_classifier(model_dir) if auto else None
-    loaded = None if auto else get_model(model, model_dir)
+    catalog = get_catalog(model_dir)
+    if catalog.is_auto(model):
+        get_classifier(model_dir)  # a folder without a classifier: one clear error, exit 2
+    elif model not in catalog.models:
+        get_model_or_exit(catalog, model)
+    request = request_from_options(
+        budget_ms=budget_ms, max_iterations=max_iterations, model=model, ensemble=ensemble,
+        mirror=mirror, verify=verify, recheck=recheck, centre=centre, viewpoint=viewpoint, up=up,
+        units=units,
+    )  # fmt: skip
 
     def start(cloud: NDArray[np.float64]) -> AnytimeRun:
-        if loaded is None:  # the classification counts against the budget
-            return auto_run(
-                classifier, all_models(model_dir), cloud, budget_ms, max_iterations,
-                ensemble=ensemble, units=units, mirror=mirror, centre=centre, viewpoint=viewpoint,
-                up=up, verify=verify, recheck=recheck,
-            )  # fmt: skip
-        return AnytimeRun(
-            loaded, cloud, budget_ms=budget_ms, max_iterations=max_iterations, ensemble=ensemble,
-            mirror=mirror, centre=centre, viewpoint=viewpoint, up=up, verify=verify,
-            recheck=recheck,
-        )  # fmt: skip
+        return catalog.start(cloud, request)
 
     failed = False
     for path in files:
         try:
             result = pose_row(path, start)
-        except ServiceError as err:
-            typer.echo(f"error: {path}: {err.detail}", err=True)
-            failed = True
-            continue
-        except (CloudReadError, BadCloudError) as err:
+        except (CloudReadError, PoseError) as err:
             typer.echo(
                 f"error: {path}: {err}" if not str(err).startswith(str(path)) else f"error: {err}",
                 err=True,
@@ -157,3 +107,28 @@ def pose_row(path: Path, start: Callable[[NDArray[np.float64]], AnytimeRun]) -> 
     run = start(read_cloud(path))
     run.run_to_end()
     return {"file": str(path), **run.result()}
+
+
+def request_from_options(**options: Any) -> PoseRequest:
+    """The CLI's options (text for 'x,y,z' directions) -> PoseRequest, or a typer error (exit 2)
+    saying which option is wrong."""
+    from pydantic import ValidationError
+
+    from itnet.pose.request import PoseRequest
+
+    try:
+        return PoseRequest.model_validate(options, strict=False)
+    except ValidationError as err:
+        first = err.errors(include_url=False)[0]
+        name = "--" + str(first["loc"][0]).replace("_", "-") if first["loc"] else "options"
+        typer.echo(f"error: {name}: {first['msg']}", err=True)
+        raise typer.Exit(2) from None
+
+
+def get_model_or_exit(catalog: Catalog, name: str) -> None:
+    """A typer error (exit 2) naming the models there are, for an unknown ``name``."""
+    typer.echo(
+        f"error: unknown model {name!r} (available: {', '.join(sorted(catalog.models))})",
+        err=True,
+    )
+    raise typer.Exit(2)

@@ -26,7 +26,7 @@ def serve(
     """
     from pydantic import ValidationError
 
-    from itnet.service.runtime import ModelLoadError, load_models
+    from itnet.pose.runtime import ModelLoadError, load_models
     from itnet.service.server import run
     from itnet.service.settings import Settings
 

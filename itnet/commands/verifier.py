@@ -30,7 +30,7 @@ def verifier_train(
     train a PointNet to tell its right runs (< 15 degrees) from its wrong ones (> 25) by how
     the cloud looks where each run puts it. The validation shapes are not touched."""
     from itnet.model.verifier import VerifierConfig, train_verifier
-    from itnet.service.runtime import ModelLoadError, load_model
+    from itnet.pose.runtime import ModelLoadError, load_model
 
     try:
         card = load_model(pose_model, warm_up=False).card

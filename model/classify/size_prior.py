@@ -27,8 +27,8 @@ from itnet.model.data import split_files
 from itnet.model.scanner import scan_config, scan_of
 from itnet.model.shapes import to_canonical
 from itnet.model_card import SizePrior
+from itnet.pose.runtime import LoadedClassifier
 from itnet.preprocess import estimate_normalization
-from itnet.service.runtime import LoadedClassifier
 from itnet.size_prior import with_size
 
 INCH_M = 0.0254  # ModelNet's unit, read as inches

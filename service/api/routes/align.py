@@ -1,13 +1,13 @@
 """``POST /v1/align``: T_b_from_a (moves cloud A onto cloud B) with the service's loaded model.
 
-The same alignment as ``itnet-align`` (``itnet.alignment.pipeline.align_clouds``: IT-Net from several
-starts per cloud, hypotheses times the category's symmetries, optional ICP), run in-process on
-the model this server already holds. A server route rather than two streams composed in the
+The same alignment as ``itnet-align`` (``itnet.alignment.pipeline.align_clouds``: each cloud's
+pose as ``POST /v1/estimate`` serves it, hypotheses times the category's symmetries, optional
+ICP), run in-process on the models this server already holds. A server route rather than two streams composed in the
 browser: the hypotheses and ICP are what make alignment work on views that barely overlap, and
 they need both clouds in one place (and numpy, scipy, open3d), not just two poses.
 
 Bounded like an estimate: the body by ``max_body_bytes``, each cloud by ``min_points`` and
-``max_points``, ``budget_ms`` (per IT-Net run) by ``max_budget_ms``, ``max_iterations`` by its
+``max_points``, ``budget_ms`` (per cloud's pose) by ``max_budget_ms``, ``max_iterations`` by its
 limit, and the request holds one of the ``max_concurrent_requests`` slots.
 """
 
@@ -19,10 +19,12 @@ import anyio
 from fastapi import APIRouter
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from itnet.pose.cloud import validate_cloud
+from itnet.pose.errors import BadCloudError, PoseError
+from itnet.pose.request import PoseRequest, Xyz
 from itnet.service.api.deps import BodyDep, StateDep
-from itnet.service.engine import BadCloudError, validate_cloud
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
-from itnet.service.schemas import ErrorResponse, Point, Xyz
+from itnet.service.schemas import ErrorResponse, Point
 from itnet.service.state import ServiceState
 
 router = APIRouter(prefix="/v1", tags=["align"])
@@ -44,11 +46,17 @@ class AlignRequest(BaseModel):
     points_a: list[Point] = Field(fail_fast=True, description="cloud A (moved), N x 3")
     points_b: list[Point] = Field(fail_fast=True, description="cloud B (reference), M x 3")
     model: str | None = Field(default=None, description="model name (default: the server's)")
-    budget_ms: float = Field(default=1000.0, gt=0, description="IT-Net budget per run, ms")
+    budget_ms: float = Field(default=1000.0, gt=0, description="budget of each cloud's pose, ms")
     max_iterations: int | None = Field(
-        default=None, ge=1, description="IT-Net iterations per run (default: 6 with starts > 1)"
+        default=None, ge=1, description="iteration cap of each pose (default: the model's)"
     )
-    starts: int = Field(default=4, ge=1, le=16, description="IT-Net runs per cloud")
+    starts: int | None = Field(
+        default=None,
+        ge=1,
+        le=16,
+        description="runs fused into each cloud's pose (its request's ensemble; default: the "
+        "model's)",
+    )
     refine: bool | None = Field(
         default=None, description="ICP after IT-Net (default: when open3d is installed)"
     )
@@ -131,18 +139,22 @@ def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
             raise ServiceError(422, "refine_unavailable", str(err)) from None
         refine = False
     options = AlignOptions(
-        starts=request.starts,
-        iterations=request.max_iterations,
-        symmetry=category_symmetry(model.card.category, model.card.symmetry),
-        refine=refine,
+        symmetry=category_symmetry(model.card.category, model.card.symmetry), refine=refine
     )
-    estimate = in_process_estimator(model, request.budget_ms)
+    pose_request = PoseRequest(budget_ms=request.budget_ms, max_iterations=request.max_iterations,
+                               model=model.card.name, ensemble=request.starts)  # fmt: skip
+    estimate = in_process_estimator(state.catalog, pose_request)
     ups = {"up_a": request.up_a, "up_b": request.up_b}
     try:
         result = align_clouds(clouds[0], clouds[1], estimate, options, **ups)
     except ValueError as err:  # an up that is not a direction (the zero vector)
         raise ServiceError(422, "invalid_request", str(err)) from None
     except CloudEstimateError as err:
-        raise ServiceError(422, "bad_cloud", f"cloud {err.cloud}: {err.__cause__}") from None
+        cause = err.__cause__
+        if isinstance(cause, PoseError):
+            refused = ServiceError.of(cause)
+            raise ServiceError(refused.status, refused.kind, f"cloud {err.cloud}: {cause}",
+                               refused.headers) from None  # fmt: skip
+        raise ServiceError(422, "bad_cloud", f"cloud {err.cloud}: {cause}") from None
     reply = {"model": model.card.name, "symmetry": options.symmetry, **result.to_dict()}
     return reply | {k: list(v) for k, v in ups.items() if v is not None}

@@ -11,15 +11,13 @@ import anyio
 import pydantic_core
 from fastapi import APIRouter, Request, Response
 
+from itnet.pose.errors import PoseError
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.reply import estimates_to_dicts
+from itnet.pose.request import PoseRequest
 from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
-from itnet.service.engine import AnytimeRun, estimates_to_dicts
-from itnet.service.schemas import (
-    EXAMPLE_REQUEST,
-    ErrorResponse,
-    EstimateParams,
-    EstimateRequest,
-    EstimateResponse,
-)
+from itnet.service.errors import ServiceError
+from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
 from itnet.service.state import ServiceState
 
 router = APIRouter(prefix="/v1", tags=["estimate"])
@@ -35,10 +33,10 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 
 
 def _query_parameters() -> list[dict[str, Any]]:
-    """EstimateParams as the query parameters of a binary request (one source for both bodies):
+    """PoseRequest as the query parameters of a binary request (one source for both bodies):
     each field's JSON schema without its null branch; three numbers as the string 'x,y,z'."""
     out = []
-    for name, field in EstimateParams.model_json_schema()["properties"].items():
+    for name, field in PoseRequest.model_json_schema()["properties"].items():
         branches = [b for b in field.get("anyOf", [field]) if b.get("type") != "null"]
         schema = {k: v for k, v in branches[0].items() if k not in ("title", "description")}
         if schema.get("type") == "array":
@@ -159,9 +157,17 @@ def _decode_and_run(
     except Exception as err:
         return err
     handle.attach(run)
-    estimates = list(run)
+    try:
+        with state.admission.admit(run):
+            estimates = list(run)
+    except PoseError as err:
+        return ServiceError.of(err)
     loop_end = time.perf_counter()
     stopped_by = "disconnected" if handle.client_left else str(run.stopped_by)
+    try:
+        run.check_served()
+    except PoseError as err:
+        return ServiceError.of(err)
     reply = {**run.result(), "stopped_by": stopped_by,
              "estimates": estimates_to_dicts(estimates)}  # fmt: skip
     del reply["elapsed_ms"]  # stamped by the handler when the reply leaves (see estimate)

@@ -22,8 +22,9 @@ from fastapi import APIRouter, Query
 from numpy.typing import NDArray
 
 from itnet.cloud_io import SUFFIXES, CloudReadError, read_cloud
+from itnet.pose.cloud import validate_cloud
+from itnet.pose.errors import BadCloudError
 from itnet.service.api.deps import BodyDep, StateDep
-from itnet.service.engine import BadCloudError, validate_cloud
 from itnet.service.errors import ServiceError
 from itnet.service.schemas import ErrorResponse
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
+from itnet.pose.recognition import pose_model_for
+from itnet.pose.runtime import LoadedClassifier
 from itnet.service.api.deps import StateDep
-from itnet.service.recognition import pose_model_for
-from itnet.service.runtime import LoadedClassifier
 from itnet.service.schemas import (
     AutoInfo,
     Health,

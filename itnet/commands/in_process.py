@@ -7,7 +7,8 @@ from pathlib import Path
 
 import typer
 
-from itnet.service.runtime import (
+from itnet.pose.catalog import Catalog
+from itnet.pose.runtime import (
     LoadedClassifier,
     LoadedModel,
     ModelLoadError,
@@ -57,3 +58,10 @@ def get_classifier(model_dir: Path | None = None) -> LoadedClassifier:
         )
         raise typer.Exit(2)
     return classifier
+
+
+def get_catalog(model_dir: Path | None = None) -> Catalog:
+    """Every model of the folder (default: the shipped ones) with its classifier, as the pose
+    pipeline serves them, or a typer error (exit 2)."""
+    models = all_models(model_dir)
+    return Catalog(models, _loaded(model_dir or default_model_dir())[1])

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from itnet.centre import CentreCorrection
 from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, VerifierCard, parse_card
-from itnet.service.step_slots import StepSlots
+from itnet.pose.step_slots import StepSlots
 
 
 class ModelLoadError(RuntimeError):
@@ -38,7 +38,7 @@ def default_model_dir() -> Path:
 def warm_batches(recommended_ensemble: int, usual: tuple[int, ...] = (2, 4, 8)) -> list[int]:
     """The batch sizes a pose model is warmed up at besides 1: the usual ensembles and the
     card's recommended one with its halvings (what a default ensemble that fits its budget
-    runs: service/engine.py's ``fitting_ensemble``)."""
+    runs: ``itnet.pose.plan.fitting_ensemble``)."""
     sizes, k = set(usual), recommended_ensemble
     while k > 1:
         sizes.add(k)
@@ -72,6 +72,7 @@ class LoadedModel:
     step_ms: float = 0.0  # running estimate of one step at card.points (EWMA)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     baseline_ms: float = 0.0  # fastest warm-up step: the step time without contention
+    idle_ms: float = 0.0  # median warm-up step: what plans are made with (load-independent)
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
     concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
@@ -181,36 +182,48 @@ class LoadedModel:
             self._estimated_at = now
             return self.step_ms
 
-    def warm_up(self, runs: int = 5) -> None:
-        """Run a few steps so the first request does not pay for lazy initialisation, and seed
-        the step-time estimate; where the card declares mirror planes, seed the mirror
-        refinement's estimate too (all its rounds, a plane, on the card's point count)."""
+    def run_step_ms(self, runs: int, points: int, idle: bool = False) -> float:
+        """One step of ``runs`` runs of ``points`` points each: the step time at the card's
+        point count (``idle``: as measured at load; else the running prediction) times the load,
+        about proportional to the points, with a floor for the fixed part."""
+        one = self.idle_ms if idle else self.predicted_step_ms()
+        return one * self.step_load(runs, points)
+
+    def step_load(self, runs: int, points: int) -> float:
+        """A step's cost in steps of one run of the card's point count."""
+        return max(runs * points / self.card.points, 0.25)
+
+    def warm_up(self, runs: int = 7) -> None:
+        """Run steps at every batch size a plan may use, so the first request does not pay for
+        onnxruntime's lazy initialisation (it plans each new batch size on its first run), and
+        measure the idle step time plans are made with; where the card declares mirror planes,
+        seed the mirror refinement's estimate too (all its rounds, a plane)."""
         rng = np.random.default_rng(0)
         x = rng.normal(size=(1, self.card.points, 3)).astype(np.float32)
         pose = np.eye(4, dtype=np.float32)[None]
+        times = []
         for _ in range(runs):
             start = time.perf_counter()
             self.step(x, pose)
-            ms = (time.perf_counter() - start) * 1e3
+            times.append((time.perf_counter() - start) * 1e3)
+        for ms in times[1:]:
             self.record_step_ms(ms, weight=0.5)
-            self.baseline_ms = ms if self.baseline_ms == 0 else min(self.baseline_ms, ms)
-        # onnxruntime plans each new batch size on its first run (2-3 ms extra at 8 runs on 2
-        # cores), and that slow step then stood in the recent step times for seconds. Measured
-        # (a fresh `itnet serve` 15 times, chair, 8 runs in 20 ms, 2 cores): the first four
-        # requests reached 1.6 / 3.1 / 3.3 / 3.3 iterations on average without this, 2.9 / 4.1 /
-        # 4.5 / 4.6 with it. Not recorded: the step-time estimate is per run at batch 1.
+        self.baseline_ms = min(times)
+        self.idle_ms = float(np.median(times[1:]))
         for batch in warm_batches(self.card.recommended_ensemble):
-            for _ in range(2):
-                self.step(np.repeat(x, batch, axis=0), np.repeat(pose, batch, axis=0))
+            points = int(0.8 * self.card.points)  # a fused run's subset (itnet.pose.plan)
+            for n in sorted({points, self.card.points}):
+                for _ in range(2):
+                    self.step(np.repeat(x[:, :n], batch, axis=0), np.repeat(pose, batch, axis=0))
         if self.card.mirror:
             from itnet.mirror import mirror_refined
 
-            times = []
+            mirror_times = []
             for _ in range(2):
                 start = time.perf_counter()
                 mirror_refined(x[0].astype(np.float64), np.eye(4), settled=0.0)
-                times.append((time.perf_counter() - start) * 1e3)
-            self.mirror_ms = min(times)
+                mirror_times.append((time.perf_counter() - start) * 1e3)
+            self.mirror_ms = min(mirror_times)
 
 
 def read_card(session: ort.InferenceSession, path: Path) -> ModelCard | ClassifierCard:

@@ -1,7 +1,8 @@
 """``model: "auto"``: classify the cloud, then run the winning category's pose model.
 
-One place for the logic; the HTTP route and the WebSocket (through ``ServiceState.start_run``),
-``itnet pose --model auto``, ``itnet-align --model auto`` and ``itnet classify`` all call it.
+One place for the logic: every path reaches it through ``itnet.pose.catalog.Catalog.start``
+(HTTP, the WebSocket, ``itnet pose --model auto``, alignment, batch, scenes); ``itnet classify``
+calls ``classify`` directly.
 
 * The classifier (an IT-Net canonicaliser + PointNet classifier, one ONNX graph) sees the cloud
   normalised as the pose models see it (``itnet.preprocess``), capped at its card's point count.
@@ -44,15 +45,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.geometry import viewing_axis_turns
+from itnet.pose.cloud import Limits, validate_cloud, validate_up
+from itnet.pose.errors import BadCloudError, NoClassifierError, NoPoseModelError
+from itnet.pose.runtime import LoadedClassifier, LoadedModel
 from itnet.preprocess import (
     DegenerateCloudError,
     Normalization,
     estimate_normalization,
     shuffled_subset,
 )
-from itnet.service.engine import AnytimeRun, BadCloudError, Limits, validate_cloud, validate_up
-from itnet.service.errors import ServiceError
-from itnet.service.runtime import LoadedClassifier, LoadedModel
 from itnet.size_prior import metres_per_unit, with_size
 from itnet.upright import UP, levelled, upright_starts
 
@@ -295,78 +296,23 @@ def recognise(
     """Classify a cloud (``looks`` times, levelled by ``up`` where given and an upright
     classifier is loaded, a second opinion of ``second_looks`` when unsure and it ends by
     ``deadline``; see the module) and pick its pose model. Raises
-    ServiceError: 422 ``no_classifier`` when none is loaded, 422 ``bad_cloud``, 422
-    ``no_pose_model`` when the category has no model."""
+    NoClassifierError when none is loaded, BadCloudError, NoPoseModelError when the category
+    has no model."""
     if classifier is None:
-        raise ServiceError(
-            422,
-            "no_classifier",
+        raise NoClassifierError(
             'model "auto" needs the category classifier, and none is loaded; name a model '
             f"({', '.join(sorted(models))})",
         )
-    try:
-        recognition = classify(
-            classifier, points, limits=limits, units=units, looks=looks, up=up,
-            second_looks=second_looks, deadline=deadline,
-        )  # fmt: skip
-    except BadCloudError as err:
-        raise ServiceError(422, "bad_cloud", str(err)) from None
+    recognition = classify(
+        classifier, points, limits=limits, units=units, looks=looks, up=up,
+        second_looks=second_looks, deadline=deadline,
+    )  # fmt: skip
     model = pose_model_for(recognition.category, models)
     if model is None:
         candidates = ", ".join(f"{c.category} {c.probability:.2f}" for c in recognition.candidates)
-        raise ServiceError(
-            422,
-            "no_pose_model",
+        raise NoPoseModelError(
             f"the cloud looks like a {recognition.category} (probability "
             f"{recognition.probability:.2f}; candidates: {candidates}), and no {recognition.category} "
             f"pose model is loaded (loaded: {', '.join(sorted(models))})",
         )
     return recognition, model
-
-
-class RecognisedRun(AnytimeRun):
-    """The anytime run of the recognised category's model; its result adds the recognition."""
-
-    def __init__(self, recognition: Recognition, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.recognition = recognition
-
-    def result(self) -> dict:
-        return {**super().result(), **self.recognition.as_dict()}
-
-    def category_message(self) -> dict[str, Any]:
-        """The stream's first message: the category, before the first estimate."""
-        return {"type": "category", "model": self.model.card.name, **self.recognition.as_dict()}
-
-
-def auto_run(
-    classifier: LoadedClassifier | None,
-    models: dict[str, LoadedModel],
-    points: ArrayLike,
-    budget_ms: float,
-    max_iterations: int | None = None,
-    started: float | None = None,
-    units: str | None = None,
-    second_looks: int = SECOND_LOOKS,
-    **kwargs: Any,
-) -> RecognisedRun:
-    """Classify, then set up the category model's run on one clock (``started``, default now):
-    the classification's time counts against ``budget_ms``; an ``ensemble`` of K asked for
-    also classifies with K looks, an ``up`` levels the cloud for the upright classifier, and
-    an unsure single look gets its second opinion (``second_looks``) in the budget's first
-    half. Raises ServiceError (see :func:`recognise`) or BadCloudError."""
-    started = time.perf_counter() if started is None else started
-    looks = kwargs.get("ensemble") or 1
-    recognition, model = recognise(
-        classifier, models, points, units=units, looks=looks, up=kwargs.get("up"),
-        second_looks=second_looks, deadline=second_look_deadline(started, budget_ms),
-    )  # fmt: skip
-    return RecognisedRun(
-        recognition,
-        model,
-        points,
-        budget_ms=budget_ms,
-        max_iterations=max_iterations,
-        started=started,
-        **kwargs,
-    )

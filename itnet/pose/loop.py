@@ -1,0 +1,290 @@
+"""The anytime loop: the only place that iterates IT-Net steps. Every path consumes it.
+
+    run = AnytimeRun(plan(model, PoseRequest(budget_ms=50)), cloud)
+    for estimate in run:          # one Estimate per iteration, as soon as it exists
+        ...
+    run.result()                  # the finished pose, how it was reached, why it stopped
+
+Per request: validate the cloud, normalise it (``itnet.preprocess``: centroid, RMS radius), give
+each run its points (the model's count, seeded; fused runs each their own subset), then loop:
+predict the next step's time, stop if it would overrun the budget, run the step (every run in
+one call), compose, fuse, hold upright, and yield the pose. After the last step the plan's
+finishing stages (``itnet.pose.stages``) run in order, each where its predicted time still fits;
+the streamed estimates are the network's, ``result()`` the finished pose.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from itnet.fusion import fuse_poses
+from itnet.geometry import invert_rigid, rotation_angle_deg
+from itnet.pose.cloud import normalization_of, validate_cloud
+from itnet.pose.errors import OverloadedError
+from itnet.pose.plan import PosePlan
+from itnet.pose.reply import Estimate, pose_fields
+from itnet.preprocess import cap_points, pose_from_normalized
+from itnet.upright import held_upright
+
+STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
+T = TypeVar("T")
+
+
+class AnytimeRun(Iterator[Estimate]):
+    """One request's anytime estimation; iterate it for the estimates. Thread-safe ``cancel``.
+
+    ``started``: the budget's clock (a ``time.perf_counter()`` value, e.g. when the request
+    arrived, so that decoding and queueing count), default now. ``reserve_ms``: kept back from
+    the budget for handing the reply back after the finish (never more than half of it).
+    ``recognition``: what ``model: "auto"`` recognised (its reply and first stream message)."""
+
+    def __init__(
+        self,
+        plan: PosePlan,
+        points: ArrayLike,
+        started: float | None = None,
+        reserve_ms: float = 0.0,
+        recognition: object | None = None,
+    ) -> None:
+        self.started = time.perf_counter() if started is None else started
+        self.plan, self.model, self.recognition = plan, plan.model, recognition
+        self.cloud = validate_cloud(points, plan.limits)
+        self.reserve_ms = min(max(0.0, reserve_ms), plan.budget_ms / 2)
+        # The whole cloud sets the centre and scale; each run sees at most the model's count.
+        self.normalization = normalization_of(self.cloud)
+        rng = np.random.default_rng(plan.seed)
+        size = plan.run_points(len(self.cloud))
+        if plan.fuse:
+            runs = range(plan.runs)
+            inputs = [self.normalization.apply(cap_points(self.cloud, size, rng)) for _ in runs]
+        else:  # one run's points serve every start (alignment's)
+            inputs = [self.normalization.apply(cap_points(self.cloud, size, rng))] * plan.runs
+        self.points = np.stack(inputs).astype(np.float32)
+        self.pose_normalized = np.tile(np.eye(4, dtype=np.float32), (plan.runs, 1, 1))
+        self.pose_normalized[:, :3, :3] = plan.starts
+        self._size = size
+        self.iteration = 0
+        self.stopped_by: str | None = None
+        self.last: Estimate = self._estimate(self.pose_normalized[0], 0.0, 0.0)
+        self.finish_fields: dict = {}
+        self.skipped: list[str] = []
+        self._finished = False
+        self._cancel = threading.Event()
+        self._last_step_ms = 0.0
+
+    # -- the loop ------------------------------------------------------------------------------
+
+    def __next__(self) -> Estimate:
+        if self.stopped_by is None:
+            self.stopped_by = self._stop_reason_before_step()
+        if self.stopped_by is not None:
+            self._finish()
+            raise StopIteration
+        stepped = self.extra_step(self.points, self.pose_normalized, self._slack_ms)
+        if stepped is None:  # no step slot freed in time, or cancelled while waiting
+            self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
+            self._finish()
+            raise StopIteration
+        previous = self.pose_normalized[0]
+        self.pose_normalized = stepped
+        if self.plan.up is not None and self.iteration >= self.plan.up_free:
+            self.pose_normalized = held_upright(self.pose_normalized, self.plan.up).astype(
+                np.float32
+            )
+        self.iteration += 1
+        if self.plan.fuse:
+            self.last = self._moved_to(fuse_poses(self.pose_normalized, self.model.card.symmetry))
+        else:
+            self.last = self._update_of(previous, self.pose_normalized[0])
+        return self._converged_or(self.last)
+
+    def extra_step(
+        self, points: NDArray, poses: NDArray, slack: Callable[[], float] | None = None
+    ) -> NDArray | None:
+        """One network step of ``points`` (B, N, 3) from ``poses`` (B, 4, 4) in a step slot,
+        waited for only as long as ``slack()`` (default: the budget left) can spare -> the
+        poses after it, or None (no slot in time, or cancelled). Stages call it too."""
+
+        def step() -> NDArray:
+            start = time.perf_counter()
+            out, _ = self.model.step(points, poses)
+            self._last_step_ms = (time.perf_counter() - start) * 1e3
+            self.model.record_step_ms(self._last_step_ms / self.model.step_load(*points.shape[:2]))
+            return out
+
+        return self.extra_call(step, 0.0, slack)
+
+    def extra_call(
+        self, work: Callable[[], T], predicted_ms: float, slack: Callable[[], float] | None = None
+    ) -> T | None:
+        """``work()`` in a step slot, where the budget left holds ``predicted_ms`` more; None
+        where it does not, no slot frees in time, or the run is cancelled."""
+        spare = (slack or self.left_ms)() - predicted_ms
+        if spare < 0 or self._cancel.is_set():
+            return None
+        deadline = self.started + self.plan.budget_ms / 1e3
+        with self.model.step_slot(spare / 1e3, deadline) as free:
+            if not free or self._cancel.is_set():
+                return None
+            return work()
+
+    def _finish(self) -> None:
+        """After the last step (once): a run stopped within the card's free steps is stood up,
+        then the plan's stages run in order, each where its predicted time fits (none after a
+        cancel or before any step)."""
+        if self._finished:
+            return
+        self._finished = True
+        ran = self.iteration > 0 and self.stopped_by != "cancelled"
+        if ran and self.plan.up is not None and self.iteration <= self.plan.up_free:
+            self.last = self._moved_to(held_upright(self.last.pose_normalized, self.plan.up))
+        for stage in self.plan.stages:
+            if not ran or self._cancel.is_set():
+                self.finish_fields.update(stage.not_run(self))
+                continue
+            if self.left_ms() < stage.predicted_ms(self):
+                self.skipped.append(stage.name)
+                self.finish_fields.update(stage.not_run(self))
+                continue
+            finish = stage.apply(self)
+            if finish.pose is not None:
+                self.last = self._moved_to(np.asarray(finish.pose))
+            self.finish_fields.update(finish.fields)
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    # -- time ----------------------------------------------------------------------------------
+
+    def elapsed_ms(self) -> float:
+        return (time.perf_counter() - self.started) * 1e3
+
+    def left_ms(self) -> float:
+        """Budget left, less the reserve for the reply (negative: overrun)."""
+        return self.plan.budget_ms - self.reserve_ms - self.elapsed_ms()
+
+    def predicted_step_ms(self) -> float:
+        """The next step of this run's runs: the model's running prediction (or the last step's
+        time, if longer)."""
+        return max(self.model.run_step_ms(self.plan.runs, self._size), self._last_step_ms)
+
+    def predicted_run_step_ms(self, runs: int, points: int) -> float:
+        """A step of ``runs`` runs of ``points`` points each, by the running prediction."""
+        return self.model.run_step_ms(runs, points)
+
+    def planned_work_ms(self) -> float:
+        """The plan's steps at the model's current step time (the admission's measure)."""
+        return self.plan.max_iterations * self.model.run_step_ms(self.plan.runs, self._size)
+
+    def subset_points(self) -> int:
+        """Points of one fused run's subset of this cloud (the stages' extra runs use it)."""
+        return self.plan.subset_points(len(self.cloud))
+
+    def _slack_ms(self) -> float:
+        """Budget left after the predicted next step and the reserve (negative: the step would
+        overrun)."""
+        return self.left_ms() - self.predicted_step_ms()
+
+    def _stop_reason_before_step(self) -> str | None:
+        if self._cancel.is_set():
+            return "cancelled"
+        if self.iteration >= self.plan.max_iterations:
+            return "max_iterations"
+        if self._slack_ms() < 0:
+            return "budget"
+        return None
+
+    # -- estimates -----------------------------------------------------------------------------
+
+    def _update_of(self, previous: NDArray, pose: NDArray) -> Estimate:
+        """The estimate at ``pose`` (4, 4), its update measured from ``previous`` in scalar
+        math (numpy's per-call cost is the loop's)."""
+        d = pose.astype(np.float64) @ invert_rigid(previous.astype(np.float64))
+        cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
+        rotation = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+        return self._estimate(
+            pose, rotation, math.hypot(float(d[0, 3]), float(d[1, 3]), float(d[2, 3]))
+        )
+
+    def _moved_to(self, pose_normalized: NDArray) -> Estimate:
+        """The estimate at ``pose_normalized`` (4, 4), its update measured from ``last``'s pose
+        (the fused runs' step, a stage's correction)."""
+        d = pose_normalized @ invert_rigid(self.last.pose_normalized.astype(np.float64))
+        return self._estimate(
+            pose_normalized.astype(np.float32),
+            float(rotation_angle_deg(d[:3, :3])),
+            math.hypot(float(d[0, 3]), float(d[1, 3]), float(d[2, 3])),
+        )
+
+    def _converged_or(self, estimate: Estimate) -> Estimate:
+        """``estimate``, after marking the run converged if its update was below the tolerance."""
+        rotation, translation = self.plan.converge
+        if (
+            estimate.update_rotation_deg < rotation
+            and estimate.update_translation < translation * self.normalization.scale
+            and self.iteration < self.plan.max_iterations
+        ):
+            self.stopped_by = "converged"
+        return estimate
+
+    def _estimate(
+        self, pose_normalized: NDArray, rotation_deg: float, translation: float
+    ) -> Estimate:
+        return Estimate(self.iteration, pose_normalized, self.normalization, self.elapsed_ms(),
+                        rotation_deg, translation * self.normalization.scale)  # fmt: skip
+
+    # -- results -------------------------------------------------------------------------------
+
+    def poses(self) -> NDArray[np.float64]:
+        """T_canonical_from_input (runs, 4, 4), input units: every run's own pose so far."""
+        poses = self.pose_normalized.astype(np.float64)
+        return np.stack([pose_from_normalized(p, self.normalization) for p in poses])
+
+    def run_to_end(self) -> Estimate:
+        """Consume the run; the final (finished) estimate."""
+        for _ in self:
+            pass
+        return self.last
+
+    def result(self) -> dict:
+        """The final reply: the finished pose, iterations, stop reason, elapsed time, the runs
+        fused, what each finishing stage did and which ones the budget skipped."""
+        recognised = {} if self.recognition is None else self.recognition.as_dict()  # type: ignore[attr-defined]
+        return {
+            **pose_fields(self.last.pose),
+            "iterations": self.iteration,
+            "stopped_by": self.stopped_by,
+            "elapsed_ms": round(self.elapsed_ms(), 3),
+            "model": self.model.card.name,
+            "ensemble": self.plan.runs,
+            **self.finish_fields,
+            "skipped": list(self.skipped),
+            **(
+                {"up": [round(float(v), 6) for v in self.plan.up]}
+                if self.plan.up is not None
+                else {}
+            ),
+            **recognised,
+        }
+
+    def check_served(self) -> None:
+        """OverloadedError where the budget ran out before the first step: the start is no
+        pose, and must never be handed back as one."""
+        if self.iteration == 0 and self.stopped_by == "budget":
+            raise OverloadedError(
+                f"no step of model {self.model.card.name!r} fit in budget_ms "
+                f"{self.plan.budget_ms:g} (the machine is busy: retry, or give a larger budget)"
+            )
+
+    def category_message(self) -> dict:
+        """The stream's first message where the model was recognised: the category, before the
+        first estimate."""
+        assert self.recognition is not None
+        return {"type": "category", "model": self.model.card.name, **self.recognition.as_dict()}  # type: ignore[attr-defined]

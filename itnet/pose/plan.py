@@ -1,0 +1,177 @@
+"""``plan(model, request)``: a request turned, once, into what the anytime loop will do.
+
+The plan says how the runs start (how many, from which rotations, on which points), what each
+step does (fuse the runs, hold them upright) and which finishing stages run after the last step
+(``itnet.pose.stages``), in order. It depends on the model's card, the request and the model's
+step time measured on an idle machine at load, never on the load of the moment: the same
+request gets the same plan, and so the same pose, whichever way it came in, loaded or idle
+(where a loaded machine cannot serve it, the service refuses it instead).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.geometry import viewing_axis_turns
+from itnet.pose.cloud import Limits, validate_up, validate_viewpoint
+from itnet.pose.errors import BadCloudError
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import LoadedModel
+from itnet.pose.stages import STAGES, Stage
+from itnet.upright import upright_starts
+
+MAX_ENSEMBLE = 16  # runs one request may fuse (each costs a share of the step)
+ENSEMBLE_SUBSET = 0.8  # a fused run's share of a cloud no larger than the model's point count
+CONVERGE_ROTATION_DEG = 0.01  # an update smaller than this and CONVERGE_TRANSLATION stops the run
+CONVERGE_TRANSLATION = 1e-4  # normalised units (the cloud's RMS radius)
+
+
+@dataclass(frozen=True)
+class PosePlan:
+    """What one request's run does. ``starts`` (runs, 3, 3): the rotations the runs begin from
+    (float32, the normalised frame); ``fuse``: each estimate is the runs' robust fusion (else
+    the first run's); ``up`` (3,) unit, held from step ``up_free`` on; ``stages``: the finishing
+    stages that are on, in order."""
+
+    model: LoadedModel
+    request: PoseRequest
+    budget_ms: float
+    max_iterations: int
+    starts: NDArray[np.float32]
+    up: NDArray[np.float64] | None
+    up_free: int
+    viewpoint: NDArray[np.float64] | None
+    stages: tuple[Stage, ...]
+    limits: Limits
+    seed: int = 0
+
+    @property
+    def runs(self) -> int:
+        return len(self.starts)
+
+    @property
+    def fuse(self) -> bool:
+        return self.runs > 1
+
+    @property
+    def converge(self) -> tuple[float, float]:
+        """An update below (degrees, normalised distance) ends the run as converged."""
+        return CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION
+
+    def run_points(self, cloud_points: int) -> int:
+        """Points each run sees of a cloud of ``cloud_points``: the model's count for a single
+        run (a smaller cloud whole); fused runs each their own subset (``subset_points``)."""
+        if self.fuse:
+            return self.subset_points(cloud_points)
+        return min(self.model.card.points, cloud_points)
+
+    def subset_points(self, cloud_points: int) -> int:
+        """One fused run's subset: ENSEMBLE_SUBSET of the cloud, within [min_points, the
+        model's count]."""
+        share = max(self.limits.min_points, int(ENSEMBLE_SUBSET * cloud_points))
+        return min(self.model.card.points, share)
+
+    def predicted_ms(self, cloud_points: int | None = None) -> float:
+        """The whole plan's predicted time on an idle machine: every step of every run."""
+        points = self.run_points(cloud_points or self.model.card.points)
+        return self.max_iterations * self.model.run_step_ms(self.runs, points, idle=True)
+
+    def first_step_ms(self, cloud_points: int | None = None) -> float:
+        """One step of every run on an idle machine: the least a served pose costs."""
+        points = self.run_points(cloud_points or self.model.card.points)
+        return self.model.run_step_ms(self.runs, points, idle=True)
+
+
+def fitting_ensemble(recommended: int, run_step_ms: float, iterations: int,
+                     available_ms: float) -> int:  # fmt: skip
+    """The runs a request that names none gets: the card's ``recommended``, halved until
+    ``iterations`` fused steps fit ``available_ms`` at ``run_step_ms`` a run; at least 1.
+    Unknown timing (``run_step_ms`` 0) keeps ``recommended``. Fewer runs that reach their
+    iterations beat more that stop early (the anytime curve still rises at 10)."""
+    k = recommended
+    while k > 1 and k * run_step_ms * iterations > available_ms:
+        k //= 2
+    return k
+
+
+def plan(
+    model: LoadedModel,
+    request: PoseRequest,
+    limits: Limits = Limits(),
+    spent_ms: float = 0.0,
+    seed: int = 0,
+) -> PosePlan:
+    """The plan of ``request`` on ``model`` (its ``model`` field is already resolved to it);
+    ``spent_ms``: what the budget already paid before the run (the classification of ``auto``).
+    Raises BadCloudError (a 422) for what the request cannot have: a budget or iteration cap
+    over the limits, ``up`` or ``viewpoint`` that are not directions or points, a model that
+    needs ``up`` without it, or a finishing stage asked for that this model or request cannot
+    run (the stage says why)."""
+    card = model.card
+    if not (0 < request.budget_ms <= limits.max_budget_ms):
+        raise BadCloudError(
+            f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {request.budget_ms:g}"
+        )
+    iterations = request.max_iterations or min(card.recommended_iterations, limits.max_iterations)
+    if not (1 <= iterations <= limits.max_iterations):
+        raise BadCloudError(
+            f"max_iterations must be in [1, {limits.max_iterations}], got {iterations}"
+        )
+    up = None if request.up is None else validate_up(request.up)
+    if up is None and card.requires_up:
+        raise BadCloudError(
+            f"model {card.name!r} needs 'up', which way is up in the cloud ([x, y, z]; 'x,y,z' "
+            "in a query): its poses are measured, and served, only with it (GET /v1/models: "
+            "'requires_up')"
+        )
+    viewpoint = None if request.viewpoint is None else validate_viewpoint(request.viewpoint)
+    runs = request.ensemble
+    if runs is None:
+        run_ms = model.run_step_ms(1, card.points, idle=True)
+        available = request.budget_ms - spent_ms
+        runs = fitting_ensemble(card.recommended_ensemble, run_ms, iterations, available)
+    if not (1 <= runs <= MAX_ENSEMBLE):
+        raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {runs}")
+    return PosePlan(
+        model=model,
+        request=request,
+        budget_ms=float(request.budget_ms),
+        max_iterations=iterations,
+        starts=_starts(runs, up, card.up_free_steps),
+        up=up,
+        up_free=card.up_free_steps if up is not None else 0,
+        viewpoint=viewpoint,
+        stages=_stages(model, request, runs),
+        limits=limits,
+        seed=seed,
+    )
+
+
+def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:
+    """The runs' starting rotations (runs, 3, 3): stood up by ``up`` with yaw turns 360/runs
+    apart (unless the card's first steps run free), else turns about the viewing axis (z)
+    360/runs apart, the first the identity. Runs that start apart fall into different basins
+    where a view is ambiguous and agree where it is not, which is what the fusion needs."""
+    if up is not None and up_free == 0:
+        return upright_starts(up, runs).astype(np.float32)
+    if runs > 1:
+        return viewing_axis_turns(runs).astype(np.float32)
+    return np.eye(3, dtype=np.float32)[None]
+
+
+def _stages(model: LoadedModel, request: PoseRequest, runs: int) -> tuple[Stage, ...]:
+    """The finishing stages that are on: each asked for (refused with its reason where it
+    cannot run), or on by the card's default where the request leaves it open."""
+    on = []
+    for stage in STAGES:
+        asked = getattr(request, stage.name)
+        if asked:
+            reason = stage.refusal(model, request, runs)
+            if reason is not None:
+                raise BadCloudError(reason)
+        if asked or (asked is None and stage.default(model, request, runs)):
+            on.append(stage)
+    return tuple(on)
