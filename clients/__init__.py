@@ -2,7 +2,8 @@
 
 ``ItnetClient`` (blocking) and ``AsyncItnetClient`` (asyncio) call ``POST /v1/estimate`` (JSON or
 a binary float32 body) and ``WS /v1/estimate/stream`` (an iterator of per-iteration estimates,
-cancellable). Poses are T_canonical_from_input, 4x4, in the cloud's own units.
+cancellable). What to ask is a ``PoseRequest`` (the service's own declaration of a request), or
+its fields by name. Poses are T_canonical_from_input, 4x4, in the cloud's own units.
 """
 
 from itnet.clients.async_client import AsyncEstimateStream, AsyncItnetClient
@@ -13,8 +14,8 @@ from itnet.clients.wire import (
     ItnetClientError,
     ItnetConnectionError,
     ItnetRequestError,
-    RequestOptions,
 )
+from itnet.pose.request import PoseRequest
 
 __all__ = [
     "AsyncEstimateStream",
@@ -26,5 +27,5 @@ __all__ = [
     "ItnetClientError",
     "ItnetConnectionError",
     "ItnetRequestError",
-    "RequestOptions",
+    "PoseRequest",
 ]

@@ -127,6 +127,11 @@ class EstimateResponse(Pose):
         description="where the request gave 'up': that direction, unit length, in the cloud's "
         "frame; the pose maps it onto the canonical +y",
     )
+    runs: list[Matrix4] | None = Field(
+        None,
+        description="where the request said 'runs': each run's own final T_canonical_from_input "
+        "(before fusion and the finishing stages)",
+    )
 
 
 class ModelInfo(BaseModel):

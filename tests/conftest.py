@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from itnet.service.runtime import LoadedModel
+from itnet.pose.runtime import LoadedModel
 
 # Servers started by the tests (in process and as subprocesses) leave the garbage collector alone:
 # gc.freeze() would keep every object of the pytest process alive. tests/service/test_gc.py

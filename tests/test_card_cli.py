@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from itnet.cli import app
 from itnet.model_card import describe_mirror
-from itnet.service.runtime import load_model
+from itnet.pose.runtime import load_model
 
 runner = CliRunner()
 

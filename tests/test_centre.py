@@ -15,9 +15,10 @@ from itnet.centre import (
     centre_finished,
     fit_centre_correction,
 )
+from itnet.pose.errors import BadCloudError
+from itnet.pose.runtime import load_model
 from itnet.preprocess import pose_from_normalized
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
+from tests.pose_runs import run_with
 
 
 def intercept_only(offset: list[float]) -> CentreCorrection:
@@ -85,10 +86,8 @@ def cloud() -> np.ndarray:
 
 
 def test_the_engine_finishes_the_centre_by_the_card_and_says_so(centred_model) -> None:  # type: ignore[no-untyped-def]
-    on = AnytimeRun(centred_model, cloud(), budget_ms=10_000, converge_rotation_deg=0)
-    off = AnytimeRun(
-        centred_model, cloud(), budget_ms=10_000, converge_rotation_deg=0, centre=False
-    )
+    on = run_with(centred_model, cloud(), budget_ms=10_000, converge=(0, 0))
+    off = run_with(centred_model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False)
     on.run_to_end(), off.run_to_end()
     assert on.result()["centre"] is True and "centre" not in off.result()
     expected = pose_from_normalized(
@@ -101,11 +100,11 @@ def test_the_engine_finishes_the_centre_by_the_card_and_says_so(centred_model) -
 
 
 def test_no_correction_without_a_step_or_for_the_callers_own_starts(centred_model) -> None:  # type: ignore[no-untyped-def]
-    cancelled = AnytimeRun(centred_model, cloud(), budget_ms=10_000)
+    cancelled = run_with(centred_model, cloud(), budget_ms=10_000)
     cancelled.cancel()
     cancelled.run_to_end()
     assert cancelled.result()["centre"] is False and cancelled.iteration == 0
-    starts = AnytimeRun(centred_model, cloud(), budget_ms=10_000, starts=np.eye(3)[None])
+    starts = run_with(centred_model, cloud(), budget_ms=10_000, starts=np.eye(3)[None])
     starts.run_to_end()
     assert "centre" not in starts.result()
 
@@ -113,8 +112,8 @@ def test_no_correction_without_a_step_or_for_the_callers_own_starts(centred_mode
 def test_asking_for_a_correction_the_card_lacks_is_refused(tiny_model_dir: Path) -> None:
     plain = load_model(tiny_model_dir / "tiny.onnx", threads=1)
     with pytest.raises(BadCloudError, match="no centre correction"):
-        AnytimeRun(plain, cloud(), budget_ms=50, centre=True)
-    assert "centre" not in AnytimeRun(plain, cloud(), budget_ms=50).result()
+        run_with(plain, cloud(), budget_ms=50, centre=True)
+    assert "centre" not in run_with(plain, cloud(), budget_ms=50).result()
 
 
 @pytest.fixture(scope="module")
@@ -142,8 +141,8 @@ def viewpoint_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type
 
 def test_a_viewpoint_moves_the_centre_along_the_sensors_ray(viewpoint_model) -> None:  # type: ignore[no-untyped-def]
     sensor = np.array([0.0, 0.0, 0.0])  # the cloud sits around (2, -1, 4): the camera's frame
-    run = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000, viewpoint=sensor)
-    off = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000, centre=False)
+    run = run_with(viewpoint_model, cloud(), budget_ms=10_000, viewpoint=sensor)
+    off = run_with(viewpoint_model, cloud(), budget_ms=10_000, centre=False)
     run.run_to_end(), off.run_to_end()
     result = run.result()
     assert result["centre"] is True and result["centre_viewpoint"] is True
@@ -157,7 +156,7 @@ def test_a_viewpoint_moves_the_centre_along_the_sensors_ray(viewpoint_model) -> 
     cos = moved @ ray / np.linalg.norm(moved) / np.linalg.norm(ray)
     assert np.isclose(np.linalg.norm(moved), 0.1 * run.normalization.scale, rtol=1e-3)
     assert cos < -0.999  # toward the sensor: the offset points at it, the pose moves it there
-    plain = AnytimeRun(viewpoint_model, cloud(), budget_ms=10_000)
+    plain = run_with(viewpoint_model, cloud(), budget_ms=10_000)
     plain.run_to_end()
     assert "centre_viewpoint" not in plain.result()
 
@@ -165,7 +164,7 @@ def test_a_viewpoint_moves_the_centre_along_the_sensors_ray(viewpoint_model) -> 
 def test_a_bad_viewpoint_is_refused(viewpoint_model) -> None:  # type: ignore[no-untyped-def]
     for bad in ([0, 0], [0, np.nan, 1], "here"):
         with pytest.raises(BadCloudError, match="viewpoint"):
-            AnytimeRun(viewpoint_model, cloud(), budget_ms=50, viewpoint=bad)
+            run_with(viewpoint_model, cloud(), budget_ms=50, viewpoint=bad)
 
 
 def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
@@ -177,14 +176,14 @@ def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
     export_step(make_net(), card, tmp_path / "tiny.onnx")
     only = load_model(tmp_path / "tiny.onnx", threads=1)
     assert only.centre is None and only.centre_viewpoint is not None
-    without = AnytimeRun(only, cloud(), budget_ms=10_000)
+    without = run_with(only, cloud(), budget_ms=10_000)
     without.run_to_end()
     assert "centre" not in without.result()
-    given = AnytimeRun(only, cloud(), budget_ms=10_000, viewpoint=[0, 0, 0])
+    given = run_with(only, cloud(), budget_ms=10_000, viewpoint=[0, 0, 0])
     given.run_to_end()
     assert given.result()["centre"] is True and given.result()["centre_viewpoint"] is True
     with pytest.raises(BadCloudError, match="no centre correction"):
-        AnytimeRun(only, cloud(), budget_ms=50, centre=True)
+        run_with(only, cloud(), budget_ms=50, centre=True)
 
 
 def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
@@ -193,7 +192,7 @@ def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
     """Checked at load, not at the first request: the plain field holding a viewpoint correction
     (or the other way round), or a correction with the wrong shapes, is a ModelLoadError."""
     from itnet.export.onnx_export import export_step
-    from itnet.service.runtime import ModelLoadError
+    from itnet.pose.runtime import ModelLoadError
 
     card = viewpoint_model.card
     swapped = card.model_copy(update={"centre_correction": card.centre_correction_viewpoint,
@@ -214,7 +213,7 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     correction for), the plain one otherwise; a card with only it (a model that requires up)
     finishes every request; the reply says which one did it; a bad one fails the load."""
     from itnet.export.onnx_export import export_step
-    from itnet.service.runtime import ModelLoadError
+    from itnet.pose.runtime import ModelLoadError
 
     up_offset = [-0.1, 0.0, 0.2]
     card = viewpoint_model.card.model_copy(
@@ -226,10 +225,8 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     up = [0.0, 1.0, 0.0]
 
     def finished(**kw):  # type: ignore[no-untyped-def]
-        on = AnytimeRun(model, cloud(), budget_ms=10_000, converge_rotation_deg=0, **kw)
-        off = AnytimeRun(
-            model, cloud(), budget_ms=10_000, converge_rotation_deg=0, centre=False, **kw
-        )
+        on = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), **kw)
+        off = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False, **kw)
         on.run_to_end(), off.run_to_end()
         moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
         return on.result(), moved / on.normalization.scale
@@ -247,7 +244,7 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     )
     export_step(make_net(), only, tmp_path / "only.onnx")
     upright = load_model(tmp_path / "only.onnx", threads=1)
-    run = AnytimeRun(upright, cloud(), budget_ms=10_000, up=up)
+    run = run_with(upright, cloud(), budget_ms=10_000, up=up)
     run.run_to_end()
     assert run.result()["centre"] is True and run.result()["centre_up"] is True
 

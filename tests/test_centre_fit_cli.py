@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from itnet.cli import app
-from itnet.service.runtime import load_model
+from itnet.pose.runtime import load_model
 
 runner = CliRunner()
 

@@ -3,6 +3,7 @@ import threading
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from itnet.geometry import (
     apply_rigid,
@@ -10,8 +11,10 @@ from itnet.geometry import (
     rigid_from_rotation_translation,
     rotation_error_deg,
 )
-from itnet.service.engine import AnytimeRun, BadCloudError, Limits
-from itnet.service.runtime import ModelLoadError, load_model, load_models
+from itnet.pose.cloud import Limits
+from itnet.pose.errors import BadCloudError
+from itnet.pose.runtime import ModelLoadError, load_model, load_models
+from tests.pose_runs import run_with
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +28,7 @@ def cloud(rng):
 
 
 def test_runs_to_max_iterations_with_one_estimate_per_iteration(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=7, converge_rotation_deg=0)
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=7, converge=(0, 0))
     estimates = list(run)
     assert [e.iteration for e in estimates] == list(range(1, 8))
     assert run.stopped_by == "max_iterations" and run.iteration == 7
@@ -37,9 +40,7 @@ def test_budget_is_honoured_and_stops_before_overrunning(model, cloud):
     for budget in (0.5, 3.0, 8.0):
         overruns = []
         for _ in range(20):
-            run = AnytimeRun(
-                model, cloud, budget_ms=budget, max_iterations=200, converge_rotation_deg=0
-            )
+            run = run_with(model, cloud, budget_ms=budget, max_iterations=200, converge=(0, 0))
             run.run_to_end()
             assert run.stopped_by == "budget"
             overruns.append(run.elapsed_ms() - budget)
@@ -49,19 +50,19 @@ def test_budget_is_honoured_and_stops_before_overrunning(model, cloud):
         noise = 1.0 if os.getloadavg()[0] < (os.cpu_count() or 1) else 30.0
         assert np.median(overruns) <= noise, overruns
         assert max(overruns) <= 50.0, overruns
-    tiny = AnytimeRun(model, cloud, budget_ms=1e-3)
+    tiny = run_with(model, cloud, budget_ms=1e-3)
     assert tiny.run_to_end().iteration == 0 and tiny.stopped_by == "budget"
 
 
 def test_zero_iterations_pose_centres_the_cloud(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=1e-3)
+    run = run_with(model, cloud, budget_ms=1e-3)
     pose = run.run_to_end().pose
     assert np.allclose(pose[:3, :3], np.eye(3))
     assert np.allclose(apply_rigid(pose, cloud).mean(0), 0, atol=1e-9)
 
 
 def test_cancel_from_another_thread_stops_the_run(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=200, converge_rotation_deg=0)
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=200, converge=(0, 0))
     first = next(run)
     threading.Thread(target=run.cancel).start()
     rest = list(run)
@@ -70,13 +71,12 @@ def test_cancel_from_another_thread_stops_the_run(model, cloud):
 
 
 def test_converges_when_updates_vanish(tiny_model_dir, cloud):
-    run = AnytimeRun(
+    run = run_with(
         load_model(tiny_model_dir / "tiny.onnx"),
         cloud,
         budget_ms=10_000,
         max_iterations=50,
-        converge_rotation_deg=180,
-        converge_translation=1e9,
+        converge=(180, 1e9),
     )
     assert len(list(run)) == 1 and run.stopped_by == "converged"
 
@@ -84,13 +84,13 @@ def test_converges_when_updates_vanish(tiny_model_dir, cloud):
 def test_pose_is_in_input_units_and_equivariant(model, cloud, rng):
     """Scaling the cloud scales the translation; moving it rigidly composes the pose — the
     network only ever sees the normalised cloud."""
-    base = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4).run_to_end().pose
-    scaled = AnytimeRun(model, cloud * 1000.0, budget_ms=10_000, max_iterations=4).run_to_end().pose
+    base = run_with(model, cloud, budget_ms=10_000, max_iterations=4).run_to_end().pose
+    scaled = run_with(model, cloud * 1000.0, budget_ms=10_000, max_iterations=4).run_to_end().pose
     assert np.allclose(scaled[:3, :3], base[:3, :3], atol=1e-4)
     assert np.allclose(scaled[:3, 3], base[:3, 3] * 1000.0, rtol=1e-3, atol=1e-3)
     shift = rigid_from_rotation_translation(np.eye(3), [5.0, -2.0, 7.0])
     moved = (
-        AnytimeRun(model, apply_rigid(shift, cloud), budget_ms=10_000, max_iterations=4)
+        run_with(model, apply_rigid(shift, cloud), budget_ms=10_000, max_iterations=4)
         .run_to_end()
         .pose
     )
@@ -103,7 +103,7 @@ def test_small_cloud_goes_in_whole_with_the_padded_answer(model, rng):
     from itnet.preprocess import resample
 
     small = rng.normal(size=(100, 3)) * [0.3, 0.2, 0.1]
-    run = AnytimeRun(model, small, budget_ms=10_000, max_iterations=4, converge_rotation_deg=0)
+    run = run_with(model, small, budget_ms=10_000, max_iterations=4, converge=(0, 0))
     assert run.points.shape == (1, 100, 3)
     last = run.run_to_end()
     padded = resample(run.points[0], model.card.points, rng)[None]
@@ -111,13 +111,13 @@ def test_small_cloud_goes_in_whole_with_the_padded_answer(model, rng):
     for _ in range(4):
         pose, _ = model.step(padded, pose)
     assert np.allclose(last.pose_normalized, pose[0], atol=1e-5)
-    big = AnytimeRun(model, rng.normal(size=(1000, 3)), budget_ms=10_000, max_iterations=1)
+    big = run_with(model, rng.normal(size=(1000, 3)), budget_ms=10_000, max_iterations=1)
     assert big.points.shape == (1, model.card.points, 3)
 
 
 def test_same_cloud_same_answer(model, cloud):
-    a = AnytimeRun(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose
-    b = AnytimeRun(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose
+    a = run_with(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose
+    b = run_with(model, cloud, max_iterations=3, budget_ms=10_000).run_to_end().pose
     assert np.array_equal(a, b)
 
 
@@ -141,8 +141,9 @@ def test_same_cloud_same_answer(model, cloud):
     ],
 )
 def test_bad_input_is_refused_with_a_reason(model, points, kwargs, message):
-    with pytest.raises(BadCloudError, match=message):
-        AnytimeRun(model, points, **kwargs)
+    # a request's own range checks are PoseRequest's (pydantic), the limits' the plan's
+    with pytest.raises((BadCloudError, ValidationError), match=message):
+        run_with(model, points, **kwargs)
 
 
 def test_missing_or_corrupt_model_files(tmp_path):
@@ -158,64 +159,18 @@ def test_missing_or_corrupt_model_files(tmp_path):
 def test_tiny_model_is_not_the_identity(model, cloud, rng):
     """Guards the other tests: the fixture's model really moves the pose."""
     rot = random_rotation(rng)
-    pose = AnytimeRun(model, cloud @ rot.T, max_iterations=3, budget_ms=10_000).run_to_end().pose
+    pose = run_with(model, cloud @ rot.T, max_iterations=3, budget_ms=10_000).run_to_end().pose
     assert rotation_error_deg(pose[:3, :3], np.eye(3)) > 0.01
-
-
-def test_starts_run_as_one_batch_with_the_answers_of_separate_runs(model, cloud):
-    from itnet.alignment.pipeline import starting_turns
-
-    turns = starting_turns(3)
-    batch = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4, starts=turns)
-    batch.run_to_end()
-    poses = batch.poses()
-    assert poses.shape == (3, 4, 4) and batch.iteration == 4
-    for turn, pose in zip(turns, poses):
-        alone = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=4, starts=turn)
-        assert np.allclose(alone.run_to_end().pose, pose, atol=1e-4)
-    assert np.allclose(batch.last.pose, poses[0])  # the stream follows the first start
-    # Different starts end in different places (the tiny model is no fixed-point oracle).
-    assert rotation_error_deg(poses[0][:3, :3], poses[1][:3, :3]) > 1
-
-
-def test_points_per_step_gives_each_start_its_own_normalised_subset(model, cloud):
-    from itnet.preprocess import cap_points, estimate_normalization
-
-    turns = np.stack([np.eye(3)] * 2)
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, starts=turns,
-                     points_per_step=50)  # fmt: skip
-    assert run.points.shape == (2, 50, 3) and not np.allclose(run.points[0], run.points[1])
-    rng = np.random.default_rng(0)
-    for x, norm in zip(run.points, run.normalizations):
-        subset = cap_points(cloud, 50, rng)  # the same draws, in the same order
-        assert np.allclose(norm.center, estimate_normalization(subset).center)
-        assert np.allclose(x, norm.apply(subset))
-    with pytest.raises(BadCloudError, match="points_per_step"):
-        AnytimeRun(model, cloud, points_per_step=1)
-
-
-@pytest.mark.parametrize(
-    ("starts", "message"),
-    [
-        (np.diag([1.0, 1.0, -1.0]), "reflections"),
-        (np.eye(3) * 2, "orthonormal"),
-        (np.eye(4), "3x3"),
-        (np.zeros((0, 3, 3)), "3x3"),
-    ],
-)
-def test_bad_starts_are_refused(model, cloud, starts, message):
-    with pytest.raises(BadCloudError, match=message):
-        AnytimeRun(model, cloud, starts=starts)
 
 
 def test_a_replys_estimates_batched_match_one_by_one(tiny_model_dir) -> None:  # type: ignore[no-untyped-def]
     """estimates_to_dicts converts the quaternions in one batch; the dicts are to_dict's."""
-    from itnet.service.engine import AnytimeRun, estimates_to_dicts
-    from itnet.service.runtime import load_model
+    from itnet.pose.reply import estimates_to_dicts
+    from itnet.pose.runtime import load_model
 
     model = load_model(tiny_model_dir / "tiny.onnx", warm_up=False)
     cloud = np.random.default_rng(3).normal(size=(300, 3)) * [0.3, 0.5, 0.2]
-    estimates = list(AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=6))
+    estimates = list(run_with(model, cloud, budget_ms=10_000, max_iterations=6))
     assert len(estimates) == 6
     batched, single = estimates_to_dicts(estimates), [e.to_dict() for e in estimates]
     assert [d.keys() for d in batched] == [d.keys() for d in single]

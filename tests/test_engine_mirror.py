@@ -10,9 +10,10 @@ import pytest
 
 from itnet.geometry import rotation_angle_deg
 from itnet.mirror import mirror_finished
+from itnet.pose.errors import BadCloudError
+from itnet.pose.runtime import load_model
 from itnet.preprocess import pose_from_normalized
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
+from tests.pose_runs import run_with
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +49,7 @@ def cloud() -> np.ndarray:
 
 
 def test_the_final_pose_is_the_last_estimate_finished_by_the_mirror(mirrored, cloud):
-    run = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=4, converge_rotation_deg=0)
+    run = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=4, converge=(0, 0))
     estimates = list(run)
     result = run.result()
     assert result["mirror"] is True and run.mirrored is True and result["mirror_planes"] == ["x"]
@@ -66,25 +67,25 @@ def test_the_final_pose_is_the_last_estimate_finished_by_the_mirror(mirrored, cl
 
 
 def test_off_when_asked_or_not_declared_and_refused_for_a_model_without_it(mirrored, plain, cloud):
-    off = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=3, mirror=False)
+    off = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=3, mirror=False)
     last = off.run_to_end()
     assert "mirror" not in off.result() and off.mirrored is None
     assert np.allclose(off.result()["T_canonical_from_input"], last.pose)
-    undeclared = AnytimeRun(plain, cloud, budget_ms=10_000, max_iterations=3)
+    undeclared = run_with(plain, cloud, budget_ms=10_000, max_iterations=3)
     undeclared.run_to_end()
     assert "mirror" not in undeclared.result()
     with pytest.raises(BadCloudError, match="declares no mirror symmetry"):
-        AnytimeRun(plain, cloud, mirror=True)
+        run_with(plain, cloud, mirror=True)
 
 
 def test_own_starts_and_ensembles_leave_it_off_unless_asked(mirrored, cloud):
-    starts = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=2, starts=np.eye(3))
+    starts = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=2, starts=np.eye(3))
     assert starts.mirror is False  # alignment's hypotheses: every pose is used, not the last
-    subsets = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=2, points_per_step=64)
+    subsets = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=2, points_per_step=64)
     assert subsets.mirror is False
-    fused = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=2, ensemble=4)
+    fused = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=2, ensemble=4)
     assert fused.mirror is False  # four fused runs gained nothing from it on validation
-    asked = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=2, ensemble=4, mirror=True)
+    asked = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=2, ensemble=4, mirror=True)
     asked.run_to_end()
     assert asked.result()["mirror"] is True and asked.result()["ensemble"] == 4
 
@@ -94,28 +95,28 @@ def test_a_card_with_mirror_fused_finishes_fused_runs_by_default(mirror_dir, clo
     unless the request says not to; a single run is finished either way."""
     model = load_model(mirror_dir / "tiny.onnx", threads=1)
     model.card = model.card.model_copy(update={"mirror_fused": True})
-    fused = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4)
+    fused = run_with(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4)
     fused.run_to_end()
     assert fused.result()["mirror"] is True and fused.result()["ensemble"] == 4
-    off = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4, mirror=False)
+    off = run_with(model, cloud, budget_ms=10_000, max_iterations=2, ensemble=4, mirror=False)
     assert off.mirror is False
-    own = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=2, starts=np.eye(3))
+    own = run_with(model, cloud, budget_ms=10_000, max_iterations=2, starts=np.eye(3))
     assert own.mirror is False  # alignment's hypotheses stay unfinished
 
 
 def test_skipped_when_the_budget_cannot_hold_it_or_the_run_was_cancelled(mirrored, cloud):
     mirrored.mirror_ms = 1e6  # predicted to take far longer than the budget left
-    run = AnytimeRun(mirrored, cloud, budget_ms=5_000, max_iterations=3)
+    run = run_with(mirrored, cloud, budget_ms=5_000, max_iterations=3)
     last = run.run_to_end()
     assert run.result()["mirror"] is False
     assert np.allclose(run.result()["T_canonical_from_input"], last.pose)
     assert run.elapsed_ms() < 5_000
     mirrored.mirror_ms = 1.0
-    cancelled = AnytimeRun(mirrored, cloud, budget_ms=10_000, max_iterations=50)
+    cancelled = run_with(mirrored, cloud, budget_ms=10_000, max_iterations=50)
     cancelled.cancel()
     cancelled.run_to_end()
     assert cancelled.stopped_by == "cancelled" and cancelled.result()["mirror"] is False
-    none = AnytimeRun(mirrored, cloud, budget_ms=1e-3)  # no step fits: nothing to finish
+    none = run_with(mirrored, cloud, budget_ms=1e-3)  # no step fits: nothing to finish
     none.run_to_end()
     assert none.iteration == 0 and none.result()["mirror"] is False
 
@@ -157,7 +158,7 @@ def test_planes_are_taken_in_order_as_far_as_the_budget_goes(mirrored, cloud):
     says which."""
     from dataclasses import dataclass, field
 
-    from itnet.service.runtime import LoadedModel
+    from itnet.pose.runtime import LoadedModel
 
     @dataclass
     class RoomForOne(LoadedModel):
@@ -168,14 +169,14 @@ def test_planes_are_taken_in_order_as_far_as_the_budget_goes(mirrored, cloud):
 
     card = mirrored.card.model_copy(update={"mirror_planes": ["x", "z"]})
     model = RoomForOne(card=card, path=mirrored.path, session=mirrored.session)
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=3, converge_rotation_deg=0)
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=3, converge=(0, 0))
     estimates = list(run)
     assert run.result()["mirror_planes"] == ["x"] and run.result()["mirror"] is True
     expected = mirror_finished(
         run.points[0].astype(np.float64), estimates[-1].pose_normalized.astype(np.float64), ["x"]
     )
     assert np.allclose(run.last.pose_normalized, expected, atol=1e-5)
-    both = AnytimeRun(mirrored.__class__(card=card, path=mirrored.path, session=mirrored.session),
-                      cloud, budget_ms=10_000, max_iterations=3, converge_rotation_deg=0)  # fmt: skip
+    both = run_with(mirrored.__class__(card=card, path=mirrored.path, session=mirrored.session),
+                      cloud, budget_ms=10_000, max_iterations=3, converge=(0, 0))  # fmt: skip
     both.run_to_end()
     assert both.result()["mirror_planes"] == ["x", "z"]

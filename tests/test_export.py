@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from itnet.model_card import ModelCard
-from itnet.service.runtime import load_model
+from itnet.pose.runtime import load_model
 
 
 @pytest.mark.parametrize(("batch", "points"), [(1, 1024), (3, 100), (8, 37), (2, 4096)])

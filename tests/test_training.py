@@ -214,7 +214,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     assert wrong_k.exit_code == 2 and "does not measure 4 runs" in wrong_k.output
     done = runner.invoke(app, [*fused, "--ensemble-report", str(tmp_path / "bench.json")])
     assert done.exit_code == 0, done.output
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     card = load_model(fused_path, warm_up=False).card
     assert card.recommended_ensemble == 3
@@ -418,7 +418,7 @@ def test_an_upright_run_trains_on_levelled_scans_and_its_export_requires_up(shap
     from itnet.model.data import training_batch
     from itnet.model.scanner import scan_config
     from itnet.model.shapes import Shape
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     rng = np.random.default_rng(1)
     shapes = [Shape(f"s{i}", _chair_like(rng)) for i in range(3)]

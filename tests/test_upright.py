@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from itnet.geometry import apply_rigid, invert_rigid, random_rotation
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
+from itnet.pose.errors import BadCloudError
+from itnet.pose.runtime import load_model
 from itnet.upright import (
     UP,
     held_upright,
@@ -23,6 +23,7 @@ from itnet.upright import (
     unit_up,
     upright_starts,
 )
+from tests.pose_runs import run_with
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +86,7 @@ def test_unit_up_refuses_what_is_not_a_direction(bad) -> None:
 def test_engine_holds_every_estimate_upright(model, rng, ensemble) -> None:
     cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1] + [1.0, 2.0, 3.0]
     up = [0.2, -0.9, 0.1]  # a camera whose image y points down, tilted
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble, up=up)
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble, up=up)
     estimates = list(run)
     assert len(estimates) == 5
     for e in estimates:
@@ -95,7 +96,7 @@ def test_engine_holds_every_estimate_upright(model, rng, ensemble) -> None:
     final = np.asarray(result["T_canonical_from_input"])
     np.testing.assert_allclose(final[:3, :3] @ unit_up(up), UP, atol=1e-4)
     # without up the tiny network's poses tilt freely
-    free = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble)
+    free = run_with(model, cloud, budget_ms=10_000, max_iterations=5, ensemble=ensemble)
     tilt = free.run_to_end().pose[:3, :3] @ unit_up(up)
     assert np.degrees(np.arccos(np.clip(tilt @ UP, -1, 1))) > 1.0
     assert "up" not in free.result()
@@ -104,9 +105,9 @@ def test_engine_holds_every_estimate_upright(model, rng, ensemble) -> None:
 def test_engine_refuses_bad_or_conflicting_up(model, rng) -> None:
     cloud = rng.normal(size=(300, 3))
     with pytest.raises(BadCloudError, match="zero"):
-        AnytimeRun(model, cloud, up=[0, 0, 0])
+        run_with(model, cloud, up=[0, 0, 0])
     with pytest.raises(BadCloudError, match="three finite"):
-        AnytimeRun(model, cloud, up=[0, 1])
+        run_with(model, cloud, up=[0, 1])
 
 
 def test_turns_about_up_keep_up_and_compose_into_the_upright_starts(rng) -> None:
@@ -144,13 +145,13 @@ def test_runs_from_turns_about_up_stand_up_as_requests_for_the_turned_cloud_do(m
     cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1]
     up = unit_up([0.2, -0.9, 0.1])
     turns = turns_about(up, 3)
-    run = AnytimeRun(model, cloud, budget_ms=10_000, max_iterations=3, starts=turns, up=up,
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=3, starts=turns, up=up,
                      points_per_step=400)  # fmt: skip
     run.run_to_end()
     poses = run.poses()
     np.testing.assert_allclose(poses[:, :3, :3] @ up, np.tile(UP, (3, 1)), atol=1e-4)
     for k, turn in enumerate(turns):
-        alone = AnytimeRun(model, cloud @ turn.T, budget_ms=10_000, max_iterations=3, up=turn @ up,
+        alone = run_with(model, cloud @ turn.T, budget_ms=10_000, max_iterations=3, up=turn @ up,
                            mirror=False, centre=False)  # fmt: skip
         pose = alone.run_to_end().pose.copy()
         pose[:3, :3] = pose[:3, :3] @ turn  # back into the cloud's frame
@@ -162,8 +163,8 @@ def test_a_model_that_requires_up_refuses_a_request_without_it(model, rng) -> No
     needs.card = model.card.model_copy(update={"requires_up": True})
     cloud = rng.normal(size=(300, 3))
     with pytest.raises(BadCloudError, match="needs 'up'"):
-        AnytimeRun(needs, cloud)
-    run = AnytimeRun(needs, cloud, up=[0, 0, 1], budget_ms=10_000, max_iterations=3)
+        run_with(needs, cloud)
+    run = run_with(needs, cloud, up=[0, 0, 1], budget_ms=10_000, max_iterations=3)
     pose = run.run_to_end().pose
     np.testing.assert_allclose(pose[:3, :3] @ [0, 0, 1], UP, atol=1e-4)
     assert np.isfinite(apply_rigid(pose, cloud)).all()
@@ -178,12 +179,12 @@ def test_free_steps_run_unheld_and_the_final_pose_is_still_upright(model, rng) -
     def tilt(pose: np.ndarray) -> float:
         return float(np.degrees(np.arccos(np.clip((pose[:3, :3] @ up) @ UP, -1, 1))))
 
-    run = AnytimeRun(free, cloud, budget_ms=10_000, max_iterations=4, up=up, mirror=False)
+    run = run_with(free, cloud, budget_ms=10_000, max_iterations=4, up=up, mirror=False)
     estimates = list(run)
     assert tilt(estimates[0].pose) > 1.0 and tilt(estimates[1].pose) > 1.0  # free
     assert tilt(estimates[2].pose) < 1e-2 and tilt(estimates[3].pose) < 1e-2  # held
     # a run that stops within the free steps is stood up at the end
-    short = AnytimeRun(free, cloud, budget_ms=10_000, max_iterations=1, up=up, mirror=False)
+    short = run_with(free, cloud, budget_ms=10_000, max_iterations=1, up=up, mirror=False)
     (only,) = list(short)
     assert tilt(only.pose) > 1.0  # the step itself ran free
     assert tilt(short.run_to_end().pose) < 1e-2  # and the finish stood it up
@@ -209,7 +210,7 @@ def test_the_evaluation_holds_each_run_upright_as_the_service_does(model, rng, f
             assert tilt[1] > 1.0  # the free steps ran unheld
     free = copy.copy(model)
     free.card = model.card.model_copy(update={"up_free_steps": free_steps})
-    run = AnytimeRun(free, clouds[0], budget_ms=10_000, max_iterations=4, up=ups[0],
+    run = run_with(free, clouds[0], budget_ms=10_000, max_iterations=4, up=ups[0],
                      mirror=False, centre=False)  # fmt: skip
     served = [e.pose for e in run]
     np.testing.assert_allclose(poses[0, 1:], np.stack(served), atol=1e-3)

@@ -66,7 +66,8 @@ class Hypothesis:
     """A candidate T_b_from_a (4x4, B's units) and, once scored, how well it fits the geometry."""
 
     T_b_from_a: NDArray[np.float64]
-    source: str  # "itnet", "itnet+yaw180", "itnet a1 b0+yaw90", with "+icp" once refined
+    source: str  # "itnet" (the served poses), "itnet+yaw180", "itnet a1 b0+yaw90" (A's run 1,
+    # B's served pose, a quarter turn), with "+icp" once refined
     fitness: float = float("nan")  # symmetric share of points within the inlier distance
     rmse: float = float("nan")  # RMS distance of those inliers, B's units
     loose_fitness: float = float("nan")  # the share at the ranking distance, before refinement
@@ -84,13 +85,14 @@ class Hypothesis:
 def build_hypotheses(
     poses_a: ArrayLike, poses_b: ArrayLike, symmetries: ArrayLike
 ) -> list[Hypothesis]:
-    """Every candidate alignment from IT-Net poses: for each run i on A, run j on B and symmetry
-    S (the identity first), ``inv(T_cb[j]) · S · T_ca[i]``.
+    """Every candidate alignment from IT-Net poses: for each pose i of A, pose j of B and
+    symmetry S (the identity first), ``inv(T_cb[j]) · S · T_ca[i]``.
 
-    poses_a: (Ra, 4, 4) T_canonical_from_a from Ra runs; poses_b: (Rb, 4, 4) likewise;
+    poses_a: (Ra, 4, 4) T_canonical_from_a: the served pose first, then each run's own
+    (``PoseEstimate.candidates``); poses_b: (Rb, 4, 4) likewise;
     symmetries: (S, 4, 4) canonical-frame rotations (no identity). Returns Ra·Rb·(S+1)
-    hypotheses, runs 0 and 0 without a symmetry first (named "itnet"; the others name their
-    runs when not 0, e.g. "itnet a1 b0+yaw90").
+    hypotheses, the two served poses without a symmetry first (named "itnet"; the others name
+    their poses when not the served ones, e.g. "itnet a1 b0+yaw90").
     """
     pa, pb = np.asarray(poses_a, dtype=np.float64), np.asarray(poses_b, dtype=np.float64)
     syms = np.concatenate([np.eye(4)[None], np.asarray(symmetries, dtype=np.float64)])
@@ -144,11 +146,17 @@ def same_alignment(
     return angle < max_deg and float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < max_shift * scale
 
 
-def choose(hypotheses: list[Hypothesis], margin: float = 0.0) -> int:
-    """Index of the hypothesis to report: the first (the composed poses) unless the best by
-    fitness, then by rmse, beats its fitness by more than ``margin``."""
-    best = max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
-    return best if hypotheses[best].fitness > hypotheses[0].fitness + margin else 0
+def choose(hypotheses: list[Hypothesis], margin: float = 0.0, refined: bool = True) -> int:
+    """Index of the hypothesis to report: the first (the composed poses) unless the best of the
+    others beats it by more than ``margin`` of the points: by the tight ``fitness`` (then
+    ``rmse``) where they were refined, else by the ``loose_fitness`` (unrefined hypotheses are
+    each a few degrees off, and a tight score cannot rank them)."""
+
+    def score(h: Hypothesis) -> tuple[float, float]:
+        return (h.fitness, -h.rmse) if refined else (h.loose_fitness, -h.rmse)
+
+    best = max(range(len(hypotheses)), key=lambda i: score(hypotheses[i]))
+    return best if score(hypotheses[best])[0] > score(hypotheses[0])[0] + margin else 0
 
 
 def confidence(hypotheses: list[Hypothesis], chosen: int, scale: float) -> dict[str, float]:

@@ -7,8 +7,8 @@ The steps (the policy is explained in ``itnet.alignment.hypotheses``)::
     hypotheses = inv(pose_b) · S · pose_a  for every symmetry S of the category (identity first)
     candidates = the distinct ones, best by a loose fit        # ``hypotheses.distinct``
     each       = ICP(candidate)                                # only with refine=True
-    chosen     = the composed poses (S = identity), unless with ICP another candidate fits
-                 clearly better (by ``switch_margin`` of its points)
+    chosen     = the composed poses (S = identity), unless another candidate fits clearly
+                 better (by ``switch_margin`` of the points; tightly after ICP, else loosely)
 
 Why the served poses. A category-level pose needs no overlap between the two views, which
 correspondence-based registration does; the pose pipeline's finishing stages (fused runs, the
@@ -58,6 +58,14 @@ class PoseEstimate:
     elapsed_ms: float
     stopped_by: str
     result: dict = field(default_factory=dict, repr=False)
+    runs: NDArray[np.float64] | None = field(default=None, repr=False)  # (R, 4, 4): each run's
+
+    def candidates(self) -> NDArray[np.float64]:
+        """The served pose, then each run's own (R + 1, 4, 4): the alignment's alternatives."""
+        poses = [self.T_canonical_from_input[None]]
+        if self.runs is not None and len(self.runs):
+            poses.append(np.asarray(self.runs, dtype=np.float64).reshape(-1, 4, 4))
+        return np.concatenate(poses)
 
     def to_dict(self) -> dict:
         extra = {k: self.result[k] for k in ("model", "ensemble", "skipped") if k in self.result}
@@ -80,8 +88,8 @@ class CloudEstimateError(Exception):
         super().__init__(f"cloud {cloud}: {cause}")
 
 
-# With ICP, a rival hypothesis replaces the composed poses only where it fits this much more of
-# the points (docs/align.md: chosen on validation pairs).
+# A rival hypothesis replaces the composed poses only where it fits this much more of the points
+# (docs/align.md: chosen on validation pairs).
 SWITCH_MARGIN = 0.1
 
 
@@ -103,8 +111,8 @@ class AlignOptions:
     inlier_distance: float = 0.05  # the final score's inlier distance
     rank_points: int = 32  # points of each cloud the loose ranking measures
     score_points: int = 300  # points of each cloud the final score measures
-    switch_margin: float = SWITCH_MARGIN  # with refine: another candidate is chosen over the
-    # composed poses only where its fitness is higher by this much (a share of the points)
+    switch_margin: float = SWITCH_MARGIN  # another candidate is chosen over the composed poses
+    # only where its fitness is higher by this much (a share of the points)
     voxel: float | None = None  # ICP downsampling; None: 0.05 above 20,000 points, else none
     seed: int = 0
 
@@ -192,9 +200,8 @@ def align_clouds(
     cloud_a = Cloud(sample(a, TREE_POINTS, options.seed))
     cloud_b = Cloud(sample(b, TREE_POINTS, options.seed + 1))
     every = build_hypotheses(
-        [pose_a.T_canonical_from_input], [pose_b.T_canonical_from_input],
-        symmetry_rotations(options.symmetry),
-    )  # fmt: skip
+        pose_a.candidates(), pose_b.candidates(), symmetry_rotations(options.symmetry)
+    )
     # Rank at ICP's first-stage distance, where an unrefined estimate still lands on B.
     loose, _ = overlap(np.array([h.T_b_from_a for h in every]), cloud_a, cloud_b,
                        2 * options.icp_distance * scale, options.rank_points, options.seed)  # fmt: skip
@@ -233,9 +240,8 @@ def align_clouds(
                             options.inlier_distance * scale, options.score_points, options.seed)  # fmt: skip
     for h, fit, err in zip(hypotheses, fitness, rmse):
         h.fitness, h.rmse = float(fit), float(err)
-    # Unrefined hypotheses are each a few degrees off: the tight score cannot rank them, so
-    # without ICP the composed poses stand; with it, a rival must fit clearly better.
-    chosen = choose(hypotheses, options.switch_margin) if options.refine else 0
+    # A rival replaces the composed poses only where it fits clearly better.
+    chosen = choose(hypotheses, options.switch_margin, options.refine)
     done = time.perf_counter()
     return Alignment(
         T_b_from_a=hypotheses[chosen].T_b_from_a,

@@ -271,6 +271,7 @@ class AnytimeRun(Iterator[Estimate]):
                 if self.plan.up is not None
                 else {}
             ),
+            **({"runs": self.poses().tolist()} if self.plan.request.runs else {}),
             **recognised,
         }
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from itnet.geometry import viewing_axis_turns
 from itnet.pose.cloud import Limits, validate_up, validate_viewpoint
-from itnet.pose.errors import BadCloudError
+from itnet.pose.errors import BadCloudError, BudgetTooSmallError
 from itnet.pose.request import PoseRequest
 from itnet.pose.runtime import LoadedModel
 from itnet.pose.stages import STAGES, Stage
@@ -47,6 +47,8 @@ class PosePlan:
     stages: tuple[Stage, ...]
     limits: Limits
     seed: int = 0
+    # an update below (degrees, normalised distance: the cloud's RMS radius) ends the run
+    converge: tuple[float, float] = (CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION)
 
     @property
     def runs(self) -> int:
@@ -55,11 +57,6 @@ class PosePlan:
     @property
     def fuse(self) -> bool:
         return self.runs > 1
-
-    @property
-    def converge(self) -> tuple[float, float]:
-        """An update below (degrees, normalised distance) ends the run as converged."""
-        return CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION
 
     def run_points(self, cloud_points: int) -> int:
         """Points each run sees of a cloud of ``cloud_points``: the model's count for a single
@@ -128,6 +125,12 @@ def plan(
             "'requires_up')"
         )
     viewpoint = None if request.viewpoint is None else validate_viewpoint(request.viewpoint)
+    least = model.run_step_ms(1, 1, idle=True)  # the cheapest step there is, on an idle machine
+    if request.budget_ms < least:
+        raise BudgetTooSmallError(
+            f"budget_ms {request.budget_ms:g} is below one step of model {card.name!r} (about "
+            f"{least:.2g} ms at the least on this machine): no pose fits it"
+        )
     runs = request.ensemble
     if runs is None:
         run_ms = model.run_step_ms(1, card.points, idle=True)

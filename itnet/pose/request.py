@@ -14,21 +14,21 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from itnet.size_prior import Unit
 
+# Three numbers, [x, y, z] in JSON; 'x,y,z' in a query string (PoseRequest.from_query).
+Xyz = Annotated[list[float], Field(min_length=3, max_length=3)] | None
+XYZ_FIELDS = ("viewpoint", "up")
 
-def _split_commas(value: object) -> object:
-    """'0,0,0' (a query string's or the CLI's value) -> ['0', '0', '0']; anything else as is."""
-    return value.split(",") if isinstance(value, str) else value
 
-
-# Three numbers, [x, y, z] in JSON or 'x,y,z' in a query string (viewpoint, up).
-Xyz = Annotated[
-    Annotated[list[float], Field(min_length=3, max_length=3)] | None,
-    BeforeValidator(_split_commas),
-]
+def _numbers(text: str) -> list[float] | str:
+    """'0,-1,0' -> [0.0, -1.0, 0.0]; text that is not numbers as it is (validation says why)."""
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        return text
 
 
 class PoseRequest(BaseModel):
@@ -100,6 +100,11 @@ class PoseRequest(BaseModel):
         "floor's normal; 'x,y,z' in a query): the pose is held upright, its canonical +y on "
         "this direction, and only the turn about it and the position are estimated",
     )
+    runs: bool = Field(
+        default=False,
+        description="also reply with each run's own final pose ('runs': T_canonical_from_input "
+        "of every run, before fusion and finishing): the alternatives alignment weighs",
+    )
     units: Unit | None = Field(
         default=None,
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
@@ -110,7 +115,9 @@ class PoseRequest(BaseModel):
     def from_query(cls, query: Mapping[str, str]) -> PoseRequest:
         """A query string's fields (every value text: '50', 'true', '0,-1,0') -> PoseRequest.
         Raises pydantic.ValidationError."""
-        return cls.model_validate_strings(dict(query))
+        fields: dict[str, Any] = dict(query)
+        xyz = {k: _numbers(fields.pop(k)) for k in XYZ_FIELDS if k in fields}
+        return cls.model_validate({**cls.model_validate_strings(fields).options(), **xyz})
 
     def to_query(self) -> dict[str, str]:
         """The fields set to other than their default, as a query string's values (the binary

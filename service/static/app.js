@@ -38,6 +38,11 @@ function saveUrl(extra = {}) {
           example: state.clouds.main?.example ?? null,
           ensemble: $('ensemble').value || null,
           units: $('units').value || null,
+          viewpoint: $('viewpoint').value.trim() || null,
+          recheck: $('recheck').value || null,
+          verify: $('verify').value || null,
+          mirror: $('mirror').value || null,
+          centre: $('centre').value || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
       : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
@@ -106,22 +111,38 @@ async function loadCloud(slot, source) {
   saveUrl();
 }
 
-function request() {
-  const body = { budget_ms: Number($('budget').value) };
-  if ($('model').value) body.model = $('model').value;
-  if ($('max-iterations').value) body.max_iterations = Number($('max-iterations').value);
+/** A control's value as the request's field: numbers, 'true'/'false', 'x,y,z' as three numbers,
+ * text; an empty control leaves the field to the model's default (null). */
+function fieldValue(control) {
+  const text = control.value.trim();
+  if (text === '') return null;
+  if (text === 'true' || text === 'false') return text === 'true';
+  if (control.type === 'number' || /^\d+$/.test(text)) return Number(text);
+  if (text.includes(',')) return text.split(',').map(Number);
+  return text;
+}
+
+/** The request of the controls that carry a PoseRequest field (data-field), those of the
+ * current tab only (``pose-only`` ones not for alignment). */
+function collectRequest(poseTab) {
+  const body = {};
+  for (const control of document.querySelectorAll('[data-field]')) {
+    if (!poseTab && control.closest('.pose-only')) continue;
+    const value = fieldValue(control);
+    if (value !== null) body[control.dataset.field] = value;
+  }
   return body;
 }
 
-/** The pose tab's request: the shared fields, plus the ensemble when chosen (else the model's
- * recommended count) and the cloud's unit when known. */
-function poseRequest() {
-  const body = request();
-  if ($('ensemble').value) body.ensemble = Number($('ensemble').value);
-  if ($('units').value) body.units = $('units').value;
-  const up = $('up').value.trim();
-  if (up) body.up = up.split(',').map(Number);
+function request() {
+  const body = collectRequest(false);
+  delete body.up;  // alignment sends each cloud's up (up_a, up_b)
   return body;
+}
+
+/** The pose tab's request: every field its controls set; the rest are the model's defaults. */
+function poseRequest() {
+  return collectRequest(true);
 }
 
 function runPose() {
@@ -275,6 +296,10 @@ async function main() {
   if (['1', '4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
   if (['m', 'cm', 'mm', 'in', 'ft'].includes(params.get('units'))) $('units').value = params.get('units');
   if (params.get('up')) $('up').value = params.get('up');
+  if (params.get('viewpoint')) $('viewpoint').value = params.get('viewpoint');
+  for (const id of ['recheck', 'verify', 'mirror', 'centre']) {
+    if (['true', 'false'].includes(params.get(id))) $(id).value = params.get(id);
+  }
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;
   setTab(params.get('tab') === 'align' ? 'align' : 'pose');
@@ -282,7 +307,7 @@ async function main() {
 
   document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
   $('model').addEventListener('change', () => { showModel(); saveUrl(); });
-  for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'up', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
+  for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'up', 'viewpoint', 'recheck', 'verify', 'mirror', 'centre', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
   const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');

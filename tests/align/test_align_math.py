@@ -19,7 +19,6 @@ from itnet.alignment.pipeline import (
     CloudEstimateError,
     PoseEstimate,
     align_clouds,
-    starting_turns,
 )
 from itnet.geometry import (
     apply_rigid,
@@ -162,12 +161,17 @@ def hyp(fitness, angle_deg=0.0):
     return Hypothesis(rigid_from_rotation_translation(rot, 0), "h", fitness, 0.01)
 
 
-def test_choose_takes_the_best_fit_then_the_smaller_rmse():
+def test_choose_keeps_the_composed_poses_unless_a_rival_fits_clearly_better():
     assert choose([hyp(0.50), hyp(0.58, 180)]) == 1
+    assert choose([hyp(0.50), hyp(0.58, 180)], margin=0.1) == 0
+    assert choose([hyp(0.50), hyp(0.65, 180)], margin=0.1) == 1
     assert choose([hyp(0.60), hyp(0.58, 180)]) == 0
     tie = [hyp(0.5), hyp(0.5, 90)]
     tie[1].rmse = 0.001
-    assert choose(tie) == 1
+    assert choose(tie) == 0  # a tie is no reason to leave the composed poses
+    loose = [hyp(0.9), hyp(0.1, 180)]
+    loose[0].loose_fitness, loose[1].loose_fitness = 0.2, 0.8
+    assert choose(loose, refined=False) == 1 and choose(loose, refined=True) == 0
 
 
 def test_confidence_falls_when_a_rival_fits_as_well():
@@ -183,12 +187,11 @@ def fake_estimator(clouds_and_poses, calls):
     """An estimator that knows each cloud's pose: the same answer from every start (as a perfect
     IT-Net would give). It recognises a subset of a cloud by its first point."""
 
-    def estimate(points, starts=None, iterations=None, subset=None, up=None):
+    def estimate(points, up=None):
         calls.append(len(points))
         for cloud, pose in clouds_and_poses:
             if len(points) >= 3 and (cloud == points[0]).all(axis=1).any():
-                runs = 1 if starts is None else len(starts)
-                return [PoseEstimate(pose, iterations or 4, 1.0, "max_iterations")] * runs
+                return PoseEstimate(pose, 4, 1.0, "max_iterations")
         raise ValueError("3 points is too few")
 
     return estimate
@@ -206,22 +209,32 @@ def flipped_pair(rng):
     return a, b, relative_pose(t_ca, t_cb), estimate, calls
 
 
-def test_align_clouds_without_icp_ranks_the_symmetric_hypothesis_first(rng):
+def test_a_rival_that_fits_clearly_better_replaces_the_composed_poses(rng):
     a, b, truth, estimate, calls = flipped_pair(rng)
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180"))
-    assert calls == [len(a), len(b)]  # each cloud once, all four starts in one call
-    assert result.iterations == 8 * 6 and result.considered == 4 * 4 * 2
-    # Every start gave the same poses: the 32 hypotheses are two distinct alignments.
-    flipped, itnet = result.hypotheses
-    assert result.chosen == 0 and flipped.source == "itnet+yaw180" and itnet.source == "itnet"
-    assert np.allclose(flipped.T_b_from_a, truth, atol=1e-9)
-    assert flipped.loose_fitness > 0.95 > 0.5 > itnet.loose_fitness
-    assert flipped.fitness > 0.95 > 0.5 > itnet.fitness
+    assert calls == [len(a), len(b)]  # each cloud's served pose, once
+    assert result.iterations == 8 and result.considered == 2
+    composed, flipped = result.hypotheses  # the composed poses always first
+    assert composed.source == "itnet" and flipped.source == "itnet+yaw180"
+    assert result.chosen == 1 and np.allclose(flipped.T_b_from_a, truth, atol=1e-9)
+    assert flipped.loose_fitness > 0.95 > 0.5 > composed.loose_fitness
     assert result.confidence["margin"] > 0.4 and result.confidence["confidence"] > 0.9
     reply = result.to_dict()
     assert reply["hypothesis"] == "itnet+yaw180" and np.allclose(reply["T_b_from_a"], truth)
-    assert reply["refined"] is False and reply["icp_distance"] == 0 and reply["considered"] == 32
-    assert [h["source"] for h in reply["hypotheses"]] == ["itnet+yaw180", "itnet"]
+    assert reply["refined"] is False and reply["icp_distance"] == 0 and reply["considered"] == 2
+    # A margin the rival cannot clear: the composed poses stand.
+    kept = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", switch_margin=1.0))
+    assert kept.chosen == 0 and kept.to_dict()["hypothesis"] == "itnet"
+
+
+def test_composed_poses_are_the_answer_where_no_rival_fits_better(rng):
+    obj = asymmetric_object(rng)
+    t_ca, t_cb = random_pose(rng), random_pose(rng)
+    a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
+    estimate = fake_estimator([(a, t_ca), (b, t_cb)], [])
+    result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90"))
+    assert result.chosen == 0 and result.hypotheses[0].source == "itnet"
+    assert np.allclose(result.T_b_from_a, relative_pose(t_ca, t_cb), atol=1e-9)
 
 
 def test_align_clouds_names_the_cloud_that_failed(rng):
@@ -232,48 +245,17 @@ def test_align_clouds_names_the_cloud_that_failed(rng):
     assert info.value.cloud == "B" and isinstance(info.value.__cause__, ValueError)
 
 
-def test_align_clouds_runs_every_start_of_a_cloud_in_one_call(rng):
-    calls: list[tuple] = []
+def test_each_cloud_is_posed_with_its_own_up(rng):
+    calls: list = []
 
-    def estimate(points, starts=None, iterations=None, subset=None, up=None):
-        calls.append((len(points), np.asarray(starts), iterations, subset))
-        return [PoseEstimate(np.eye(4), iterations or 10, 0.1, "budget")] * len(starts)
-
-    a, b = rng.normal(size=(300, 3)), rng.normal(size=(50, 3))
-    result = align_clouds(a, b, estimate, AlignOptions(symmetry="none"))
-    assert [(n, len(s), it, sub) for n, s, it, sub in calls] == [(300, 4, 6, 192), (50, 4, 6, 192)]
-    turns = calls[0][1]
-    assert np.allclose(turns, starting_turns(4)) and np.allclose(turns[0], np.eye(3))
-    assert np.allclose(turns[2] @ [1, 0, 0], [-1, 0, 0])  # a half turn about z
-    tilt = np.radians(20)  # every second start is also tilted about x
-    assert np.allclose(turns[1] @ [1, 0, 0], [0, np.cos(tilt), np.sin(tilt)])
-    assert np.allclose(np.linalg.det(turns), 1) and np.allclose(
-        turns @ turns.transpose(0, 2, 1), np.eye(3)
-    )
-    assert result.iterations == 8 * 6
-    assert len(result.hypotheses) == 1  # the runs agree: one distinct alignment
-    calls.clear()
-    one = align_clouds(a, b, estimate, AlignOptions(symmetry="none", starts=1))
-    assert [(n, len(s), it) for n, s, it, _ in calls] == [(300, 1, None), (50, 1, None)]
-    assert one.iterations == 20  # the estimator's own default
-    with pytest.raises(ValueError, match="starts and candidates"):
-        align_clouds(a, b, estimate, AlignOptions(starts=0))
-
-
-def test_with_up_the_starts_turn_about_each_clouds_up_and_the_estimator_gets_it(rng):
-    from itnet.upright import turns_about, unit_up
-
-    calls: list[tuple] = []
-
-    def estimate(points, starts=None, iterations=None, subset=None, up=None):
-        calls.append((np.asarray(starts), up))
-        return [PoseEstimate(np.eye(4), iterations or 10, 0.1, "budget")] * len(starts)
+    def estimate(points, up=None):
+        calls.append(up)
+        return PoseEstimate(np.eye(4), 10, 0.1, "max_iterations")
 
     a, b = rng.normal(size=(300, 3)), rng.normal(size=(50, 3))
     align_clouds(a, b, estimate, AlignOptions(symmetry="none"), up_a=[0, 0, 3], up_b=None)
-    (turns_a, up_a), (turns_b, up_b) = calls
-    assert np.allclose(up_a, [0, 0, 1]) and up_b is None
-    assert np.allclose(turns_a, turns_about(unit_up([0, 0, 1]), 4))  # untilted, about up
-    assert np.allclose(turns_b, starting_turns(4))
+    assert np.allclose(calls[0], [0, 0, 1]) and calls[1] is None
     with pytest.raises(ValueError, match="zero vector"):
         align_clouds(a, b, estimate, AlignOptions(), up_a=[0, 0, 0])
+    with pytest.raises(ValueError, match="candidates"):
+        align_clouds(a, b, estimate, AlignOptions(candidates=0))

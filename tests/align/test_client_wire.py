@@ -14,10 +14,12 @@ from itnet.clients.wire import (
     binary_body,
     json_request,
     parse_message,
+    pose_request,
     reply_json,
     request_fields,
     websocket_url,
 )
+from itnet.pose.request import PoseRequest
 
 POSE = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]]
 POSE_FIELDS = {"T_canonical_from_input": POSE, "quat_wxyz": [0.7071, 0, 0, 0.7071],
@@ -34,10 +36,16 @@ def test_binary_body_is_little_endian_float32_rows():
 
 
 def test_request_fields_and_json_body():
-    assert request_fields(50, None, "chair") == {"budget_ms": 50, "model": "chair"}
-    body = json_request([[1, 2, 3]], request_fields(20, 7, "tiny"))
-    assert body == {"points": [[1.0, 2.0, 3.0]], "budget_ms": 20, "model": "tiny",
+    assert request_fields(PoseRequest(model="chair")) == {"budget_ms": 50.0, "model": "chair"}
+    sent = pose_request(PoseRequest(budget_ms=20), {"max_iterations": 7, "model": "tiny"})
+    body = json_request([[1, 2, 3]], request_fields(sent))
+    assert body == {"points": [[1.0, 2.0, 3.0]], "budget_ms": 20.0, "model": "tiny",
                     "max_iterations": 7}  # fmt: skip
+    up = pose_request(None, {"up": np.array([0, -1, 0])})
+    assert up.up == [0.0, -1.0, 0.0] and up.to_query() == {"up": "0,-1,0"}
+    assert PoseRequest.from_query(up.to_query()) == up
+    with pytest.raises(TypeError, match="'budget'"):
+        pose_request(None, {"budget": 20})
 
 
 @pytest.mark.parametrize(

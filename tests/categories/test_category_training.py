@@ -53,7 +53,7 @@ def test_one_network_for_two_categories_with_their_symmetries(two_categories, tm
         app, ["export", str(run / "last.pt"), "--out", str(out), "--category", "bench"]
     )
     assert result.exit_code == 0, result.output
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     card = load_model(out, warm_up=False).card
     assert (card.name, card.category, card.symmetry) == ("bench", "bench", "none")
@@ -83,7 +83,7 @@ def test_a_users_category_trains_with_the_symmetry_it_is_given(two_categories, t
     assert start["symmetry"] == {"bench": "yaw180"}
     result = runner.invoke(app, ["export", str(run / "last.pt"), "--out", str(tmp_path / "b.onnx")])
     assert result.exit_code == 0, result.output
-    from itnet.service.runtime import load_model
+    from itnet.pose.runtime import load_model
 
     card = load_model(tmp_path / "b.onnx", warm_up=False).card
     assert (card.name, card.symmetry) == ("bench", "yaw180")

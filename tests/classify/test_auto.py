@@ -186,7 +186,7 @@ def test_cli_classify_without_a_classifier_or_with_a_bad_file(
 
 def test_handed_in_pose_models_still_get_the_classifier(chair_dir: Path, box_cloud) -> None:
     """``itnet serve`` loads the pose models before binding and hands them to the app."""
-    from itnet.service.runtime import load_models
+    from itnet.pose.runtime import load_models
 
     models = load_models(chair_dir, warm_up=False)
     settings = Settings(model_dir=chair_dir, warm_up=False)
@@ -216,9 +216,9 @@ class _LooksRecorder:
 
 def test_several_looks_are_turned_subsets_averaged_in_the_log_domain(box_cloud) -> None:
     from itnet.geometry import viewing_axis_turns
+    from itnet.pose.errors import BadCloudError
+    from itnet.pose.recognition import classify
     from itnet.preprocess import estimate_normalization
-    from itnet.service.engine import BadCloudError
-    from itnet.service.recognition import classify
 
     stand_in = _LooksRecorder()
     one = classify(stand_in, box_cloud)
@@ -243,8 +243,8 @@ def test_several_looks_are_turned_subsets_averaged_in_the_log_domain(box_cloud) 
 def test_an_unsure_look_is_followed_by_the_rest_of_the_looks(box_cloud) -> None:
     """Unsure after one look (a threshold over what the stand-in gives): 3 more looks, turned,
     and the answer is the same as asking for 4; sure, or asked never, or out of time: one."""
-    from itnet.service.engine import BadCloudError
-    from itnet.service.recognition import classify
+    from itnet.pose.errors import BadCloudError
+    from itnet.pose.recognition import classify
 
     stand_in = _LooksRecorder()
     sure = classify(stand_in, box_cloud)  # threshold 0.5 of 2 classes: always sure
@@ -275,8 +275,8 @@ def test_a_small_cloud_reaches_the_classifier_shuffled(box_cloud) -> None:
     """A cloud of fewer points than the card's reaches the graph whole but not in its rows'
     order: a canonicaliser that sees the first points (card.canonical_points) gets a random
     sample of the object, not one end of a depth image."""
+    from itnet.pose.recognition import classify
     from itnet.preprocess import estimate_normalization
-    from itnet.service.recognition import classify
 
     stand_in = _LooksRecorder()
     scan = box_cloud[np.argsort(box_cloud[:, 0])][:50]  # 50 < 64 points, in order along x

@@ -17,7 +17,7 @@ from cls_helpers import CLASSES, randomised, tiny_classifier
 from itnet.export.cascade import cascade_graph, cascade_probabilities
 from itnet.export.classifier_export import export_classifier, fused_probabilities
 from itnet.model_card import ClassifierCard
-from itnet.service.runtime import LoadedClassifier, load_any
+from itnet.pose.runtime import LoadedClassifier, load_any
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from modelnet_tree import write_modelnet_tree
 
 from benchmarks.classifier_ensemble import main
 from itnet.model.classify.train import ClassifyConfig, train
-from itnet.service.recognition import mean_log_probability as fuse
+from itnet.pose.recognition import mean_log_probability as fuse
 
 
 def test_fusion_is_the_geometric_mean_of_the_members() -> None:

@@ -17,7 +17,7 @@ from itnet.export.classifier_export import (
     same_transformer,
 )
 from itnet.model_card import ClassifierCard
-from itnet.service.runtime import (
+from itnet.pose.runtime import (
     LoadedClassifier,
     LoadedModel,
     ModelLoadError,
@@ -156,9 +156,9 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
     from itnet.model.network import apply_pose
+    from itnet.pose.runtime import LoadedClassifier, default_model_dir, load_any
     from itnet.preprocess import cap_points, estimate_normalization
     from itnet.service.api.routes.examples import examples_dir
-    from itnet.service.runtime import LoadedClassifier, default_model_dir, load_any
 
     shipped = default_model_dir()
     net, state = load_classifier(shipped / "classifier_local.pt")

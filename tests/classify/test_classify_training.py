@@ -61,7 +61,7 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     from itnet.cli import app
     from itnet.export.classifier_export import score_graph
     from itnet.model.classify.train import load_classifier
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10)
     result = train(config)
@@ -108,7 +108,7 @@ def test_a_graph_served_at_fewer_points_is_measured_at_them(three_classes: Path,
     from itnet.cli import app
     from itnet.export.classifier_export import score_graph
     from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=10, eval_every=10)
     train(config)
@@ -141,7 +141,7 @@ def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
     from typer.testing import CliRunner
 
     from itnet.cli import app
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10)
     train(config)
@@ -180,7 +180,7 @@ def test_a_run_with_fewer_canonical_points_trains_and_exports_them(
     from itnet.model.classify.data import fixed_views
     from itnet.model.classify.network import Classifier
     from itnet.model.classify.train import load_classifier, run_splits, run_views
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=20, eval_every=10, canonical_points=16)
     result = train(config)
@@ -411,7 +411,7 @@ def test_an_upright_run_exports_an_upright_card_measured_fused_with_the_other(
 
     from itnet.cli import app
     from itnet.export.classifier_export import score_graph
-    from itnet.service.runtime import load_all, load_any
+    from itnet.pose.runtime import load_all, load_any
 
     free = tiny_run(three_classes, tmp_path / "free", steps=10, eval_every=10)
     train(free)
@@ -492,7 +492,7 @@ def test_a_run_can_hold_the_test_split_back_until_it_is_exported(
     from typer.testing import CliRunner
 
     from itnet.cli import app
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     config = tiny_run(three_classes, tmp_path, steps=10, eval_every=10, hold_test=True)
     result = train(config)

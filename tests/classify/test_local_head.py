@@ -73,7 +73,7 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
     from typer.testing import CliRunner
 
     from itnet.cli import app
-    from itnet.service.runtime import LoadedClassifier, load_any
+    from itnet.pose.runtime import LoadedClassifier, load_any
 
     source = tiny_run(three_classes, tmp_path / "source", steps=20, eval_every=20)
     train(source)

@@ -17,11 +17,11 @@ from typer.testing import CliRunner
 
 from itnet.cli import app as cli
 from itnet.model_card import SizePrior
+from itnet.pose.errors import BadCloudError
+from itnet.pose.recognition import classify
+from itnet.pose.runtime import load_any
 from itnet.preprocess import estimate_normalization
 from itnet.service.app import create_app
-from itnet.service.engine import BadCloudError
-from itnet.service.recognition import classify
-from itnet.service.runtime import load_any
 from itnet.service.settings import Settings
 from itnet.size_prior import fit_size_prior, metres_per_unit, size_log_likelihood, with_size
 

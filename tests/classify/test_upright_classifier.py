@@ -15,9 +15,9 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from itnet.cli import app
+from itnet.pose.recognition import classify, classify_together, turned_looks
+from itnet.pose.runtime import ModelLoadError, load_all
 from itnet.service.app import create_app
-from itnet.service.recognition import classify, classify_together, turned_looks
-from itnet.service.runtime import ModelLoadError, load_all
 from itnet.service.settings import Settings
 from itnet.upright import UP, unit_up
 
@@ -65,7 +65,7 @@ def test_without_an_upright_classifier_the_up_does_not_enter(chair_dir: Path, bo
 
 
 def test_a_bad_up_for_the_upright_classifier_is_a_bad_cloud(both_dir: Path, box_cloud) -> None:
-    from itnet.service.engine import BadCloudError
+    from itnet.pose.errors import BadCloudError
 
     _, classifier = load_all(both_dir, warm_up=False)
     with pytest.raises(BadCloudError, match="zero vector"):

@@ -2,7 +2,7 @@
 
 import pytest
 
-from itnet.service.runtime import load_model
+from itnet.pose.runtime import load_model
 
 
 @pytest.fixture(scope="module")

@@ -7,12 +7,13 @@ import pytest
 
 from itnet.fusion import fuse_poses
 from itnet.geometry import rotation_angle_deg, viewing_axis_turns
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
+from itnet.pose.errors import BadCloudError
+from itnet.pose.runtime import load_model
+from tests.pose_runs import run_with
 
 
 def test_every_estimate_is_the_fused_pose_of_the_runs(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4)
     estimates = list(run)
     assert [e.iteration for e in estimates] == [1, 2, 3] and run.stopped_by == "max_iterations"
     assert run.points.shape[0] == 4  # four runs, each on its own subset
@@ -23,7 +24,7 @@ def test_every_estimate_is_the_fused_pose_of_the_runs(model, cloud):
 
 
 def test_ensemble_runs_start_turned_about_the_viewing_axis(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=1, ensemble=4)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=1, ensemble=4)
     starts = run.pose_normalized[:, :3, :3]  # before the first step
     assert np.allclose(starts, viewing_axis_turns(4), atol=1e-6)
     assert np.allclose(starts[0], np.eye(3)) and np.allclose(starts[:, :, 2], [0, 0, 1], atol=1e-6)
@@ -31,14 +32,14 @@ def test_ensemble_runs_start_turned_about_the_viewing_axis(model, cloud):
 
 
 def test_ensemble_of_one_is_the_plain_run(model, cloud):
-    plain = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3).run_to_end()
-    one = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=1).run_to_end()
+    plain = run_with(model, cloud, budget_ms=5000, max_iterations=3).run_to_end()
+    one = run_with(model, cloud, budget_ms=5000, max_iterations=3, ensemble=1).run_to_end()
     assert np.array_equal(plain.pose, one.pose)
 
 
 def test_small_clouds_still_get_different_subsets(model, rng):
     small = rng.normal(size=(100, 3))
-    run = AnytimeRun(model, small, budget_ms=5000, max_iterations=1, ensemble=3)
+    run = run_with(model, small, budget_ms=5000, max_iterations=1, ensemble=3)
     assert run.points.shape == (3, 80, 3)
     assert not np.allclose(run.points[0], run.points[2])
 
@@ -53,11 +54,11 @@ def test_small_clouds_still_get_different_subsets(model, rng):
 )
 def test_bad_ensemble_requests_are_refused(model, cloud, kwargs, message):
     with pytest.raises(BadCloudError, match=message):
-        AnytimeRun(model, cloud, **kwargs)
+        run_with(model, cloud, **kwargs)
 
 
 def test_ensemble_stops_within_its_budget(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=30, max_iterations=200, ensemble=8)
+    run = run_with(model, cloud, budget_ms=30, max_iterations=200, ensemble=8)
     run.run_to_end()
     assert run.stopped_by in ("budget", "converged") and run.elapsed_ms() < 30 + 10
 
@@ -115,9 +116,9 @@ def test_a_card_recommending_an_ensemble_runs_it_unless_the_request_says(fused_m
     from itnet.service.settings import Settings
 
     fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
-    assert AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2).ensemble == 4
-    assert AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2, ensemble=1).ensemble == 1
-    own = AnytimeRun(fused, cloud, budget_ms=5000, max_iterations=2, starts=np.eye(3)[None])
+    assert run_with(fused, cloud, budget_ms=5000, max_iterations=2).ensemble == 4
+    assert run_with(fused, cloud, budget_ms=5000, max_iterations=2, ensemble=1).ensemble == 1
+    own = run_with(fused, cloud, budget_ms=5000, max_iterations=2, starts=np.eye(3)[None])
     assert own.ensemble == 1 and own.points.shape[0] == 1
 
     with TestClient(create_app(Settings(model_dir=fused_model_dir))) as client:
@@ -162,7 +163,7 @@ def test_a_card_recommending_an_ensemble_runs_it_unless_the_request_says(fused_m
 def test_the_default_ensemble_is_what_the_budget_holds(
     recommended, step_ms, iterations, available_ms, runs
 ):
-    from itnet.service.engine import fitting_ensemble
+    from itnet.pose.plan import fitting_ensemble
 
     assert fitting_ensemble(recommended, step_ms, iterations, available_ms) == runs
 
@@ -176,13 +177,13 @@ def test_a_tight_budget_gets_fewer_default_runs_and_an_explicit_ensemble_is_kept
     fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
     fused.step_ms = 1.0
     fused._recent.clear()
-    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
-    assert AnytimeRun(fused, cloud, budget_ms=25, max_iterations=10).ensemble == 2
-    assert AnytimeRun(fused, cloud, budget_ms=9, max_iterations=10).ensemble == 1
-    assert AnytimeRun(fused, cloud, budget_ms=25, max_iterations=5).ensemble == 4  # 20 ms
-    assert AnytimeRun(fused, cloud, budget_ms=9, max_iterations=10, ensemble=4).ensemble == 4
+    assert run_with(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
+    assert run_with(fused, cloud, budget_ms=25, max_iterations=10).ensemble == 2
+    assert run_with(fused, cloud, budget_ms=9, max_iterations=10).ensemble == 1
+    assert run_with(fused, cloud, budget_ms=25, max_iterations=5).ensemble == 4  # 20 ms
+    assert run_with(fused, cloud, budget_ms=9, max_iterations=10, ensemble=4).ensemble == 4
     # the reply says how many ran
-    run = AnytimeRun(fused, cloud, budget_ms=25, max_iterations=10)
+    run = run_with(fused, cloud, budget_ms=25, max_iterations=10)
     assert run.run_to_end() is not None and run.result()["ensemble"] == 2
 
 
@@ -193,17 +194,17 @@ def test_the_default_ensemble_is_fitted_to_the_budget_as_shared(fused_model_dir,
     fused = load_model(fused_model_dir / "tiny4.onnx", warm_up=False)
     fused.step_ms = 1.0
     fused._recent.clear()
-    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
-    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=2).ensemble == 4
-    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=4).ensemble == 2
-    assert AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=12).ensemble == 1
-    explicit = AnytimeRun(fused, cloud, budget_ms=100, max_iterations=10, sharing=12, ensemble=4)
+    assert run_with(fused, cloud, budget_ms=100, max_iterations=10).ensemble == 4
+    assert run_with(fused, cloud, budget_ms=100, max_iterations=10, sharing=2).ensemble == 4
+    assert run_with(fused, cloud, budget_ms=100, max_iterations=10, sharing=4).ensemble == 2
+    assert run_with(fused, cloud, budget_ms=100, max_iterations=10, sharing=12).ensemble == 1
+    explicit = run_with(fused, cloud, budget_ms=100, max_iterations=10, sharing=12, ensemble=4)
     assert explicit.ensemble == 4  # a request that names its runs gets them
 
 
 def test_the_service_fits_the_default_ensemble_to_the_estimates_in_flight(fused_model_dir, cloud):
+    from itnet.pose.request import PoseRequest
     from itnet.service.metrics import Metrics
-    from itnet.service.schemas import EstimateParams
     from itnet.service.settings import Settings
     from itnet.service.state import ServiceState
 
@@ -212,7 +213,7 @@ def test_the_service_fits_the_default_ensemble_to_the_estimates_in_flight(fused_
     model = state.models["tiny4"]
     model.step_ms, model.concurrent_steps = 1.0, 1
     model._recent.clear()
-    params = EstimateParams(model="tiny4", budget_ms=100, max_iterations=10)
+    params = PoseRequest(model="tiny4", budget_ms=100, max_iterations=10)
     assert state.start_run(cloud, params).ensemble == 4  # nothing else in flight
     state.gate.active = 12  # twelve estimates share the slot
     assert state.start_run(cloud, params).ensemble == 1

@@ -18,15 +18,9 @@ from itnet.cli import app
 from itnet.fusion import fuse_poses
 from itnet.geometry import random_rotation, rotation_error_deg
 from itnet.model.verifier import PoseRuns, VerifierConfig, cube_turns, hypothesis_batch
+from itnet.pose.runtime import LoadedVerifier, ModelLoadError, load_all, load_any, load_model
 from itnet.preprocess import pose_from_normalized
-from itnet.service.engine import AnytimeRun
-from itnet.service.runtime import (
-    LoadedVerifier,
-    ModelLoadError,
-    load_all,
-    load_any,
-    load_model,
-)
+from tests.pose_runs import run_with
 
 runner = CliRunner()
 
@@ -150,7 +144,7 @@ def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeyp
 
     monkeypatch.setattr("itnet.service.engine.basin_drift", no_probes)
     cloud = np.random.default_rng(2).normal(size=(600, 3)) * [1.0, 0.45, 0.35]
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
     assert run.verify  # the card's verify_fused
     run.run_to_end()
     assert run.result()["verified"] is True
@@ -158,7 +152,7 @@ def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeyp
     anchored = fuse_poses(run.pose_normalized, "yaw180", anchor=likeliest_run(scores))
     expected = pose_from_normalized(anchored, run.normalization)
     assert np.allclose(run.result()["T_canonical_from_input"], expected, atol=1e-5)
-    tight = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
+    tight = run_with(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
     model.verifier.score_ms = 1e9  # a call the budget cannot hold: the fusion stays as it is
     tight.run_to_end()
     assert tight.result()["verified"] is False
@@ -206,15 +200,15 @@ def test_a_doubted_single_run_is_rechecked_and_the_likeliest_anchors(tub):
     cloud = np.random.default_rng(4).normal(size=(500, 3)) * [1.0, 0.45, 0.35]
     kw = {"budget_ms": 5000, "max_iterations": 3, "seed": 7}
     tub.verifier = _FakeVerifier(-1.0, [-3.0, 2.0, -3.0, -3.0])
-    run = AnytimeRun(tub, cloud, recheck=True, **kw)
+    run = run_with(tub, cloud, recheck=True, **kw)
     run.run_to_end()
     reply = run.result()
     assert reply["rechecked"] is True and reply["iterations"] == 3
     # the recheck's runs are an ensemble's: the same subsets (seed + 1), starts and steps
     tub.verifier = None
-    runs = AnytimeRun(tub, cloud, ensemble=4, **{**kw, "seed": 8})
+    runs = run_with(tub, cloud, ensemble=4, **{**kw, "seed": 8})
     runs.run_to_end()
-    plain = AnytimeRun(tub, cloud, **kw)
+    plain = run_with(tub, cloud, **kw)
     plain.run_to_end()
     everyone = np.concatenate([plain.pose_normalized[:1], runs.pose_normalized])
     expected = pose_from_normalized(fuse_poses(everyone, "yaw180", anchor=2), plain.normalization)
@@ -232,10 +226,10 @@ def test_a_doubted_single_run_is_rechecked_and_the_likeliest_anchors(tub):
 def test_a_trusted_run_or_a_tight_budget_keeps_the_single_run(tub, fake, rechecked):
     cloud = np.random.default_rng(4).normal(size=(500, 3)) * [1.0, 0.45, 0.35]
     kw = {"budget_ms": 5000, "max_iterations": 3, "seed": 7}
-    plain = AnytimeRun(tub, cloud, **kw)
+    plain = run_with(tub, cloud, **kw)
     plain.run_to_end()
     tub.verifier = fake
-    run = AnytimeRun(tub, cloud, recheck=True, **kw)
+    run = run_with(tub, cloud, recheck=True, **kw)
     run.run_to_end()
     assert run.rechecked is rechecked and ("rechecked" in run.result()) == (rechecked is not None)
     assert np.allclose(run.result()["T_canonical_from_input"],
@@ -243,22 +237,22 @@ def test_a_trusted_run_or_a_tight_budget_keeps_the_single_run(tub, fake, recheck
 
 
 def test_recheck_is_refused_without_a_verifier_or_beside_an_ensemble_and_follows_the_card(tub):
-    from itnet.service.engine import BadCloudError
+    from itnet.pose.errors import BadCloudError
 
     cloud = np.random.default_rng(4).normal(size=(500, 3))
     tub.verifier = None
     with pytest.raises(BadCloudError, match="no verifier"):
-        AnytimeRun(tub, cloud, recheck=True)
+        run_with(tub, cloud, recheck=True)
     tub.verifier = _FakeVerifier(-1.0, [0.0] * 4)
     with pytest.raises(BadCloudError, match="single run"):
-        AnytimeRun(tub, cloud, recheck=True, ensemble=2)
+        run_with(tub, cloud, recheck=True, ensemble=2)
     with pytest.raises(BadCloudError, match="single run"):
-        AnytimeRun(tub, cloud, recheck=True, up=[0.0, 1.0, 0.0])
-    assert not AnytimeRun(tub, cloud).recheck  # the card's recheck_runs is 0
+        run_with(tub, cloud, recheck=True, up=[0.0, 1.0, 0.0])
+    assert not run_with(tub, cloud).recheck  # the card's recheck_runs is 0
     tub.card = tub.card.model_copy(update={"recheck_runs": 2})
-    by_card = AnytimeRun(tub, cloud)
+    by_card = run_with(tub, cloud)
     assert by_card.recheck and by_card.recheck_runs == 2
-    assert not AnytimeRun(tub, cloud, ensemble=2).recheck  # fused runs: verify's job
+    assert not run_with(tub, cloud, ensemble=2).recheck  # fused runs: verify's job
 
 
 def test_http_and_the_card_command_recheck(trained, tmp_path):

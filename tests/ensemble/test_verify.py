@@ -8,9 +8,11 @@ import pytest
 
 from itnet.basin import PROBE_DEG, PROBE_STEPS, basin_drift, firm_anchor, probe_turns
 from itnet.fusion import fuse_poses, medoid_index
+from itnet.pose.errors import BadCloudError
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.runtime import load_model
 from itnet.preprocess import pose_from_normalized
-from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
+from tests.pose_runs import run_with
 
 
 def _anchored(model, run: AnytimeRun) -> np.ndarray:
@@ -28,7 +30,7 @@ def _anchored(model, run: AnytimeRun) -> np.ndarray:
 
 
 def test_a_verified_run_answers_the_fusion_anchored_by_its_firmest_run(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
     estimates = list(run)
     assert [e.iteration for e in estimates] == [1, 2, 3]  # the stream is the fused pose's
     assert np.allclose(estimates[-1].pose, fuse_poses(run.poses(), model.card.symmetry), atol=1e-4)
@@ -37,7 +39,7 @@ def test_a_verified_run_answers_the_fusion_anchored_by_its_firmest_run(model, cl
 
 
 def test_a_budget_that_cannot_hold_the_probes_keeps_the_plain_fusion(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
     fused = [next(run) for _ in range(3)][-1]
     run.budget_ms = run.elapsed_ms() + 0.01  # no time left for 5 steps of 16 runs
     assert run.run_to_end() is fused or np.allclose(run.last.pose, fused.pose)
@@ -45,7 +47,7 @@ def test_a_budget_that_cannot_hold_the_probes_keeps_the_plain_fusion(model, clou
 
 
 def test_a_cancelled_run_is_not_verified(model, cloud):
-    run = AnytimeRun(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
+    run = run_with(model, cloud, budget_ms=5000, max_iterations=3, ensemble=4, verify=True)
     next(run)
     run.cancel()
     run.run_to_end()
@@ -62,7 +64,7 @@ def test_a_cancelled_run_is_not_verified(model, cloud):
 )
 def test_verify_without_fused_runs_or_with_up_is_refused(model, cloud, kwargs, message):
     with pytest.raises(BadCloudError, match=message):
-        AnytimeRun(model, cloud, budget_ms=5000, **kwargs)
+        run_with(model, cloud, budget_ms=5000, **kwargs)
 
 
 @pytest.fixture(scope="module")
@@ -84,12 +86,12 @@ def test_the_cards_verify_fused_is_the_default_for_fused_runs_only(verifying_dir
     verifying = load_model(verifying_dir / "tinyv.onnx", warm_up=False)
     plain = load_model(verifying_dir / "tiny.onnx", warm_up=False)
     kw = {"budget_ms": 5000, "max_iterations": 2}
-    assert AnytimeRun(verifying, cloud, ensemble=4, **kw).verify
-    assert not AnytimeRun(verifying, cloud, ensemble=4, verify=False, **kw).verify
-    assert not AnytimeRun(verifying, cloud, **kw).verify  # one run: nothing to weigh
-    assert not AnytimeRun(verifying, cloud, ensemble=4, up=[0.0, 1.0, 0.0], **kw).verify
-    assert not AnytimeRun(plain, cloud, ensemble=4, **kw).verify
-    single = AnytimeRun(verifying, cloud, **kw)
+    assert run_with(verifying, cloud, ensemble=4, **kw).verify
+    assert not run_with(verifying, cloud, ensemble=4, verify=False, **kw).verify
+    assert not run_with(verifying, cloud, **kw).verify  # one run: nothing to weigh
+    assert not run_with(verifying, cloud, ensemble=4, up=[0.0, 1.0, 0.0], **kw).verify
+    assert not run_with(plain, cloud, ensemble=4, **kw).verify
+    single = run_with(verifying, cloud, **kw)
     single.run_to_end()
     assert "verified" not in single.result()
 

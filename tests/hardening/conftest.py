@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 from hardening_helpers import LIMITS, SERVER, LiveServer, cloud, live_server
 
+from itnet.pose.runtime import LoadedModel, load_models
 from itnet.service.gc_tuning import freeze_startup_objects
-from itnet.service.runtime import LoadedModel, load_models
 from itnet.service.settings import Settings
 
 

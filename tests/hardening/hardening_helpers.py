@@ -19,9 +19,9 @@ from fastapi import FastAPI
 from numpy.typing import NDArray
 
 from itnet.model_card import METADATA_KEY
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
 from itnet.service.guards.protocol import GuardedHttpToolsProtocol
-from itnet.service.runtime import LoadedModel
 from itnet.service.server import uvicorn_options
 from itnet.service.settings import LimitSettings, ServerSettings, Settings
 from itnet.service.state import ServiceState

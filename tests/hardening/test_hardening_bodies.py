@@ -16,9 +16,9 @@ import pytest
 from fastapi.testclient import TestClient
 from hardening_helpers import LIMITS, LiveServer, masked_frame_head, ws_handshake
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
 from itnet.service.errors import ServiceError
-from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 
 

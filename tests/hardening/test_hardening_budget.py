@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from hardening_helpers import live_server
 
-from itnet.service.engine import AnytimeRun
-from itnet.service.runtime import LoadedModel, load_model
+from itnet.pose.runtime import LoadedModel, load_model
 from itnet.service.settings import Settings
+from tests.pose_runs import run_with
 
 # What a run may exceed its budget by: scheduling noise on a loaded 2-core machine, the final
 # estimate's bookkeeping, and a step somewhat slower than its prediction.
@@ -28,7 +28,7 @@ MARGIN_MS = 15.0
 
 def test_the_budget_counts_from_arrival(slow: LoadedModel, points: list) -> None:
     """A request that arrived 40 ms ago with 50 ms to spend cannot fit a 20 ms step."""
-    run = AnytimeRun(slow, points, budget_ms=50, max_iterations=10,
+    run = run_with(slow, points, budget_ms=50, max_iterations=10,
                      started=time.perf_counter() - 0.040)  # fmt: skip
     assert run.run_to_end() is run.last
     assert (run.iteration, run.stopped_by) == (0, "budget")
@@ -50,7 +50,7 @@ def test_a_run_waits_for_a_step_slot_only_as_long_as_its_budget_allows(
     threading.Thread(target=hog).start()
     assert holding.wait(5)
     try:
-        run = AnytimeRun(model, points, budget_ms=100, max_iterations=10)
+        run = run_with(model, points, budget_ms=100, max_iterations=10)
         run.run_to_end()
     finally:
         release.set()
@@ -73,8 +73,8 @@ def overruns(model: LoadedModel, points: list, runs: int, budget_ms: float) -> l
     """``runs`` runs at once in threads; each one's elapsed time minus its budget, in ms."""
 
     def one(_: int) -> float:
-        run = AnytimeRun(model, points, budget_ms=budget_ms, max_iterations=100,
-                         converge_rotation_deg=0, converge_translation=0)  # fmt: skip
+        run = run_with(model, points, budget_ms=budget_ms, max_iterations=100,
+                         converge=(0, 0))  # fmt: skip
         run.run_to_end()
         return run.elapsed_ms() - budget_ms
 

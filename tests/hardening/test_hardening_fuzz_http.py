@@ -25,8 +25,8 @@ from schemathesis.specs.openapi.checks import (
 )
 from starlette.websockets import WebSocketDisconnect
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
-from itnet.service.runtime import LoadedModel
 from itnet.service.settings import Settings
 
 # Not positive_data_acceptance: the schema cannot say "at least 32 distinct finite points".

@@ -24,7 +24,7 @@ from hardening_helpers import (
     ws_handshake,
 )
 
-from itnet.service.runtime import LoadedModel
+from itnet.pose.runtime import LoadedModel
 from itnet.service.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]

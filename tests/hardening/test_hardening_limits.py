@@ -20,13 +20,13 @@ import uvicorn
 from fastapi import FastAPI
 from hardening_helpers import SERVER, LiveServer, wait_for
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.api.routes.stream import _stream_run
 from itnet.service.app import create_app
-from itnet.service.engine import AnytimeRun
 from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
-from itnet.service.runtime import LoadedModel
 from itnet.service.server import uvicorn_options
 from itnet.service.settings import ServerSettings, Settings
+from tests.pose_runs import run_with
 
 
 def raw(server: LiveServer, data: bytes = b"") -> socket.socket:
@@ -191,7 +191,7 @@ class StalledPeer:
 
 
 def test_a_stream_client_that_stops_reading_is_dropped(slow: LoadedModel, points: list) -> None:
-    run = AnytimeRun(slow, points, budget_ms=4000, max_iterations=100)
+    run = run_with(slow, points, budget_ms=4000, max_iterations=100)
     peer = StalledPeer()
     start = time.perf_counter()
     outcome = anyio.run(_stream_run, peer, run, 0.2)

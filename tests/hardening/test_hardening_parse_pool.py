@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from hardening_helpers import LIMITS, LiveServer, cloud, live_server, wait_for
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.decode import Decoder, decode_json
 from itnet.service.errors import ServiceError
 from itnet.service.guards.parse_pool import ParsePool
-from itnet.service.runtime import LoadedModel
 from itnet.service.schemas import EstimateRequest, StreamRequest
 from itnet.service.settings import Settings
 

@@ -11,8 +11,8 @@ import pytest
 from fastapi.testclient import TestClient
 from numpy.typing import NDArray
 
+from itnet.pose.runtime import LoadedModel, load_models
 from itnet.service.app import create_app
-from itnet.service.runtime import LoadedModel, load_models
 from itnet.service.settings import LimitSettings, Settings
 
 # Small limits so that every limit can be crossed cheaply in a test.

@@ -15,8 +15,8 @@ from prometheus_client.parser import text_string_to_metric_families
 from starlette.testclient import WebSocketTestSession
 from starlette.websockets import WebSocketDisconnect
 
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
-from itnet.service.runtime import LoadedModel
 from itnet.service.settings import LimitSettings, Settings
 
 CloudMaker = Callable[..., np.ndarray]

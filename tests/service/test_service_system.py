@@ -12,10 +12,10 @@ import pytest
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
 from itnet.service.metrics import Metrics
-from itnet.service.runtime import LoadedModel
-from itnet.service.schemas import EstimateParams
 from itnet.service.server import settings_to_env
 from itnet.service.settings import LimitSettings, Settings
 from itnet.service.state import ServiceState
@@ -94,8 +94,8 @@ def test_openapi_documents_both_bodies_with_examples(client: TestClient) -> None
     assert set(content) == {"application/json", "application/octet-stream"}
     assert len(content["application/json"]["example"]["points"]) >= 32
     # a binary body's query takes every field of the JSON body but the points
-    assert [p["name"] for p in post["parameters"]] == list(EstimateParams.model_fields)
-    assert {"ensemble", "verify", "mirror", "centre", "units"} <= set(EstimateParams.model_fields)
+    assert [p["name"] for p in post["parameters"]] == list(PoseRequest.model_fields)
+    assert {"ensemble", "verify", "mirror", "centre", "units"} <= set(PoseRequest.model_fields)
     query = {p["name"]: p for p in post["parameters"]}
     assert query["up"]["schema"]["type"] == "string"  # 'x,y,z'
     assert query["ensemble"]["schema"]["maximum"] == 16
@@ -158,7 +158,7 @@ def test_default_model_rule(
 
 @pytest.fixture(scope="module")
 def tiny_models(settings: Settings) -> Callable[[list[str]], dict[str, LoadedModel]]:
-    from itnet.service.runtime import load_models
+    from itnet.pose.runtime import load_models
 
     (model,) = load_models(settings.model_dir, warm_up=False).values()
     return lambda names: dict.fromkeys(names, model)

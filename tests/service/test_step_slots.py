@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from itnet.service.step_slots import StepSlots
+from itnet.pose.step_slots import StepSlots
 
 
 def _wait_until(condition, timeout_s: float = 5.0) -> None:  # type: ignore[no-untyped-def]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.service.runtime import load_model, warm_batches
+from itnet.pose.runtime import load_model, warm_batches
 
 
 class RecordingSession:

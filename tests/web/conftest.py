@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from benchmarks.harness import Server, serve
-from itnet.service.runtime import default_model_dir
+from itnet.pose.runtime import default_model_dir
 from scripts.screenshot_page import find_chromium, open_browser
 
 

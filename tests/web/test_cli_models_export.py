@@ -11,8 +11,8 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from itnet.cli import app
+from itnet.pose.runtime import load_model
 from itnet.service.app import create_app
-from itnet.service.runtime import load_model
 from itnet.service.settings import Settings
 
 runner = CliRunner()

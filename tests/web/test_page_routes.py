@@ -90,7 +90,7 @@ def test_a_bad_file_gets_a_clear_4xx(client, filename, body, status, says):
 def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_model_dir):
     from itnet.alignment.estimators import in_process_estimator
     from itnet.alignment.pipeline import AlignOptions, align_clouds
-    from itnet.service.runtime import load_models
+    from itnet.pose.runtime import load_models
 
     a, b = read_cloud(EXAMPLES / "chair_a.ply"), read_cloud(EXAMPLES / "chair_b.ply")
     body = {"points_a": a.tolist(), "points_b": b.tolist(), "refine": False, "budget_ms": 2000}

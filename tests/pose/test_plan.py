@@ -1,0 +1,151 @@
+"""The pose pipeline's plan: one request, planned once, the same way for every caller."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import ClassVar
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from itnet.model_card import ModelCard
+from itnet.pose import stages
+from itnet.pose.catalog import Catalog
+from itnet.pose.errors import BadCloudError, BudgetTooSmallError, OverloadedError
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.plan import fitting_ensemble, plan
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import load_model
+from itnet.pose.stages import STAGE_NAMES, Finish
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model_dir):
+    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return np.random.default_rng(5).normal(size=(400, 3)) * [0.3, 0.2, 0.1]
+
+
+def with_card(model, **fields):
+    """The model under a card changed by ``fields`` (same graph, same measured step time)."""
+    card = ModelCard.model_validate({**model.card.model_dump(), **fields})
+    other = replace(model, card=card)
+    other.idle_ms, other.baseline_ms = model.idle_ms, model.baseline_ms
+    return other
+
+
+def test_the_request_is_strict_about_types_and_reads_query_strings():
+    for bad in ('{"budget_ms": true}', '{"budget_ms": "50"}', '{"ensemble": 2.0}',
+                '{"mirror": 1}', '{"up": "0,1,0"}', '{"speed": 1}'):  # fmt: skip
+        with pytest.raises(ValidationError):
+            PoseRequest.model_validate_json(bad)
+    query = {"budget_ms": "20", "mirror": "false", "up": "0,-1,0", "ensemble": "4"}
+    request = PoseRequest.from_query(query)
+    assert request == PoseRequest(budget_ms=20, mirror=False, up=[0, -1, 0], ensemble=4)
+    assert PoseRequest.from_query(request.to_query()) == request
+    with pytest.raises(ValidationError):
+        PoseRequest.from_query({"up": "0,x,1"})
+
+
+def test_the_card_runs_are_kept_where_the_budget_holds_them_whatever_the_load(model):
+    card8 = with_card(model, recommended_ensemble=8)
+    idle = plan(card8, PoseRequest(budget_ms=10_000))
+    assert idle.runs == 8 and idle.fuse
+    card8.record_step_ms(1e4, weight=1.0)  # a burst of load: the running step time soars
+    assert plan(card8, PoseRequest(budget_ms=10_000)).runs == 8  # the plan does not follow it
+    tight = 8 * 10 * card8.idle_ms * 0.5  # half of what 8 runs' 10 steps take idle
+    assert plan(card8, PoseRequest(budget_ms=tight)).runs == 4
+    assert plan(card8, PoseRequest(budget_ms=10_000, ensemble=3)).runs == 3
+    assert fitting_ensemble(8, 1.0, 10, 45.0) == 4 and fitting_ensemble(8, 0.0, 10, 1.0) == 8
+
+
+def test_stages_are_on_by_the_card_and_refused_with_the_stage_reason(model):
+    assert plan(model, PoseRequest()).stages == ()  # the tiny card has no mirror, centre, ...
+    with pytest.raises(BadCloudError, match="declares no mirror symmetry"):
+        plan(model, PoseRequest(mirror=True))
+    with pytest.raises(BadCloudError, match="no centre correction"):
+        plan(model, PoseRequest(centre=True))
+    with pytest.raises(BadCloudError, match="needs ensemble > 1"):
+        plan(model, PoseRequest(verify=True, ensemble=1))
+    with pytest.raises(BadCloudError, match="no verifier loaded"):
+        plan(model, PoseRequest(recheck=True))
+    mirrored = with_card(model, mirror_planes=["x"], verify_fused=True, recommended_ensemble=4)
+    names = [s.name for s in plan(mirrored, PoseRequest(budget_ms=10_000)).stages]
+    assert names == ["verify"]  # fused runs: the mirror only where the card says mirror_fused
+    names = [s.name for s in plan(mirrored, PoseRequest(budget_ms=10_000, ensemble=1)).stages]
+    assert names == ["mirror"]
+    assert plan(mirrored, PoseRequest(ensemble=1, mirror=False)).stages == ()
+    assert STAGE_NAMES == ("recheck", "verify", "mirror", "centre")
+
+
+def test_a_stage_that_does_not_fit_the_budget_left_is_skipped_and_said(model, cloud):
+    mirrored = with_card(model, mirror_planes=["x", "z"])
+    mirrored.mirror_ms = 1e6  # a plane would take far more than any budget
+    run = AnytimeRun(plan(mirrored, PoseRequest(budget_ms=10_000, ensemble=1)), cloud)
+    last = run.run_to_end()
+    result = run.result()
+    assert result["skipped"] == ["mirror"] and result["mirror"] is False
+    assert np.allclose(result["T_canonical_from_input"], last.pose)
+    assert result["ensemble"] == 1 and result["iterations"] == model.card.recommended_iterations
+
+
+def test_a_new_stage_is_one_class_and_every_path_gets_it(model, cloud, monkeypatch):
+    """A finishing step added to STAGES runs for a pose and inside an alignment alike."""
+    from itnet.alignment.estimators import in_process_estimator
+    from itnet.alignment.pipeline import AlignOptions, align_clouds
+
+    class HalfTurn:
+        name: ClassVar[str] = "half_turn"
+
+        def default(self, model, request, runs):
+            return True
+
+        def refusal(self, model, request, runs):
+            return None
+
+        def predicted_ms(self, run):
+            return 0.0
+
+        def apply(self, run):
+            turn = np.diag([-1.0, 1.0, -1.0, 1.0])
+            return Finish(turn @ run.last.pose_normalized, {"half_turned": True})
+
+        def not_run(self, run):
+            return {"half_turned": False}
+
+    monkeypatch.setattr("itnet.pose.plan.STAGES", (*stages.STAGES, HalfTurn()))
+    catalog = Catalog({"tiny": model})
+    request = PoseRequest(budget_ms=10_000, model="tiny")
+    run = catalog.start(cloud, request)
+    run.run_to_end()
+    assert run.result()["half_turned"] is True
+    estimate = in_process_estimator(catalog, request)
+    result = align_clouds(cloud, cloud, estimate, AlignOptions(symmetry="none"))
+    assert result.pose_a.result["half_turned"] is True
+    assert np.allclose(result.pose_a.T_canonical_from_input, run.result()["T_canonical_from_input"])
+
+
+def test_no_pose_from_no_step(tiny_model_dir, model, cloud):
+    """Under one step: refused at plan time where the idle step says so (422), and a run whose
+    budget ran out before its first step is refused (503), never handed the start as a pose."""
+    with pytest.raises(BudgetTooSmallError, match="below one step"):
+        plan(model, PoseRequest(budget_ms=model.idle_ms / 10))
+    cold = load_model(tiny_model_dir / "tiny.onnx", threads=1, warm_up=False)
+    run = AnytimeRun(plan(cold, PoseRequest(budget_ms=1e-3)), cloud)
+    assert list(run) == [] and run.iteration == 0 and run.stopped_by == "budget"
+    with pytest.raises(OverloadedError, match="no step"):
+        run.check_served()
+
+
+def test_the_same_request_gives_the_same_pose_every_way(model, cloud):
+    catalog = Catalog({"tiny": model})
+    request = PoseRequest(budget_ms=10_000, model="tiny", ensemble=4)
+    first = catalog.pose(cloud, request)
+    again = catalog.start(cloud, request)
+    estimates = list(again)
+    assert again.result()["T_canonical_from_input"] == first["T_canonical_from_input"]
+    assert first["ensemble"] == 4 and len(estimates) == first["iterations"]
