@@ -151,7 +151,7 @@ def pose_request(request: PoseRequest | None, fields: dict[str, Any]) -> PoseReq
 def request_fields(request: PoseRequest) -> dict[str, Any]:
     """The JSON request's non-point fields (those not left to the service's defaults, and the
     budget)."""
-    return {"budget_ms": request.budget_ms, **request.model_dump(exclude_none=True)}
+    return {"budget_ms": request.budget_ms, **request.model_dump(exclude_defaults=True)}
 
 
 def json_request(points: ArrayLike, fields: dict[str, Any]) -> dict[str, Any]:

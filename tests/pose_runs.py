@@ -22,15 +22,16 @@ def run_with(
     reserve_ms: float = 0.0,
     limits: Limits = Limits(),
     converge: tuple[float, float] | None = None,
+    seed: int = 0,
     **fields: Any,
 ) -> AnytimeRun:
     """``AnytimeRun(plan(model, PoseRequest(**fields), limits), points, started, reserve_ms)``,
     with arrays allowed for ``up`` and ``viewpoint``; ``converge``: the plan's convergence
     tolerances instead of the pipeline's ((0, 0): never)."""
     for name in ("up", "viewpoint"):
-        if fields.get(name) is not None:
+        if fields.get(name) is not None and not isinstance(fields[name], str):
             fields[name] = [float(v) for v in np.asarray(fields[name]).ravel()]
-    planned = plan(model, PoseRequest(**fields), limits)
+    planned = plan(model, PoseRequest(**fields), limits, seed=seed)
     if converge is not None:
         planned = replace(planned, converge=converge)
     return AnytimeRun(planned, points, started, reserve_ms)

@@ -99,14 +99,14 @@ def test_the_engine_finishes_the_centre_by_the_card_and_says_so(centred_model) -
     assert np.allclose(moved, -np.array([0.05, -0.02, 0.1]) * on.normalization.scale, atol=1e-5)
 
 
-def test_no_correction_without_a_step_or_for_the_callers_own_starts(centred_model) -> None:  # type: ignore[no-untyped-def]
+def test_no_correction_without_a_step_or_when_asked_not_to(centred_model) -> None:  # type: ignore[no-untyped-def]
     cancelled = run_with(centred_model, cloud(), budget_ms=10_000)
     cancelled.cancel()
     cancelled.run_to_end()
     assert cancelled.result()["centre"] is False and cancelled.iteration == 0
-    starts = run_with(centred_model, cloud(), budget_ms=10_000, starts=np.eye(3)[None])
-    starts.run_to_end()
-    assert "centre" not in starts.result()
+    off = run_with(centred_model, cloud(), budget_ms=10_000, centre=False)
+    off.run_to_end()
+    assert "centre" not in off.result()
 
 
 def test_asking_for_a_correction_the_card_lacks_is_refused(tiny_model_dir: Path) -> None:
@@ -162,8 +162,10 @@ def test_a_viewpoint_moves_the_centre_along_the_sensors_ray(viewpoint_model) -> 
 
 
 def test_a_bad_viewpoint_is_refused(viewpoint_model) -> None:  # type: ignore[no-untyped-def]
-    for bad in ([0, 0], [0, np.nan, 1], "here"):
-        with pytest.raises(BadCloudError, match="viewpoint"):
+    with pytest.raises(BadCloudError, match="viewpoint"):  # the request's checks are pydantic's,
+        run_with(viewpoint_model, cloud(), budget_ms=50, viewpoint=[0, np.nan, 1])  # finite: here
+    for bad in ([0, 0], "here"):
+        with pytest.raises((BadCloudError, ValueError), match="viewpoint"):
             run_with(viewpoint_model, cloud(), budget_ms=50, viewpoint=bad)
 
 

@@ -107,6 +107,8 @@ def test_engine_refuses_bad_or_conflicting_up(model, rng) -> None:
     with pytest.raises(BadCloudError, match="zero"):
         run_with(model, cloud, up=[0, 0, 0])
     with pytest.raises(BadCloudError, match="three finite"):
+        run_with(model, cloud, up=[0, np.inf, 1])
+    with pytest.raises(ValueError, match="up"):
         run_with(model, cloud, up=[0, 1])
 
 
@@ -139,23 +141,16 @@ def test_tilted_ups_are_off_by_the_error_and_levelled_clouds_stand(rng) -> None:
     np.testing.assert_allclose(np.linalg.norm(flat, axis=1), np.linalg.norm(cloud, axis=1))
 
 
-def test_runs_from_turns_about_up_stand_up_as_requests_for_the_turned_cloud_do(model, rng) -> None:
-    """Alignment's starts with up: each turn of the cloud about its up, then stood up, is what a
-    single request with the turned cloud begins from; every run is held upright."""
+def test_fused_runs_with_up_start_turned_about_it_and_stay_upright(model, rng) -> None:
+    """Fused runs given up start stood up, yaw turns apart, and every run stays upright."""
     cloud = rng.normal(size=(400, 3)) * [0.3, 0.2, 0.1]
     up = unit_up([0.2, -0.9, 0.1])
-    turns = turns_about(up, 3)
-    run = run_with(model, cloud, budget_ms=10_000, max_iterations=3, starts=turns, up=up,
-                     points_per_step=400)  # fmt: skip
+    run = run_with(model, cloud, budget_ms=10_000, max_iterations=3, ensemble=3, up=up)
+    np.testing.assert_allclose(run.pose_normalized[:, :3, :3], upright_starts(up, 3), atol=1e-6)
     run.run_to_end()
     poses = run.poses()
     np.testing.assert_allclose(poses[:, :3, :3] @ up, np.tile(UP, (3, 1)), atol=1e-4)
-    for k, turn in enumerate(turns):
-        alone = run_with(model, cloud @ turn.T, budget_ms=10_000, max_iterations=3, up=turn @ up,
-                           mirror=False, centre=False)  # fmt: skip
-        pose = alone.run_to_end().pose.copy()
-        pose[:3, :3] = pose[:3, :3] @ turn  # back into the cloud's frame
-        np.testing.assert_allclose(pose[:3, :3], poses[k][:3, :3], atol=1e-3)
+    np.testing.assert_allclose(run.last.pose[:3, :3] @ up, UP, atol=1e-4)
 
 
 def test_a_model_that_requires_up_refuses_a_request_without_it(model, rng) -> None:

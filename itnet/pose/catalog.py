@@ -105,6 +105,7 @@ class Catalog:
         ``reserve_ms``: kept back for handing the reply back). Raises PoseError subclasses."""
         started = time.perf_counter() if started is None else started
         planned, recognition = self.plan(points, request, started)
+        planned.model.relax_step_ms()  # a step time inflated by a past burst must not stick
         return AnytimeRun(planned, points, started, reserve_ms, recognition)
 
     def pose(self, points: ArrayLike, request: PoseRequest | None = None) -> dict:

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from itnet.fusion import fuse_poses
 from itnet.geometry import invert_rigid, rotation_angle_deg
 from itnet.pose.cloud import normalization_of, validate_cloud
-from itnet.pose.errors import OverloadedError
+from itnet.pose.errors import BudgetTooSmallError, OverloadedError
 from itnet.pose.plan import PosePlan
 from itnet.pose.reply import Estimate, pose_fields
 from itnet.preprocess import cap_points, pose_from_normalized
@@ -276,13 +276,21 @@ class AnytimeRun(Iterator[Estimate]):
         }
 
     def check_served(self) -> None:
-        """OverloadedError where the budget ran out before the first step: the start is no
-        pose, and must never be handed back as one."""
-        if self.iteration == 0 and self.stopped_by == "budget":
-            raise OverloadedError(
-                f"no step of model {self.model.card.name!r} fit in budget_ms "
-                f"{self.plan.budget_ms:g} (the machine is busy: retry, or give a larger budget)"
+        """Where the budget ran out before the first step, the start is no pose and must never be
+        handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
+        than the whole budget, else OverloadedError (503: the machine was too busy)."""
+        if self.iteration > 0 or self.stopped_by != "budget":
+            return
+        step_ms = self.predicted_step_ms()
+        if step_ms > self.plan.budget_ms:
+            raise BudgetTooSmallError(
+                f"budget_ms {self.plan.budget_ms:g} is below one step of model "
+                f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
             )
+        raise OverloadedError(
+            f"no step of model {self.model.card.name!r} fit in budget_ms "
+            f"{self.plan.budget_ms:g} (the machine is busy: retry, or give a larger budget)"
+        )
 
     def category_message(self) -> dict:
         """The stream's first message where the model was recognised: the category, before the

@@ -55,6 +55,11 @@ class PosePlan:
         return len(self.starts)
 
     @property
+    def stage_names(self) -> tuple[str, ...]:
+        """The finishing stages that are on, in order."""
+        return tuple(stage.name for stage in self.stages)
+
+    @property
     def fuse(self) -> bool:
         return self.runs > 1
 
@@ -108,14 +113,14 @@ def plan(
     needs ``up`` without it, or a finishing stage asked for that this model or request cannot
     run (the stage says why)."""
     card = model.card
-    if not (0 < request.budget_ms <= limits.max_budget_ms):
+    if request.budget_ms > limits.max_budget_ms:
         raise BadCloudError(
-            f"budget_ms must be in (0, {limits.max_budget_ms:g}], got {request.budget_ms:g}"
+            f"budget_ms {request.budget_ms:g} is over the limit of {limits.max_budget_ms:g} ms"
         )
     iterations = request.max_iterations or min(card.recommended_iterations, limits.max_iterations)
-    if not (1 <= iterations <= limits.max_iterations):
+    if iterations > limits.max_iterations:
         raise BadCloudError(
-            f"max_iterations must be in [1, {limits.max_iterations}], got {iterations}"
+            f"max_iterations {iterations} is over the limit of {limits.max_iterations}"
         )
     up = None if request.up is None else validate_up(request.up)
     if up is None and card.requires_up:
@@ -166,11 +171,11 @@ def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:
 
 
 def _stages(model: LoadedModel, request: PoseRequest, runs: int) -> tuple[Stage, ...]:
-    """The finishing stages that are on: each asked for (refused with its reason where it
-    cannot run), or on by the card's default where the request leaves it open."""
+    """The finishing stages that are on: each asked for by its request field (refused with its
+    reason where it cannot run), or on by its default where the request leaves it open."""
     on = []
     for stage in STAGES:
-        asked = getattr(request, stage.name)
+        asked = getattr(request, stage.name, None)  # a stage without a field: its default
         if asked:
             reason = stage.refusal(model, request, runs)
             if reason is not None:

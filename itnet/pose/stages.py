@@ -198,8 +198,8 @@ class Mirror:
         pose = run.last.pose_normalized.astype(np.float64)
         points = run.points[0].astype(np.float64)
         planes: list[str] = []
-        for plane in run.model.card.mirror_planes:
-            if run.left_ms() < self.predicted_ms(run):
+        for k, plane in enumerate(run.model.card.mirror_planes):
+            if k > 0 and run.left_ms() < self.predicted_ms(run):  # the loop checked the first
                 break
             start = time.perf_counter()
             pose = mirror_finished(points, pose, [plane])

@@ -142,10 +142,10 @@ def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeyp
     def no_probes(*args, **kwargs):  # type: ignore[no-untyped-def]
         raise AssertionError("the probes ran although a verifier is loaded")
 
-    monkeypatch.setattr("itnet.service.engine.basin_drift", no_probes)
+    monkeypatch.setattr("itnet.pose.stages.basin_drift", no_probes)
     cloud = np.random.default_rng(2).normal(size=(600, 3)) * [1.0, 0.45, 0.35]
     run = run_with(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
-    assert run.verify  # the card's verify_fused
+    assert "verify" in run.plan.stage_names  # the card's verify_fused
     run.run_to_end()
     assert run.result()["verified"] is True
     scores = model.verifier.scores(canonical_points(run.points, run.pose_normalized))
@@ -220,7 +220,7 @@ def test_a_doubted_single_run_is_rechecked_and_the_likeliest_anchors(tub):
 
 @pytest.mark.parametrize(
     ("fake", "rechecked"),
-    [(_FakeVerifier(0.5, []), None), (_FakeVerifier(-1.0, [1, 1, 1, 1], ms=1e9), False)],
+    [(_FakeVerifier(0.5, []), None), (_FakeVerifier(-1.0, [1, 1, 1, 1], ms=1e9), None)],
     ids=["not doubted", "no time"],
 )
 def test_a_trusted_run_or_a_tight_budget_keeps_the_single_run(tub, fake, rechecked):
@@ -231,7 +231,9 @@ def test_a_trusted_run_or_a_tight_budget_keeps_the_single_run(tub, fake, recheck
     tub.verifier = fake
     run = run_with(tub, cloud, recheck=True, **kw)
     run.run_to_end()
-    assert run.rechecked is rechecked and ("rechecked" in run.result()) == (rechecked is not None)
+    # not doubted: no word of it; no time for the verifier: the stage is skipped, and said
+    assert "rechecked" not in run.result()
+    assert run.result()["skipped"] == ([] if fake.single > 0 else ["recheck"])
     assert np.allclose(run.result()["T_canonical_from_input"],
                        plain.result()["T_canonical_from_input"])  # fmt: skip
 
@@ -248,11 +250,13 @@ def test_recheck_is_refused_without_a_verifier_or_beside_an_ensemble_and_follows
         run_with(tub, cloud, recheck=True, ensemble=2)
     with pytest.raises(BadCloudError, match="single run"):
         run_with(tub, cloud, recheck=True, up=[0.0, 1.0, 0.0])
-    assert not run_with(tub, cloud).recheck  # the card's recheck_runs is 0
+    assert "recheck" not in run_with(tub, cloud).plan.stage_names  # the card's recheck_runs is 0
     tub.card = tub.card.model_copy(update={"recheck_runs": 2})
     by_card = run_with(tub, cloud)
-    assert by_card.recheck and by_card.recheck_runs == 2
-    assert not run_with(tub, cloud, ensemble=2).recheck  # fused runs: verify's job
+    assert ("recheck" in by_card.plan.stage_names) and by_card.model.card.recheck_runs == 2
+    assert (
+        "recheck" not in run_with(tub, cloud, ensemble=2).plan.stage_names
+    )  # fused runs: verify's job
 
 
 def test_http_and_the_card_command_recheck(trained, tmp_path):

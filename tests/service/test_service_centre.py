@@ -84,18 +84,22 @@ def test_a_viewpoint_is_taken_from_json_and_from_a_binary_query(
         assert refused.status_code == 422 and "viewpoint" in refused.text, refused.text
 
 
-def test_alignment_hypotheses_through_the_service_are_the_networks_poses(
+def test_alignment_through_the_service_weighs_the_in_process_poses(
     centred: TestClient, make_cloud
 ) -> None:  # type: ignore[no-untyped-def]
-    """itnet-align --server asks for each hypothesis without the finishes, as in-process runs
-    (from their own starts) never apply them: the two agree on a model with a correction."""
+    """itnet-align --server and in-process weigh the same served poses, the centre correction
+    included, and the same runs."""
     from itnet.alignment.estimators import client_estimator, in_process_estimator
     from itnet.clients import ItnetClient
+    from itnet.pose.request import PoseRequest
 
     client = ItnetClient("http://testserver")
     client._http = centred  # the app in-process: TestClient is an httpx.Client
-    model = centred.app.state.service.models["tiny"]  # type: ignore[attr-defined]
+    catalog = centred.app.state.service.catalog  # type: ignore[attr-defined]
     cloud = make_cloud().astype(np.float64)
-    remote = client_estimator(client, "tiny", budget_ms=5000, max_iterations=3)(cloud)
-    local = in_process_estimator(model, budget_ms=5000, max_iterations=3)(cloud)
-    assert np.allclose(remote[0].T_canonical_from_input, local[0].T_canonical_from_input, atol=1e-4)
+    request = PoseRequest(model="tiny", budget_ms=5000, max_iterations=3)
+    remote = client_estimator(client, request)(cloud)
+    local = in_process_estimator(catalog, request)(cloud)
+    assert remote.result["centre"] is True and local.result["centre"] is True
+    assert np.allclose(remote.T_canonical_from_input, local.T_canonical_from_input, atol=1e-4)
+    assert np.allclose(remote.runs, local.runs, atol=1e-4)

@@ -101,10 +101,11 @@ def test_a_model_that_requires_up_refuses_a_request_without_it(
 
 
 def test_the_clients_send_up(client: TestClient, make_cloud) -> None:  # type: ignore[no-untyped-def]
-    from clients.wire import request_fields
+    from itnet.clients.wire import pose_request, request_fields
 
-    fields = request_fields(2000.0, None, "tiny", up=TILTED_UP)
-    assert fields["up"] == "0.1,-1.0,0.3"
+    sent = pose_request(None, {"budget_ms": 2000.0, "model": "tiny", "up": TILTED_UP})
+    fields = request_fields(sent)
+    assert fields["up"] == [0.1, -1.0, 0.3] and sent.to_query()["up"] == "0.1,-1,0.3"
     reply = client.post("/v1/estimate", json={"points": make_cloud().tolist(), **fields})
     assert reply.status_code == 200 and _upright(reply.json(), TILTED_UP)
 
@@ -112,20 +113,20 @@ def test_the_clients_send_up(client: TestClient, make_cloud) -> None:  # type: i
 def test_alignment_runs_with_up_through_the_service_match_the_in_process_runs(
     client: TestClient, make_cloud
 ) -> None:  # type: ignore[no-untyped-def]
-    """itnet-align --server with up: each turn about up is a request of its own, with the turned
-    cloud and its up; the in-process engine begins the same runs from the same turns."""
+    """itnet-align --server with up: the same request with each cloud's up as in-process, so the
+    same served pose and runs, every one of them upright."""
     from itnet.alignment.estimators import client_estimator, in_process_estimator
     from itnet.clients import ItnetClient
-    from itnet.upright import turns_about
+    from itnet.pose.request import PoseRequest
 
     http = ItnetClient("http://testserver")
     http._http = client  # the app in-process: TestClient is an httpx.Client
-    model = client.app.state.service.models["tiny"]  # type: ignore[attr-defined]
+    catalog = client.app.state.service.catalog  # type: ignore[attr-defined]
     cloud, up = make_cloud().astype(np.float64), unit_up(TILTED_UP)
-    turns = turns_about(up, 3)
-    remote = client_estimator(http, "tiny", budget_ms=5000, max_iterations=3)(cloud, turns, up=up)
-    local = in_process_estimator(model, budget_ms=5000, max_iterations=3)(cloud, turns, up=up)
-    assert len(remote) == len(local) == 3
-    for r, here in zip(remote, local, strict=True):
-        assert np.allclose(r.T_canonical_from_input, here.T_canonical_from_input, atol=1e-4)
-        assert np.allclose(r.T_canonical_from_input[:3, :3] @ up, UP, atol=1e-4)
+    request = PoseRequest(model="tiny", budget_ms=5000, max_iterations=3)
+    remote = client_estimator(http, request)(cloud, up)
+    local = in_process_estimator(catalog, request)(cloud, up)
+    assert np.allclose(remote.T_canonical_from_input, local.T_canonical_from_input, atol=1e-4)
+    assert np.allclose(remote.runs, local.runs, atol=1e-4)
+    for pose in remote.candidates():
+        assert np.allclose(pose[:3, :3] @ up, UP, atol=1e-4)

@@ -1,5 +1,5 @@
-"""Start-up warm-up: the batch sizes of the ensembles a request may get are run once before the
-first request, and only the single-run steps feed the step-time estimate."""
+"""Start-up warm-up: the batch sizes and point counts of the plans a request may get are run
+before the first request, and only the single-run steps feed the step-time estimate."""
 
 from __future__ import annotations
 
@@ -36,7 +36,8 @@ def test_warm_up_runs_every_batch_size_and_times_single_runs_only(tiny_model_dir
     model.warm_up(runs=3)
     assert recording.batches[:3] == [1, 1, 1]
     assert sorted(set(recording.batches[3:])) == [2, 4, 8, 16]
-    assert all(recording.batches[3:].count(b) == 2 for b in (2, 4, 8, 16))  # two runs each
-    assert len(model._recent) == 3  # the batched runs are not in the step-time record
-    assert 0 < model.baseline_ms <= model.step_ms * 2
+    # two runs each, at a fused run's subset (0.8 of the card's points) and at the card's count
+    assert all(recording.batches[3:].count(b) == 4 for b in (2, 4, 8, 16))
+    assert len(model._recent) == 2  # the first step (lazy set-up) and the batches are not
+    assert 0 < model.baseline_ms <= model.idle_ms <= model.step_ms * 2
     assert np.isfinite(model.predicted_step_ms())
