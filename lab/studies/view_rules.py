@@ -2,7 +2,7 @@
 squarely they face the camera, for 1,024 points on a unit sphere (the spacing of a ModelNet10
 shape) under the project's random viewpoints.
 
-    python -m benchmarks.view_rules [--views 50] [--seed 0]
+    python -m lab.studies.view_rules [--views 50] [--seed 0]
 
 A depth camera looking at the sphere's surface sees the near half (facing > 0, less the grazing
 band) and nothing of the far half (facing < 0). Prints one row per rule and pixel size: the

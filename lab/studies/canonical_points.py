@@ -3,7 +3,7 @@ exported with the IT-Net canonicaliser on the first K of the 256 input points
 (``ClassifierCard.canonical_points``, ``itnet classify-export --canonical-points K``), each K
 against all 256 on the same validation views, paired, and the graph's time (interleaved).
 
-    python -m benchmarks.canonical_points --ks 32 64 96 128 [--split val] [--out X.json]
+    python -m lab.studies.canonical_points --ks 32 64 96 128 [--split val] [--out X.json]
 
 Two view sets of the split, both fed in random order as served: the run's fixed views
 (``run_views``, resampled to 256, ``--shuffles`` orders each) and served-style scans
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def served_views(config, splits, split: str, views: int) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
@@ -67,7 +67,7 @@ def graph_ms(graphs: dict[str, object], x: np.ndarray, rounds: int = 6, runs: in
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--checkpoint", type=Path, default=ROOT / "itnet/models/classifier.pt")
+    parser.add_argument("--checkpoint", type=Path, default=ROOT / "lab/weights/classifier.pt")
     parser.add_argument("--ks", type=int, nargs="+", default=[32, 64, 96, 128])
     parser.add_argument("--split", choices=["val", "test"], default="val")
     parser.add_argument("--views", type=int, default=8, help="served-style scans a shape")
