@@ -560,8 +560,8 @@ def test_a_cache_file_appears_whole_or_not_at_all(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """save_npz (the shape and scan caches): the file is written under another name and renamed,
-    so a process reading the cache while another writes it (a lease's classifier jobs, session
-    30) never opens half a file; a write that fails leaves nothing under the cache's name."""
+    so a process reading the cache while another writes it (parallel training
+    jobs) never opens half a file; a write that fails leaves nothing under the cache's name."""
     from itnet.model import data as data_module
 
     path = tmp_path / "scans-abc.npz"

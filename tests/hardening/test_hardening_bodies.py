@@ -1,5 +1,5 @@
-"""Bodies that are legal in size but hostile in content (issue 14's smaller findings): each
-failed on the code before ``Decoder``, strict coordinates and the cut names."""
+"""Bodies that are legal in size but hostile in content: the ``Decoder``, strict coordinates
+and the cut names."""
 
 from __future__ import annotations
 

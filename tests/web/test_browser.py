@@ -78,7 +78,7 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert api["centre"] is True and "centre corrected" in page.text_content("#status")
     assert api["verified"] is True and shown["verified"] is True  # the chair's card: verify_fused
     assert "fused around the run verify found likeliest" in page.text_content("#status")
-    # Back to the model's count (8 runs for the chair since session 34): the request carries no
+    # Back to the model's count (8 runs for the chair): the request carries no
     # ensemble, the URL forgets it, and the reply says how many the card's default ran.
     page.select_option("#ensemble", "")
     page.click("#run")
