@@ -48,6 +48,9 @@ def test_examples_list_and_points(client):
     pair = next(p for p in listed["pairs"] if p["name"] == "chair")
     truth = json.loads((EXAMPLES / "chair_truth.json").read_text())["T_b_from_a"]
     assert (pair["a"], pair["b"], pair["T_b_from_a"]) == ("chair_a", "chair_b", truth)
+    # each pair names its category, so that the align tab can pick the model that fits it
+    assert {p["name"]: p["category"] for p in listed["pairs"]}["bed"] == "bed"
+    assert all(p["category"] == p["name"].split("_quarter")[0] for p in listed["pairs"])
     unknown = client.get("/v1/examples/nope")
     assert unknown.status_code == 404 and "chair_a" in unknown.json()["detail"]
 
