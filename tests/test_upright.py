@@ -11,7 +11,6 @@ import pytest
 
 from itnet.geometry import apply_rigid, invert_rigid, random_rotation
 from itnet.service.engine import AnytimeRun, BadCloudError
-from itnet.service.runtime import load_model
 from itnet.upright import (
     UP,
     held_upright,
@@ -23,11 +22,6 @@ from itnet.upright import (
     unit_up,
     upright_starts,
 )
-
-
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
 
 
 def test_rotation_onto_takes_one_direction_onto_another(rng) -> None:
