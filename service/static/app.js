@@ -72,8 +72,9 @@ function showClouds() {
 /** The model's entry of GET /v1/models (undefined for 'auto'). */
 const modelInfo = (name) => state.models.find((m) => m.name === name);
 
-/** The example pair of a category (the first, if several). */
-const pairOf = (category) => state.pairs.find((p) => p.category && p.category === category);
+/** The example pair of a category: the one named after it, else the first of that category. */
+const pairOf = (category) => state.pairs.find((p) => p.category && p.name === category)
+  ?? state.pairs.find((p) => p.category && p.category === category);
 
 /** The align tab follows its example pair: where the model chosen is of another category, it
  * becomes the loaded model of the pair's category, else 'auto' (a chosen 'auto' stays). */
