@@ -104,8 +104,8 @@ def test_concurrent_cpu_bound_runs_keep_their_budgets(heavy_model_dir: Path, poi
 def test_a_live_server_under_load_keeps_the_budget(
     heavy_model_dir: Path, settings: Settings, points: list
 ) -> None:
-    """Twelve clients in closed loops for 2 s against 4 slots: every answer within budget plus
-    the margin, the excess refused at once, nothing else. (The clients are coroutines of one
+    """Twelve clients in closed loops for 2 s (or more) against 4 slots: every answer within
+    budget plus the margin, the excess refused at once, nothing else. (The clients are coroutines of one
     thread: client threads would fight the server for this process's GIL.)"""
     from itnet.service.benchmark import time_step_ms
 
@@ -133,13 +133,19 @@ def test_a_live_server_under_load_keeps_the_budget(
     # client coroutine starved by the server's threads (same process) could meet them and see
     # its kept-alive connection closed, which is not what this test is about.
     relaxed = settings.server.model_copy(update={"header_timeout_s": 10.0, "keep_alive_s": 10})
+    # Answers with no step meet any budget, so the load goes on (up to 6 s) until answers with
+    # steps are enough to judge by: a busy machine can leave a 2 s window with almost none.
+    replies: list[tuple[int, dict]] = []
     with live_server(settings.model_copy(update={"server": relaxed}), {"tiny": model}) as server:
-        replies = asyncio.run(load(server.url))
+        for _ in range(3):
+            replies += asyncio.run(load(server.url))
+            if sum(body.get("iterations", 0) for status, body in replies if status == 200) > 20:
+                break
     statuses = {status for status, _ in replies}
     assert statuses <= {200, 503}, statuses
     elapsed = np.array([body["elapsed_ms"] for status, body in replies if status == 200])
     steps = sum(body["iterations"] for status, body in replies if status == 200)
-    assert len(elapsed) > 20 and steps > 20
+    assert len(elapsed) > 20 and steps > 20, (len(elapsed), steps)
     # p90 within the margin; the rest of the tail is the machine's, not the service's (another
     # process on these two cores can take the CPU from any thread for tens of ms).
     assert np.percentile(elapsed, 90) <= budget_ms + MARGIN_MS, np.sort(elapsed)[-10:]
