@@ -1,4 +1,4 @@
-"""What ``model: "auto"`` adds to a request: the time of ``service.recognition.classify`` (check,
+"""What ``model: "auto"`` adds to a request: the time of ``itnet.pose.recognition.classify`` (check,
 normalise, subsample to the card's points, run the classifier graph), in-process, onnxruntime
 with the service's session options. The clouds: 16 box sides (2,000 points, in metres, no
 category's), or with ``--scans N`` N partial scans of ModelNet10 test shapes (the classify
@@ -11,9 +11,8 @@ heads only for unsure looks; the second opinion, ``--second-looks 4``, only for 
 beside the other. ``--versus DIR``: another model folder's classifier on the same clouds, the two
 alternating request by request, so that a machine whose speed drifts times both alike; also
 prints the median of the per-pair ratio (this folder's time over DIR's). Prints the median, mean,
-90th and 99th percentile in ms, the machine and the thread count. Run it as
-``bash scripts/quiet.sh python -m benchmarks.classify_latency`` when a training job shares the
-machine."""
+90th and 99th percentile in ms, the machine and the thread count. Run it on an otherwise idle
+machine: other work on the same cores shows up in every percentile."""
 
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ view levelled by its up, its K looks turned about +y, as the service classifies 
 gives ``up``) and ``both`` (the K turned looks of the classifier for any orientation and the K
 levelled looks of the upright one, all averaged).
 
-``second`` is the service's default (``service/recognition.py`` ``classify``, called as served):
+``second`` is the service's default (``itnet/pose/recognition.py`` ``classify``, called as served):
 one look, and only when its answer is under the card's threshold, K looks in all (the first
 and K - 1 more, turned); ``second-upright`` the same with the up given (needs ``--upright``).
 Their times are the whole call's (normalising and subsets too), with the mean looks a view got.
@@ -122,7 +122,7 @@ def main() -> None:
             if mode in ("upright", "both"):
                 if upright is None:
                     raise SystemExit(f"{k}:{mode} needs --upright")
-                # drawn in the service's order (service/recognition.py classify_together)
+                # drawn in the service's order (itnet/pose/recognition.py classify_together)
                 x = turned_looks(cloud, k, points, rng) if mode == "both" else None
                 stood = turned_looks(cloud, k, upright.card.points, rng, given[i])
                 start = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Hostile clients against ``itnet serve`` on loopback, bounded in time and count (issue 14).
+"""Hostile clients against ``itnet serve`` on loopback, bounded in time and count.
 
     python -m benchmarks.hostile                     # every scenario, ~3 minutes
     python -m benchmarks.hostile --only slowloris,uploads --seconds 8

@@ -27,7 +27,7 @@ from itnet.model_card import ClassifierCard, VerifierCard
 from itnet.upright import UPRIGHT_EVAL_DEG
 
 if TYPE_CHECKING:
-    from itnet.service.runtime import LoadedClassifier
+    from itnet.pose.runtime import LoadedClassifier
 
 
 def _constants(tensors: list[Tensor]) -> nn.ParameterList:
@@ -250,10 +250,10 @@ def score_graph(
     as the service runs it (an int8 graph quantises its activations with one scale per call),
     each cut to the graph's card's points where it is served at fewer than trained.
     ``beside`` (an upright run's graph): served fused with this classifier for any orientation
-    (``service/recognition.py``), so each view's probabilities are the two's, averaged in the
+    (``itnet/pose/recognition.py``), so each view's probabilities are the two's, averaged in the
     log domain, ``beside`` seeing the same points unlevelled."""
     from itnet.model.classify.train import ClassifyConfig, run_splits, run_views
-    from itnet.service.recognition import mean_log_probability
+    from itnet.pose.recognition import mean_log_probability
 
     config = ClassifyConfig.model_validate_json((run / "config.json").read_text())
     _, splits = run_splits(config)

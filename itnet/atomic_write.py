@@ -1,6 +1,6 @@
 """Files that appear whole or not at all: written under a hidden temporary name beside their
 target, then renamed onto it (a rename within one folder is atomic). A reader in another
-process (a cache shared by a GPU lease's jobs, a resumable batch's parts, a checkpoint read
+process (a cache shared by parallel training jobs, a resumable batch's parts, a checkpoint read
 while the next one is written) never opens half a file; a write that fails leaves none."""
 
 from __future__ import annotations

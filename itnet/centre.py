@@ -4,7 +4,7 @@ IT-Net finds the rotation and then the centre of an object of which it sees one 
 places the centre systematically too near the visible surface: on the chair's validation views
 the estimated centre lies 0.02 r nearer the camera than the truth on average, and by 0.11 r for
 the scans whose rotation is right and centre wrong (5% of paper views, 8% of occluded views:
-the largest single kind of miss, docs/recipe.md *The object centre*). Where the cloud lies in
+the largest single kind of miss, docs/models.md *How a pose is finished*). Where the cloud lies in
 the estimated canonical frame says a lot about which side was seen, so a linear map from a
 few statistics of the moved cloud to the true centre's offset, fitted by ridge regression on
 scans of training shapes posed by the served model (``itnet.model.centre_fit``), moves the

@@ -43,25 +43,41 @@ def main(
     """itnet: poses of partial scans in their category's canonical frame, refined anytime."""
 
 
-app.command("pose")(pose.pose)
-app.command("align")(align.align)
-app.command("serve")(serve.serve)
-app.command("train")(train.train)
-app.command("average")(train.average)
-app.command("eval")(evaluate.evaluate)
-app.command("export")(export.export)
-app.command("card")(card.card)
-app.command("centre-fit")(centre.centre_fit)
-app.command("bench")(bench.bench)
-app.add_typer(batch.app, name="batch")
-app.command("classify")(classify.classify)
-app.command("classify-experiment")(classify.classify_experiment)
-app.command("classify-export")(classify.classify_export)
-app.command("classify-train")(classify.classify_train)
-app.command("classify-size-prior")(classify.classify_size_prior)
-app.command("models")(models.models)
-app.command("verifier-train")(verifier.verifier_train)
-app.command("verifier-export")(verifier.verifier_export)
+USE = "Using it"
+MEASURE = "Training and measuring"
+BUILD = "Building models"
+
+# (name, function, panel, one-line help for the command list; the command's own --help has more)
+# fmt: off
+COMMANDS = [
+    ("pose", pose.pose, USE, "Pose each cloud file in its category's canonical frame."),
+    ("align", align.align, USE, "Align cloud A onto cloud B (T_b_from_a), optionally refined by ICP."),
+    ("classify", classify.classify, USE, "Name each cloud's category, with its probability."),
+    ("serve", serve.serve, USE, "Serve the HTTP/WebSocket API and the web page."),
+    ("models", models.models, USE, "List the installed models: category, symmetry, accuracy."),
+    ("train", train.train, MEASURE, "Train a pose network on fresh partial scans (resumable)."),
+    ("eval", evaluate.evaluate, MEASURE, "Measure a checkpoint or ONNX model on held-out scans."),
+    ("export", export.export, MEASURE, "Export a checkpoint to an ONNX model with its card."),
+    ("bench", bench.bench, MEASURE, "Time one step of each model and the loop's overhead."),
+    ("average", train.average, BUILD, "Average checkpoints of one network."),
+    ("card", card.card, BUILD, "Print a model's card, or write changes into it."),
+    ("centre-fit", centre.centre_fit, BUILD, "Fit and measure a model's object-centre correction."),
+    ("classify-train", classify.classify_train, BUILD, "Train one category classifier."),
+    ("classify-export", classify.classify_export, BUILD, "Export a classifier run to ONNX and measure it."),
+    ("classify-experiment", classify.classify_experiment, BUILD, "Train and report the transformer comparison table."),
+    ("classify-size-prior", classify.classify_size_prior, BUILD, "Fit the classifier's size prior per category."),
+    ("verifier-train", verifier.verifier_train, BUILD, "Train a category's pose verifier."),
+    ("verifier-export", verifier.verifier_export, BUILD, "Export a pose verifier to ONNX."),
+]
+# fmt: on
+for name, command, panel, summary in COMMANDS:
+    app.command(name, rich_help_panel=panel, short_help=summary)(command)
+app.add_typer(
+    batch.app,
+    name="batch",
+    rich_help_panel=USE,
+    short_help="Pose or align large collections of clouds on Ray Data.",
+)
 
 align_app = typer.Typer(add_completion=False)
 align_app.command()(align.align)

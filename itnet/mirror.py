@@ -5,10 +5,10 @@ Nine ModelNet10 classes are left-right symmetric about the canonical x = 0 plane
 too. A pose that is nearly right moves the cloud to where such a plane is nearly x = 0 (or
 z = 0); ``mirror_refined`` finds the plane the moved cloud is actually symmetric about and turns
 and shifts the pose so that it is exactly there; ``mirror_finished`` does it for each of a
-category's planes in turn. Measured (docs/recipe.md, *Mirror symmetry at test time*): on the
+category's planes in turn. Measured (docs/models.md, *How a pose is finished*): on the
 shipped models' test views, +0.4 to +4.3 points at (10°, 0.1 r) for one plane and a median
 rotation error 25-40% lower. The runtime applies it after a run's last step where the model's
-card declares the planes (``ModelCard.mirror_planes``; ``service/engine.py``).
+card declares the planes (``ModelCard.mirror_planes``; ``itnet/pose/stages.py``).
 """
 
 from __future__ import annotations

@@ -34,8 +34,7 @@ from itnet.upright import UP, levelled, rotation_onto, sensed_ups
 
 def save_npz(path: Path, **arrays: object) -> None:
     """np.savez_compressed, written whole (``written_whole``): processes that fill one cache at
-    once (a GPU lease's classifier jobs) never read another's half-written file (session 30's
-    lease lost two calls to that)."""
+    once (parallel training jobs) never read another's half-written file."""
     with written_whole(path) as partial, open(partial, "wb") as out:
         np.savez_compressed(out, **arrays)
 
@@ -78,7 +77,7 @@ def split_files(
     """Files for train / val / test. Uses DATA/CATEGORY/{train,test} or DATA/{train,test} when
     present (ModelNet's layout), otherwise splits DATA's files 80/20 by a seeded permutation.
     Validation is carved out of train, never out of test. ModelNet's layout may have an empty
-    ``test`` folder (a training-only copy, e.g. ``cloud_pack``'s ``splits=("train",)``)."""
+    ``test`` folder (a training-only copy of the data)."""
     root = data / category if (data / category).is_dir() else data
     if (root / "train").is_dir() and (root / "test").is_dir():
         train, test = list_shape_files(root / "train"), list_shape_files(root / "test")

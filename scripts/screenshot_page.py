@@ -82,7 +82,7 @@ def main() -> None:
         return
     sys.path.insert(0, str(ROOT))
     from benchmarks.harness import serve
-    from itnet.service.runtime import default_model_dir
+    from itnet.pose.runtime import default_model_dir
 
     with (
         tempfile.TemporaryDirectory() as folder,

@@ -18,3 +18,13 @@ fi
 .venv/bin/python -m pytest -q --ignore=tests/hardening -m "not ray" "$@"
 .venv/bin/python -m pytest -q tests/hardening "$@"
 .venv/bin/python -m pytest -q -m ray tests/scale "$@"
+# The tree describes the product as it is: no words about work sessions, borrowed machines or issue numbers
+# (in code, tests, docs, help texts). Every tracked file is checked, nothing is excluded. Run
+# last, so that a hit does not hide the tests' results.
+if git rev-parse --is-inside-work-tree >/dev/null 2>&1 \
+  && hits=$(git grep -nIiE '\bsession [0-9]+|\blease|\bissue [0-9]+'); then
+  echo "error: words about work sessions, borrowed machines or issue numbers in tracked files; say what the" >&2
+  echo "product does instead (the history belongs in commit messages):" >&2
+  echo "$hits" >&2
+  exit 1
+fi

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from factory import export_tiny, make_tiny_net
 from numpy.typing import NDArray
 
 from itnet.pose.runtime import LoadedModel
@@ -19,28 +20,6 @@ from itnet.pose.runtime import LoadedModel
 # gc.freeze() would keep every object of the pytest process alive. tests/service/test_gc.py
 # checks the freeze itself.
 os.environ.setdefault("ITNET_GC_FREEZE", "false")
-
-
-def make_tiny_net(  # type: ignore[no-untyped-def]
-    seed: int = 0, point_channels: tuple[int, ...] = (16, 32, 64), rotation: str = "quaternion"
-):
-    """A small ITNet with random weights and random BatchNorm statistics (eval mode)."""
-    import torch
-
-    from itnet.model.network import ITNet, NetworkConfig
-
-    torch.manual_seed(seed)
-    config = NetworkConfig(point_channels=point_channels, head_channels=(32, 16), rotation=rotation)
-    net = ITNet(config)
-    with torch.no_grad():
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm1d):
-                m.running_mean.normal_(0, 0.1)
-                m.running_var.uniform_(0.5, 2.0)
-                m.weight.normal_(1, 0.1)
-                m.bias.normal_(0, 0.1)
-        net.regressor.out.weight.normal_(0, 0.01)  # small but not the identity
-    return net.eval()
 
 
 @pytest.fixture
@@ -57,15 +36,29 @@ def make_net() -> Callable[..., Any]:
 
 
 @pytest.fixture(scope="session")
+def export_model() -> Callable[..., Path]:
+    """``export_tiny(card, path, seed=0, point_channels=..., rotation=...)``: the tiny network's
+    step with ``card``, exported once per network (tests/factory.py)."""
+    return export_tiny
+
+
+@pytest.fixture(scope="session")
 def tiny_model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder with ``tiny.onnx`` (model name 'tiny', category 'chair', 256 points)."""
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder = tmp_path_factory.mktemp("models")
     card = ModelCard(name="tiny", category="chair", points=256, recommended_iterations=5)
-    export_step(make_tiny_net(), card, folder / "tiny.onnx")
+    export_tiny(card, folder / "tiny.onnx")
     return folder
+
+
+@pytest.fixture(scope="module")
+def model(tiny_model_dir: Path) -> LoadedModel:
+    """The model of ``tiny_model_dir``, loaded with one thread."""
+    from itnet.pose.runtime import load_model
+
+    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
 
 
 @pytest.fixture

@@ -68,8 +68,7 @@ def test_the_finished_pose_moves_the_predicted_centre_to_the_origin() -> None:
 
 
 @pytest.fixture(scope="module")
-def centred_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[no-untyped-def]
-    from itnet.export.onnx_export import export_step
+def centred_model(tmp_path_factory: pytest.TempPathFactory, export_model):  # type: ignore[no-untyped-def]
     from itnet.model_card import ModelCard
 
     folder: Path = tmp_path_factory.mktemp("centre_models")
@@ -77,7 +76,7 @@ def centred_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: 
         name="tiny", category="chair", points=256, recommended_iterations=4,
         centre_correction=intercept_only([0.05, -0.02, 0.1]).to_dict(),
     )  # fmt: skip
-    export_step(make_net(), card, folder / "tiny.onnx")
+    export_model(card, folder / "tiny.onnx")
     return load_model(folder / "tiny.onnx", threads=1)
 
 
@@ -117,11 +116,10 @@ def test_asking_for_a_correction_the_card_lacks_is_refused(tiny_model_dir: Path)
 
 
 @pytest.fixture(scope="module")
-def viewpoint_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[no-untyped-def]
+def viewpoint_model(tmp_path_factory: pytest.TempPathFactory, export_model):  # type: ignore[no-untyped-def]
     """A card with both corrections: the plain one predicts OFFSET, the viewpoint one predicts
     the direction toward the sensor (its last three features) times 0.1."""
     from itnet.centre import FEATURES_VIEWPOINT
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     weights = np.zeros((FEATURE_COUNT + 4, 3))
@@ -135,7 +133,7 @@ def viewpoint_model(tmp_path_factory: pytest.TempPathFactory, make_net):  # type
         centre_correction=intercept_only([0.05, -0.02, 0.1]).to_dict(),
         centre_correction_viewpoint=toward.to_dict(),
     )  # fmt: skip
-    export_step(make_net(), card, folder / "tiny.onnx")
+    export_model(card, folder / "tiny.onnx")
     return load_model(folder / "tiny.onnx", threads=1)
 
 
@@ -170,12 +168,11 @@ def test_a_bad_viewpoint_is_refused(viewpoint_model) -> None:  # type: ignore[no
 
 
 def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
-    tmp_path: Path, make_net, viewpoint_model
+    tmp_path: Path, export_model, viewpoint_model
 ) -> None:  # type: ignore[no-untyped-def]
-    from itnet.export.onnx_export import export_step
 
     card = viewpoint_model.card.model_copy(update={"centre_correction": None})
-    export_step(make_net(), card, tmp_path / "tiny.onnx")
+    export_model(card, tmp_path / "tiny.onnx")
     only = load_model(tmp_path / "tiny.onnx", threads=1)
     assert only.centre is None and only.centre_viewpoint is not None
     without = run_with(only, cloud(), budget_ms=10_000)
@@ -189,11 +186,10 @@ def test_a_card_with_only_a_viewpoint_correction_uses_it_only_with_a_viewpoint(
 
 
 def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
-    tmp_path: Path, make_net, viewpoint_model
+    tmp_path: Path, export_model, viewpoint_model
 ) -> None:  # type: ignore[no-untyped-def]
     """Checked at load, not at the first request: the plain field holding a viewpoint correction
     (or the other way round), or a correction with the wrong shapes, is a ModelLoadError."""
-    from itnet.export.onnx_export import export_step
     from itnet.pose.runtime import ModelLoadError
 
     card = viewpoint_model.card
@@ -203,25 +199,24 @@ def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
         update={"centre_correction": {**card.centre_correction, "weights": [[0.0, 0.0, 0.0]]}}
     )
     for name, bad in (("swapped", swapped), ("broken", broken)):
-        export_step(make_net(), bad, tmp_path / f"{name}.onnx")
+        export_model(bad, tmp_path / f"{name}.onnx")
         with pytest.raises(ModelLoadError, match="centre_correction"):
             load_model(tmp_path / f"{name}.onnx", threads=1)
 
 
 def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
-    tmp_path: Path, make_net, viewpoint_model
+    tmp_path: Path, export_model, viewpoint_model
 ) -> None:  # type: ignore[no-untyped-def]
     """centre_correction_up: used where a request gives up (and no viewpoint the card has a
     correction for), the plain one otherwise; a card with only it (a model that requires up)
     finishes every request; the reply says which one did it; a bad one fails the load."""
-    from itnet.export.onnx_export import export_step
     from itnet.pose.runtime import ModelLoadError
 
     up_offset = [-0.1, 0.0, 0.2]
     card = viewpoint_model.card.model_copy(
         update={"centre_correction_up": intercept_only(up_offset).to_dict()}
     )
-    export_step(make_net(), card, tmp_path / "all.onnx")
+    export_model(card, tmp_path / "all.onnx")
     model = load_model(tmp_path / "all.onnx", threads=1)
     assert model.centre_up is not None
     up = [0.0, 1.0, 0.0]
@@ -244,13 +239,13 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     only = card.model_copy(
         update={"centre_correction": None, "centre_correction_viewpoint": None, "requires_up": True}
     )
-    export_step(make_net(), only, tmp_path / "only.onnx")
+    export_model(only, tmp_path / "only.onnx")
     upright = load_model(tmp_path / "only.onnx", threads=1)
     run = run_with(upright, cloud(), budget_ms=10_000, up=up)
     run.run_to_end()
     assert run.result()["centre"] is True and run.result()["centre_up"] is True
 
     wrong = card.model_copy(update={"centre_correction_up": card.centre_correction_viewpoint})
-    export_step(make_net(), wrong, tmp_path / "wrong.onnx")
+    export_model(wrong, tmp_path / "wrong.onnx")
     with pytest.raises(ModelLoadError, match="centre_correction_up"):
         load_model(tmp_path / "wrong.onnx", threads=1)

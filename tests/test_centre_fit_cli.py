@@ -26,10 +26,9 @@ def _tub(rng: np.random.Generator, n: int = 300) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[no-untyped-def]
+def setup(tmp_path_factory: pytest.TempPathFactory, export_model):  # type: ignore[no-untyped-def]
     from modelnet_tree import write_modelnet_tree
 
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     root = tmp_path_factory.mktemp("centre_fit")
@@ -38,7 +37,7 @@ def setup(tmp_path_factory: pytest.TempPathFactory, make_net):  # type: ignore[n
     )
     card = ModelCard(name="bathtub", category="bathtub", symmetry="yaw180", points=256,
                      recommended_iterations=2)  # fmt: skip
-    export_step(make_net(), card, root / "bathtub.onnx")
+    export_model(card, root / "bathtub.onnx")
     return root, data
 
 

@@ -20,15 +20,14 @@ def test_bench_prints_a_row_per_model_and_shape_and_the_loop_overhead(tiny_model
     assert "tiny: anytime loop" in result.output and "overhead" in result.output
 
 
-def test_bench_measures_a_model_that_requires_up(tmp_path, make_net) -> None:  # type: ignore[no-untyped-def]
+def test_bench_measures_a_model_that_requires_up(tmp_path, export_model) -> None:  # type: ignore[no-untyped-def]
     """A card that requires up (the night stand's, the dresser's) gets its loop measured held
     upright, one run: it used to stop the whole command with the engine's refusal."""
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     card = ModelCard(name="box", category="dresser", points=256, recommended_iterations=3,
                      requires_up=True, recommended_ensemble=8)  # fmt: skip
-    export_step(make_net(), card, tmp_path / "box.onnx")
+    export_model(card, tmp_path / "box.onnx")
     result = CliRunner().invoke(app, ["bench", "--model-dir", str(tmp_path), "--repeats", "2"])
     assert result.exit_code == 0, result.output
     assert "box: anytime loop" in result.output

@@ -44,6 +44,7 @@ def test_split_keeps_test_apart_and_validation_from_train(shape_folder):
     assert all("test" in str(f) for f in files["test"])
 
 
+@pytest.mark.train
 def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     """itnet train (resume) -> eval (torch and onnx agree) -> export -> pose, on tiny data."""
     from typer.testing import CliRunner
@@ -232,6 +233,7 @@ def test_train_resume_eval_export_pose(shape_folder, tmp_path):
     assert wrong.exit_code == 2 and "--mirror-planes" in wrong.output
 
 
+@pytest.mark.train
 def test_compiled_training_matches_eager(shape_folder, tmp_path):
     """torch.compile changes the speed of a training step, not its numbers."""
     from itnet.model.optim import bn_momentum
@@ -257,6 +259,7 @@ def test_compiled_training_matches_eager(shape_folder, tmp_path):
     assert sorted(stairs, reverse=True) == [0.5, 0.25, 0.125, 0.0625, 0.03125]
 
 
+@pytest.mark.train
 def test_data_workers_train_on_the_same_batches(shape_folder, tmp_path):
     """--data-workers makes the scans in other processes, ahead of the step: the same batches
     (each step's are seeded by the step), so the same losses as making them in the loop."""
@@ -296,6 +299,7 @@ def test_moving_average_of_weights():
     assert torch.allclose(mean, 0.25 * net[1].running_mean)  # from 0: averaged like weights
 
 
+@pytest.mark.train
 def test_loss_options_reach_the_training_step(shape_folder, tmp_path):
     """--loss distance and --supervise-last change the optimised loss (same seed, same scans:
     different losses at step 2; at step 1 every iteration is the identity, so only the kind of
@@ -331,6 +335,7 @@ def test_loss_options_reach_the_training_step(shape_folder, tmp_path):
         assert refused.exit_code != 0 and message in refused.output, refused.output
 
 
+@pytest.mark.train
 def test_6d_and_wider_networks_train_save_and_refuse_a_mismatched_init(shape_folder, tmp_path):
     """--rotation 6d and the widths reach the network, travel in the checkpoint (load_checkpoint
     rebuilds them), and fine-tuning from a checkpoint of another network is refused by name.
@@ -358,6 +363,7 @@ def test_6d_and_wider_networks_train_save_and_refuse_a_mismatched_init(shape_fol
     assert network_config(old).rotation == "quaternion"
 
 
+@pytest.mark.train
 def test_half_checkpoint_is_smaller_and_trains_on(shape_folder, tmp_path):
     """A checkpoint kept to go on from (float16 weights, no optimiser) loads back close to the
     float32 one and starts a fine-tune (--init-from reads it into float32)."""
@@ -408,6 +414,7 @@ def test_upright_scans_keep_the_object_and_stand_it_up_within_the_error():
         assert angle == pytest.approx(error, abs=1e-4)
 
 
+@pytest.mark.train
 def test_an_upright_run_trains_on_levelled_scans_and_its_export_requires_up(shape_folder, tmp_path):
     """--upright: the training scans stand (their targets' up is +y within the error), the run
     trains and validates with it and keeps it in its config, and the export's card requires
@@ -444,6 +451,7 @@ def test_an_upright_run_trains_on_levelled_scans_and_its_export_requires_up(shap
     assert card.requires_up and card.training["upright"] == 5.0
 
 
+@pytest.mark.train
 def test_widened_network_computes_the_narrow_ones_poses_and_trains_on(shape_folder, tmp_path):
     """model/widen.py: every hidden layer wider (point MLP and head), the same regressor output
     without noise (to float rounding), close with it, the copies made different by the noise;
@@ -560,8 +568,8 @@ def test_a_cache_file_appears_whole_or_not_at_all(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """save_npz (the shape and scan caches): the file is written under another name and renamed,
-    so a process reading the cache while another writes it (a lease's classifier jobs, session
-    30) never opens half a file; a write that fails leaves nothing under the cache's name."""
+    so a process reading the cache while another writes it (parallel training
+    jobs) never opens half a file; a write that fails leaves nothing under the cache's name."""
     from itnet.model import data as data_module
 
     path = tmp_path / "scans-abc.npz"
@@ -603,6 +611,7 @@ def test_a_near_start_moves_a_scan_near_its_answer_and_keeps_its_canonical_point
     assert max(shifts) <= 0.3 + 1e-5 and max(shifts) > 0.28
 
 
+@pytest.mark.train
 def test_near_starts_take_their_share_of_a_batch_and_a_run_records_them(shape_folder, tmp_path):
     """training_batch(near=...): that share of the scans has a target within the bounds of the
     identity (a fresh scan's is anything); ``itnet train --near-starts`` trains with them and

@@ -11,7 +11,6 @@ import pytest
 
 from itnet.geometry import apply_rigid, invert_rigid, random_rotation
 from itnet.pose.errors import BadCloudError
-from itnet.pose.runtime import load_model
 from itnet.upright import (
     UP,
     held_upright,
@@ -24,11 +23,6 @@ from itnet.upright import (
     upright_starts,
 )
 from tests.pose_runs import run_with
-
-
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
 
 
 def test_rotation_onto_takes_one_direction_onto_another(rng) -> None:

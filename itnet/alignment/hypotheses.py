@@ -3,7 +3,7 @@
 Pure numpy: no files, no network, no model. Frames (SPEC.md):
 
 * ``T_canonical_from_a`` (4x4) maps a point of cloud A into the category's canonical frame;
-  likewise for B. Both come from IT-Net (``itnet.service.engine.AnytimeRun``).
+  likewise for B. Both come from IT-Net (``itnet.pose.loop.AnytimeRun``).
 * ``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a`` moves cloud A onto cloud B.
 
 Why hypotheses. A category-level pose can be wrong in structured ways: a chair seen from its

@@ -46,15 +46,13 @@ def centre_fit(
         "sensor's error); with --write it becomes the card's centre_correction_up.",
     ),
 ) -> None:
-    """Pose scans of the category's training shapes as served, fit a linear correction of the
-    object centre on them (``itnet.centre``), and measure one run without and with it on the
-    validation views; with --write the card gets it, and the service applies it after the last
-    step (``"centre": false`` in a request turns it off). A second correction, which also takes
-    the direction toward the sensor, is fitted and measured the same way (the scanner's camera
-    is at each scan's origin): the service uses it for requests that give ``viewpoint``. With
-    --up, the runs are held upright by each scan's up direction (as the service holds a request
-    that gives ``up``) and the correction becomes the card's ``centre_correction_up``: requests
-    that give up are finished by it."""
+    """Fit a model's object-centre correction on its category's training shapes and measure it.
+
+    The scans are posed as served; one run without and with the correction is measured on the
+    validation views. ``--write`` stores it in the card, and the service applies it after the
+    last step. A second correction that also takes the direction toward the sensor serves
+    requests that give ``viewpoint``; with ``--up`` the runs are held upright and the correction
+    serves requests that give ``up``."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card

@@ -129,7 +129,7 @@ def classify_export(
     run: Path = typer.Argument(
         ...,
         help="A finished run folder (best.pt, result.json), or a shipped checkpoint "
-        "(itnet/models/classifier.pt): its run is remade from the config it keeps.",
+        "(lab/weights/classifier.pt): its run is remade from the config it keeps.",
     ),
     out: Path = typer.Option(
         Path("itnet/models/classifier.onnx"),
@@ -390,7 +390,7 @@ def classify_train(
     transformer_from: Path | None = typer.Option(
         None,
         help="Start the transformer (only) from this classifier checkpoint's, e.g. a new head "
-        "behind itnet/models/classifier.pt's canonicaliser.",
+        "behind lab/weights/classifier.pt's canonicaliser.",
     ),
     freeze_transformer: bool = typer.Option(
         False, help="Do not train the transformer (its weights and BatchNorm statistics stay)."

@@ -132,7 +132,7 @@ def train(
 
     CPU recipe (default): ~60 minutes on 2 cores. Paper recipe on a GPU:
     --device cuda --batch 100 --steps 20000 --decay-every 2000 --data-workers 2 --no-compile
-    (35 steps/s alone on an H200; scripts/device_train.py trains several categories at once).
+    (35 steps/s on an H200).
     """
     from itnet.model.network import POINT_LOSSES, ROTATIONS
     from itnet.model.scanner import PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES

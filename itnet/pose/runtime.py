@@ -245,7 +245,7 @@ class LoadedClassifier:
     path: Path
     session: ort.InferenceSession
     # the upright classifier (its card's ``upright``) beside this one, for clouds whose up is
-    # known (``itnet.service.recognition``); None: those are classified by this one
+    # known (``itnet.pose.recognition``); None: those are classified by this one
     upright: LoadedClassifier | None = None
 
     def probabilities(self, points: NDArray[np.float32]) -> NDArray[np.float32]:

@@ -1,8 +1,8 @@
 """Large JSON bodies parsed in worker processes, so the parse does not hold the server's GIL.
 
 A 250,000-point JSON body takes pydantic ~0.3 s, all of it holding the GIL: in-process, every
-other request of the server waits that long (issue 14: replies of 50 ms budgets came back
-+580 ms late beside one client looping such bodies), and the parsed Python lists left the
+other request of the server waits that long (replies of 50 ms budgets came back +580 ms late
+beside one client looping such bodies), and the parsed Python lists left the
 server's heap ~90 MiB larger afterwards. Here the body goes down a pipe to a worker process
 (``service/guards/parse_worker.py``), which runs the server's own checks (so a bad body gets the same
 4xx) and sends back the cloud as float64 bytes (24 bytes a point) and the request's other

@@ -77,6 +77,23 @@ function showClouds() {
 /** The model's entry of GET /v1/models (undefined for 'auto'). */
 const modelInfo = (name) => state.models.find((m) => m.name === name);
 
+/** The example pair of a category: the one named after it, else the first of that category. */
+const pairOf = (category) => state.pairs.find((p) => p.category && p.name === category)
+  ?? state.pairs.find((p) => p.category && p.category === category);
+
+/** The align tab follows its example pair: where the model chosen is of another category, it
+ * becomes the loaded model of the pair's category, else 'auto' (a chosen 'auto' stays). */
+function followPair() {
+  const pair = state.pairs.find((p) => p.a === $('example-a').value && p.b === $('example-b').value);
+  const chosen = $('model').value;
+  if (!pair?.category || chosen === 'auto' || modelInfo(chosen)?.category === pair.category) return;
+  const match = state.models.find((m) => m.name === pair.category)
+    ?? state.models.find((m) => m.category === pair.category);
+  const offered = [...$('model').options].map((o) => o.value);
+  const next = match?.name ?? (offered.includes('auto') ? 'auto' : null);
+  if (next) { $('model').value = next; showModel(); }
+}
+
 function showModel() {
   const info = modelInfo($('model').value);
   view.setSymmetry(info ? info.symmetry : 'none');
@@ -289,8 +306,10 @@ async function main() {
   options($('model'), names, params.get('model') ?? models.default_model);
   const clouds = examples.examples.map((e) => e.name);
   options($('example'), clouds, params.get('example') ?? clouds[0]);
-  options($('example-a'), clouds, params.get('a') ?? examples.pairs[0]?.a ?? clouds[0]);
-  options($('example-b'), clouds, params.get('b') ?? examples.pairs[0]?.b ?? clouds[1]);
+  // The align tab opens on the pair of the chosen model's category where there is one.
+  const first = pairOf(modelInfo($('model').value)?.category) ?? examples.pairs[0];
+  options($('example-a'), clouds, params.get('a') ?? first?.a ?? clouds[0]);
+  options($('example-b'), clouds, params.get('b') ?? first?.b ?? clouds[1]);
   if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
   if (['1', '4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
@@ -304,12 +323,18 @@ async function main() {
   if (params.get('refine') === '0') $('refine').checked = false;
   setTab(params.get('tab') === 'align' ? 'align' : 'pose');
   showModel();
+  if (document.body.dataset.tab === 'align' && !params.has('model')) followPair();
 
-  document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => { setTab(b.dataset.tab); saveUrl(); }));
+  document.querySelectorAll('.tab').forEach((b) => b.addEventListener('click', () => {
+    setTab(b.dataset.tab);
+    if (b.dataset.tab === 'align') followPair();
+    saveUrl();
+  }));
   $('model').addEventListener('change', () => { showModel(); saveUrl(); });
   for (const id of ['budget', 'max-iterations', 'ensemble', 'units', 'up', 'viewpoint', 'recheck', 'verify', 'mirror', 'centre', 'play', 'refine']) $(id).addEventListener('change', () => saveUrl());
   const pick = (slot, id) => $(id).addEventListener('change', () => loadCloud(slot, $(id).value).catch((err) => setStatus(err.message, true)));
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
+  for (const id of ['example-a', 'example-b']) $(id).addEventListener('change', () => { followPair(); saveUrl(); });
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');
   $('run').addEventListener('click', () => (document.body.dataset.tab === 'pose' ? runPose() : runAlignTab()));
   $('cancel').addEventListener('click', () => state.stream?.cancel());

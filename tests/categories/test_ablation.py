@@ -3,10 +3,12 @@
 import json
 
 import numpy as np
+import pytest
 
 from itnet.model.ablation import main
 
 
+@pytest.mark.train
 def test_ablation_rows_train_measure_and_write_the_table(tmp_path):
     rng = np.random.default_rng(0)
     for split, count in (("train", 12), ("test", 3)):

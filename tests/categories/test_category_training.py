@@ -28,6 +28,7 @@ def two_categories(tmp_path_factory):
     return write_modelnet_tree(root, {"seat": _chair_like, "bench": _bench_like}, rng, 10, 3)
 
 
+@pytest.mark.train
 def test_one_network_for_two_categories_with_their_symmetries(two_categories, tmp_path):
     runner = CliRunner()
     run, cache = tmp_path / "run", tmp_path / "cache"
@@ -68,6 +69,7 @@ def test_one_network_for_two_categories_with_their_symmetries(two_categories, tm
     assert (report["category"], report["symmetry"]) == ("bench", "none")
 
 
+@pytest.mark.train
 def test_a_users_category_trains_with_the_symmetry_it_is_given(two_categories, tmp_path):
     runner = CliRunner()
     run = tmp_path / "run"
@@ -76,7 +78,7 @@ def test_a_users_category_trains_with_the_symmetry_it_is_given(two_categories, t
         ["train", "--data", str(two_categories), "--frame", "canonical", "--category", "bench",
          "--symmetry", "yaw180", "--cache", str(tmp_path / "cache"), "--out", str(run),
          "--steps", "2", "--batch", "4", "--points", "32", "--iterations", "1",
-         "--eval-every", "2", "--threads", "1"],
+         "--eval-every", "2", "--threads", "1", "--no-compile"],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     start = json.loads((run / "log.jsonl").read_text().splitlines()[0])

@@ -6,7 +6,6 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -14,14 +13,13 @@ from cls_helpers import SHAPES, export_fixed
 
 
 @pytest.fixture(scope="session")
-def pose_dir(tmp_path_factory: pytest.TempPathFactory, make_net: Callable[..., Any]) -> Path:
+def pose_dir(tmp_path_factory: pytest.TempPathFactory, export_model: Callable[..., Path]) -> Path:
     """A folder with one tiny pose model: name 'chair', category 'chair'."""
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder = tmp_path_factory.mktemp("pose")
     card = ModelCard(name="chair", category="chair", points=128, recommended_iterations=4)
-    export_step(make_net(), card, folder / "chair.onnx")
+    export_model(card, folder / "chair.onnx")
     return folder
 
 

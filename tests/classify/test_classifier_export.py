@@ -149,7 +149,7 @@ def test_threshold_is_the_lowest_that_reaches_the_target() -> None:
 
 
 def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
-    """itnet/models/classifier.pt and classifier_local.pt (the weights a later fine-tune starts
+    """lab/weights/classifier.pt and classifier_local.pt (the weights a later fine-tune starts
     from: the PointNet head and the local head behind one canonicaliser) give the shipped float32
     graph's probabilities, BatchNorm folded, on noise, a sphere, a box's side and an example scan: the
     cascade's, the PointNet head's alone where it is sure, the two heads fused elsewhere."""
@@ -161,8 +161,9 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     from itnet.service.api.routes.examples import examples_dir
 
     shipped = default_model_dir()
-    net, state = load_classifier(shipped / "classifier_local.pt")
-    other, other_state = load_classifier(shipped / "classifier.pt")
+    weights = Path(__file__).resolve().parents[2] / "lab" / "weights"  # not shipped
+    net, state = load_classifier(weights / "classifier_local.pt")
+    other, other_state = load_classifier(weights / "classifier.pt")
     graph = load_any(shipped / "classifier.onnx", warm_up=False)
     assert isinstance(graph, LoadedClassifier) and "optimizer" not in state
     assert state["classes"] == other_state["classes"] == graph.card.classes

@@ -15,6 +15,7 @@ from cls_helpers import SHAPES, tiny_run
 from itnet.model.classify.train import train
 
 
+@pytest.mark.train
 def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path: Path) -> None:
     config = tiny_run(three_classes, tmp_path)
     result = train(config)
@@ -36,6 +37,7 @@ def test_tiny_training_lowers_the_loss_and_resumes(three_classes: Path, tmp_path
     assert [s["step"] for s in starts] == [0, 60]
 
 
+@pytest.mark.train
 def test_data_workers_give_the_same_run(three_classes: Path, tmp_path: Path) -> None:
     """--data-workers makes the views in other processes: the same batches (seeded by the
     step), so the same losses as making them in the training loop."""
@@ -50,6 +52,7 @@ def test_data_workers_give_the_same_run(three_classes: Path, tmp_path: Path) -> 
     assert np.allclose(losses[2], losses[0], rtol=1e-5), losses
 
 
+@pytest.mark.train
 @pytest.mark.parametrize("int8", [False, True])
 def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     three_classes: Path, tmp_path: Path, int8: bool
@@ -100,6 +103,7 @@ def test_exported_card_carries_the_accuracy_measured_on_the_graph(
     assert (tmp_path / "confusion.png").read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.train
 def test_a_graph_served_at_fewer_points_is_measured_at_them(three_classes: Path, tmp_path) -> None:
     """``classify-export --points P`` (fewer than trained): the card's accuracy and threshold are
     the graph's on views of P points, as it will be served, not on the trained views."""
@@ -132,6 +136,7 @@ def test_a_graph_served_at_fewer_points_is_measured_at_them(three_classes: Path,
     assert graph.card.accuracy == pytest.approx(measured, abs=1e-4)
 
 
+@pytest.mark.train
 def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -169,6 +174,7 @@ def test_a_shipped_checkpoint_reexports_with_a_smaller_canonicaliser(
     assert run.exit_code == 2 and "not a classifier checkpoint" in run.output
 
 
+@pytest.mark.train
 def test_a_run_with_fewer_canonical_points_trains_and_exports_them(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -230,6 +236,7 @@ def test_balanced_batches_draw_classes_alike() -> None:
     assert np.all(np.abs(share[True] - 1 / 3) < 0.1), share[True]  # one third each
 
 
+@pytest.mark.train
 def test_balanced_run_keeps_the_best_mean_class_accuracy(tmp_path: Path) -> None:
     import torch
 
@@ -353,6 +360,7 @@ def _cone(r: np.random.Generator, n: int) -> np.ndarray:
     return np.c_[ring * np.cos(angle), ring * np.sin(angle), 2 * height - 1]
 
 
+@pytest.mark.train
 def test_up_weight_teaches_itnet_to_stand_views_up(tmp_path: Path) -> None:
     """Trained with the up-axis term on shapes whose up shows (a disc on a pole, a cone), IT-Net
     learns to turn the views upright: the logged term falls from ~1 (random) to well under."""
@@ -372,6 +380,7 @@ def test_up_weight_teaches_itnet_to_stand_views_up(tmp_path: Path) -> None:
     assert json.loads((config.out / "config.json").read_text())["up_weight"] == 1.0
 
 
+@pytest.mark.train
 def test_without_up_weight_the_loss_is_the_class_loss_alone(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -381,6 +390,7 @@ def test_without_up_weight_the_loss_is_the_class_loss_alone(
     assert [json.loads(line)["penalty"] for line in log if '"penalty"' in line] == [0.0, 0.0]
 
 
+@pytest.mark.train
 def test_init_seed_trains_another_network_on_the_same_split(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -401,6 +411,7 @@ def test_init_seed_trains_another_network_on_the_same_split(
     np.testing.assert_array_equal(views[None][1], views[1][1])
 
 
+@pytest.mark.train
 def test_an_upright_run_exports_an_upright_card_measured_fused_with_the_other(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -447,6 +458,7 @@ def test_an_upright_run_exports_an_upright_card_measured_fused_with_the_other(
     assert classifier.upright.card.upright and not classifier.card.upright
 
 
+@pytest.mark.train
 def test_moving_average_competes_on_validation_and_resumes(
     three_classes: Path, tmp_path: Path
 ) -> None:
@@ -484,6 +496,7 @@ def test_moving_average_competes_on_validation_and_resumes(
     assert first[0.2] != pytest.approx(first[0.0], rel=1e-3)
 
 
+@pytest.mark.train
 def test_a_run_can_hold_the_test_split_back_until_it_is_exported(
     three_classes: Path, tmp_path: Path
 ) -> None:

@@ -63,6 +63,7 @@ def test_local_head_sees_where_a_point_sits_among_its_neighbours() -> None:
         torch.testing.assert_close(head(cloud), head(shuffled))  # order does not matter
 
 
+@pytest.mark.train
 def test_a_local_head_trains_behind_a_frozen_transformer(
     three_classes: Path,
     tmp_path: Path,
@@ -128,6 +129,7 @@ def test_a_local_head_trains_behind_a_frozen_transformer(
     assert run.exit_code == 2 and "share the transformer" in run.output
 
 
+@pytest.mark.train
 def test_transformer_weights_must_fit(three_classes: Path, tmp_path: Path) -> None:
     source = tiny_run(three_classes, tmp_path / "source", steps=5, eval_every=5, hold_test=True)
     train(source)

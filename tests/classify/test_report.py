@@ -50,9 +50,9 @@ def test_a_rerun_without_the_rows_runs_keeps_the_recorded_table(tmp_path: Path) 
     out, docs = tmp_path / "runs", tmp_path / "docs"
     _row(out, "none", 0.5, rng)
     _row(out, "itnet-2", 0.7, rng)
-    write_report(out, docs, trained="a leased GPU, batch 100")
+    write_report(out, docs, trained="one GPU, batch 100")
     table = (docs / "classification.md").read_text()
-    assert "Trained on: a leased GPU, batch 100." in table
+    assert "Trained on: one GPU, batch 100." in table
     (docs / "confusion.png").write_bytes(b"the shipped graph's plot")
     write_report(tmp_path / "gone", docs)
     assert (docs / "classification.md").read_text() == table  # the recorded rows stay, and where

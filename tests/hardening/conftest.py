@@ -58,14 +58,15 @@ def points() -> list[list[float]]:
 
 
 @pytest.fixture(scope="session")
-def heavy_model_dir(make_net: Callable[..., Any], tmp_path_factory: pytest.TempPathFactory) -> Path:
+def heavy_model_dir(
+    export_model: Callable[..., Path], tmp_path_factory: pytest.TempPathFactory
+) -> Path:
     """A random IT-Net whose per-point layers are wide (64, 384, 4096): about 10 ms a step on
     the tests' 300-point cloud with one thread, so a request can still be running when the
     signal comes. (Padding the cloud would not do: the runtime feeds a small cloud whole.)"""
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder = tmp_path_factory.mktemp("heavy")
     card = ModelCard(name="tiny", category="chair", points=1024, recommended_iterations=5)
-    export_step(make_net(point_channels=(64, 384, 4096)), card, folder / "tiny.onnx")
+    export_model(card, folder / "tiny.onnx", point_channels=(64, 384, 4096))
     return folder

@@ -1,5 +1,5 @@
-"""Bodies that are legal in size but hostile in content (issue 14's smaller findings): each
-failed on the code before ``Decoder``, strict coordinates and the cut names."""
+"""Bodies that are legal in size but hostile in content: the ``Decoder``, strict coordinates
+and the cut names."""
 
 from __future__ import annotations
 
@@ -86,6 +86,9 @@ def test_too_many_points_are_refused_without_parsing_them() -> None:
     limit = 20_000
     body = json.dumps({"points": [[0.1, 0.2, 0.3]] * (10 * limit)}).encode()
     decoder = Decoder(max_points=limit, heavy_bytes=len(body) * 2, lanes=1, retry_after_s=1)
+    start = time.perf_counter()
+    json.loads(body)  # what parsing it would cost, on this machine at this moment
+    parse_seconds = time.perf_counter() - start
     tracemalloc.start()
     start = time.perf_counter()
     with pytest.raises(ServiceError) as err:
@@ -94,7 +97,7 @@ def test_too_many_points_are_refused_without_parsing_them() -> None:
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert err.value.status == 422 and "before parsing" in err.value.detail
-    assert peak < len(body) / 10 and seconds < 0.05
+    assert peak < len(body) / 10 and seconds < parse_seconds / 5, (seconds, parse_seconds)
 
 
 def test_large_json_bodies_are_parsed_one_at_a_time(points: list) -> None:

@@ -32,7 +32,7 @@ def test_the_budget_counts_from_arrival(slow: LoadedModel, points: list) -> None
                      started=time.perf_counter() - 0.040)  # fmt: skip
     assert run.run_to_end() is run.last
     assert (run.iteration, run.stopped_by) == (0, "budget")
-    assert 40 <= run.elapsed_ms() < 50
+    assert 40 <= run.elapsed_ms() < 60  # a step begun would have ended at 60 ms or later
 
 
 def test_a_run_waits_for_a_step_slot_only_as_long_as_its_budget_allows(
@@ -55,7 +55,9 @@ def test_a_run_waits_for_a_step_slot_only_as_long_as_its_budget_allows(
     finally:
         release.set()
     assert (run.iteration, run.stopped_by) == (0, "budget")
-    assert 60 <= run.elapsed_ms() <= 100  # gave up when a step could no longer fit
+    # It gave up when a step could no longer fit (at 80 ms), not at the end of the budget's wait
+    # for the slot; a busy machine may wake the thread late, by up to the margin.
+    assert 60 <= run.elapsed_ms() <= 100 + MARGIN_MS
 
 
 def test_the_step_prediction_covers_scattered_steps_then_forgets_them(tiny: LoadedModel) -> None:
@@ -84,19 +86,26 @@ def overruns(model: LoadedModel, points: list, runs: int, budget_ms: float) -> l
 
 @pytest.mark.slow
 def test_concurrent_cpu_bound_runs_keep_their_budgets(heavy_model_dir: Path, points: list) -> None:
-    """Eight runs at once of a 10 ms CPU-bound step, one step slot per two cores: none overruns
-    by more than the margin, and the steps still make progress."""
+    """Eight runs at once of a 10 ms CPU-bound step, one step slot per two cores: nine in ten
+    end within the margin of their budget, and none later than two more steps. Without the step
+    slots all eight step at once, each step takes several times its prediction, and most runs
+    overrun by more than that. (A busy machine may steal one step's time from one run: that is
+    the second bound, not the first.)"""
+    from itnet.service.benchmark import time_step_ms
+
     model = load_model(heavy_model_dir / "tiny.onnx", threads=1, concurrent_steps=1)
+    step_ms = time_step_ms(heavy_model_dir / "tiny.onnx", 1, len(points), 1, repeats=10)
     late = [ms for _ in range(3) for ms in overruns(model, points, runs=8, budget_ms=80)]
-    assert max(late) <= MARGIN_MS, sorted(late)[-5:]
+    assert np.percentile(late, 90) <= MARGIN_MS, sorted(late)[-5:]
+    assert max(late) <= MARGIN_MS + 2 * step_ms, (sorted(late)[-5:], step_ms)
 
 
 @pytest.mark.slow
 def test_a_live_server_under_load_keeps_the_budget(
     heavy_model_dir: Path, settings: Settings, points: list
 ) -> None:
-    """Twelve clients in closed loops for 2 s against 4 slots: every answer within budget plus
-    the margin, the excess refused at once, nothing else. (The clients are coroutines of one
+    """Twelve clients in closed loops for 2 s (or more) against 4 slots: every answer within
+    budget plus the margin, the excess refused at once, nothing else. (The clients are coroutines of one
     thread: client threads would fight the server for this process's GIL.)"""
     from itnet.service.benchmark import time_step_ms
 
@@ -124,13 +133,19 @@ def test_a_live_server_under_load_keeps_the_budget(
     # client coroutine starved by the server's threads (same process) could meet them and see
     # its kept-alive connection closed, which is not what this test is about.
     relaxed = settings.server.model_copy(update={"header_timeout_s": 10.0, "keep_alive_s": 10})
+    # Answers with no step meet any budget, so the load goes on (up to 6 s) until answers with
+    # steps are enough to judge by: a busy machine can leave a 2 s window with almost none.
+    replies: list[tuple[int, dict]] = []
     with live_server(settings.model_copy(update={"server": relaxed}), {"tiny": model}) as server:
-        replies = asyncio.run(load(server.url))
+        for _ in range(3):
+            replies += asyncio.run(load(server.url))
+            if sum(body.get("iterations", 0) for status, body in replies if status == 200) > 20:
+                break
     statuses = {status for status, _ in replies}
     assert statuses <= {200, 503}, statuses
     elapsed = np.array([body["elapsed_ms"] for status, body in replies if status == 200])
     steps = sum(body["iterations"] for status, body in replies if status == 200)
-    assert len(elapsed) > 20 and steps > 20
+    assert len(elapsed) > 20 and steps > 20, (len(elapsed), steps)
     # p90 within the margin; the rest of the tail is the machine's, not the service's (another
     # process on these two cores can take the CPU from any thread for tens of ms).
     assert np.percentile(elapsed, 90) <= budget_ms + MARGIN_MS, np.sort(elapsed)[-10:]

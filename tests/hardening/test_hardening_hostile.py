@@ -1,7 +1,6 @@
-"""Hostile clients against a real server on loopback (issue 14's findings, scaled down: 32
-connections, 0.5 s head and body deadlines, 512 KiB of request bytes, 256 KiB of unfinished
-WebSocket messages). Each test failed on the code before the connection table, the byte
-budgets and the deadlines from the first byte.
+"""Hostile clients against a real server on loopback, scaled down (32 connections, 0.5 s head
+and body deadlines, 512 KiB of request bytes, 256 KiB of unfinished WebSocket messages): the
+connection table, the byte budgets and the deadlines from the first byte hold.
 """
 
 from __future__ import annotations

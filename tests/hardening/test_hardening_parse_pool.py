@@ -1,5 +1,4 @@
-"""Large JSON bodies are parsed in a worker process (``service/guards/parse_pool.py``, issue 14 (b) and
-(c)): other requests are not held up by the parse, the server never holds the parsed lists, bad
+"""Large JSON bodies are parsed in a worker process (``service/guards/parse_pool.py``): other requests are not held up by the parse, the server never holds the parsed lists, bad
 bodies get the same 4xx as in-process, and the worker goes away when idle."""
 
 from __future__ import annotations

@@ -19,9 +19,8 @@ OFFSET = [0.05, -0.02, 0.1]  # the correction's constant prediction, normalised 
 
 @pytest.fixture(scope="module")
 def centred(
-    tmp_path_factory: pytest.TempPathFactory, make_net, settings: Settings
+    tmp_path_factory: pytest.TempPathFactory, export_model, settings: Settings
 ) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder: Path = tmp_path_factory.mktemp("centred_models")
@@ -30,7 +29,7 @@ def centred(
     correction = CentreCorrection(np.zeros(FEATURE_COUNT), np.ones(FEATURE_COUNT), weights)
     card = ModelCard(name="tiny", category="chair", points=256, recommended_iterations=3,
                      centre_correction=correction.to_dict(), centre_evaluation="measured")  # fmt: skip
-    export_step(make_net(), card, folder / "tiny.onnx")
+    export_model(card, folder / "tiny.onnx")
     with TestClient(create_app(Settings(model_dir=folder, limits=settings.limits))) as client:
         yield client
 

@@ -65,10 +65,9 @@ def test_the_stream_holds_every_estimate_upright(client: TestClient, make_cloud)
 
 @pytest.fixture(scope="module")
 def needs_up(
-    tmp_path_factory: pytest.TempPathFactory, make_net, settings: Settings
+    tmp_path_factory: pytest.TempPathFactory, export_model, settings: Settings
 ) -> Iterator[TestClient]:  # type: ignore[no-untyped-def]
     from itnet.centre import FEATURE_COUNT, CentreCorrection
-    from itnet.export.onnx_export import export_step
     from itnet.model_card import ModelCard
 
     folder: Path = tmp_path_factory.mktemp("up_models")
@@ -78,7 +77,7 @@ def needs_up(
     card = ModelCard(name="box", category="dresser", points=256, recommended_iterations=3,
                      requires_up=True, up_evaluation="measured with up",
                      centre_correction_up=upright_centre.to_dict())  # fmt: skip
-    export_step(make_net(), card, folder / "box.onnx")
+    export_model(card, folder / "box.onnx")
     with TestClient(create_app(Settings(model_dir=folder, limits=settings.limits))) as client:
         yield client
 

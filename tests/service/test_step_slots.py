@@ -1,4 +1,4 @@
-"""Earliest-deadline-first step slots (service/step_slots.py)."""
+"""Earliest-deadline-first step slots (itnet/pose/step_slots.py)."""
 
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ import pytest
 from itnet.cloud_io import read_cloud
 from itnet.geometry import rotation_error_deg
 
-pytestmark = [pytest.mark.e2e, pytest.mark.slow]
+pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.browser]
 EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
 DONE = "['done', 'failed'].includes(document.body.dataset.run)"
 
@@ -78,7 +78,7 @@ def test_the_ensemble_control_fuses_runs_as_the_api_does(live_server, browser_pa
     assert api["centre"] is True and "centre corrected" in page.text_content("#status")
     assert api["verified"] is True and shown["verified"] is True  # the chair's card: verify_fused
     assert "fused around the run verify found likeliest" in page.text_content("#status")
-    # Back to the model's count (8 runs for the chair since session 34): the request carries no
+    # Back to the model's count (8 runs for the chair): the request carries no
     # ensemble, the URL forgets it, and the reply says how many the card's default ran.
     page.select_option("#ensemble", "")
     page.click("#run")
@@ -163,6 +163,25 @@ def test_the_alignment_tab_moves_a_onto_b(live_server, browser_page):
             "budget_ms": 5000}  # fmt: skip
     api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
     assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
+
+
+def test_the_alignment_tab_follows_its_example_pairs_category(live_server, browser_page):
+    """Opened without a model, the align tab shows the default model's pair (the chair's); a bed
+    pair, opened or picked, selects the bed's model; a chosen 'auto' stays."""
+    page = browser_page
+    page.goto(f"{live_server.url}/?tab=align")
+    page.wait_for_function("document.body.dataset.ready === 'true'")
+    assert page.input_value("#example-a") == "chair_a" and page.input_value("#model") == "chair"
+    page.select_option("#example-a", "bed_a")
+    page.select_option("#example-b", "bed_b")
+    assert page.input_value("#model") == "bed"
+    page.goto(f"{live_server.url}/?tab=align&a=toilet_a&b=toilet_b")
+    page.wait_for_function("document.body.dataset.ready === 'true'")
+    assert page.input_value("#model") == "toilet"
+    page.select_option("#model", "auto")
+    page.select_option("#example-a", "table_a")
+    page.select_option("#example-b", "table_b")
+    assert page.input_value("#model") == "auto"
 
 
 def test_a_model_that_needs_up_aligns_an_example_pair_by_its_scans_ups(live_server, browser_page):

@@ -17,6 +17,7 @@ from itnet.service.settings import Settings
 
 runner = CliRunner()
 SHIPPED = Path(__file__).resolve().parents[2] / "itnet" / "models"
+WEIGHTS = Path(__file__).resolve().parents[2] / "lab" / "weights"  # torch weights, not shipped
 
 
 def test_models_lists_what_the_service_lists(tiny_model_dir):
@@ -53,7 +54,7 @@ def test_models_table_shows_the_shipped_cards():
     assert header.split() == ["name", "category", "symmetry", "mirror", "centre", "up",
                               "precision", "points", "runs", "verifier", "accuracy",
                               "step"]  # fmt: skip
-    for name in ("chair", "bed"):  # the bed's card recommends 8 runs fused (session 19)
+    for name in ("chair", "bed"):  # the bed's card recommends 8 runs fused
         row = next(r for r in rows if r.startswith(f"{name} "))
         card = load_model(SHIPPED / f"{name}.onnx", warm_up=False).card
         accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
@@ -64,13 +65,13 @@ def test_models_table_shows_the_shipped_cards():
                                    str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
-        # the chair's learned verifier (session 34): verify for fused runs, recheck for one run
+        # the chair's learned verifier: verify for fused runs, recheck for one run
         assert row.split()[9] == ("verify+recheck:4" if name == "chair" else "-")
-    # the night stand is served only with the up direction (session 22): its row says so
+    # the night stand is served only with the up direction: its row says so
     night = next(r for r in rows if r.startswith("night_stand "))
     assert night.split()[5] == "needed"
     assert load_model(SHIPPED / "night_stand.onnx", warm_up=False).card.requires_up
-    # the dresser too (session 24), its centre finished by the correction fitted held upright
+    # the dresser too, its centre finished by the correction fitted held upright
     dresser = load_model(SHIPPED / "dresser.onnx", warm_up=False)
     row = next(r for r in rows if r.startswith("dresser "))
     assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up", "needed", "int8",
@@ -83,13 +84,13 @@ def test_models_table_shows_the_shipped_cards():
         bed.mirror_fused
         and not load_model(SHIPPED / "bathtub.onnx", warm_up=False).card.mirror_fused
     )
-    # the bathtub (session 19): 8 runs fused within the default 50 ms; two mirror planes
+    # the bathtub: 8 runs fused within the default 50 ms; two mirror planes
     row = next(r for r in rows if r.startswith("bathtub "))
     tub = load_model(SHIPPED / "bathtub.onnx", warm_up=False).card
     assert row.split()[:9] == ["bathtub", "bathtub", "yaw180", "x,z",
                                centre_column(tub), "-", "int8", "256", "8"]  # fmt: skip
     assert "8 runs fused, within 50 ms" in tub.ensemble_evaluation
-    # the sofa (session 20): 8 runs fused, finished by its left-right mirror too
+    # the sofa: 8 runs fused, finished by its left-right mirror too
     row = next(r for r in rows if r.startswith("sofa "))
     sofa = load_model(SHIPPED / "sofa.onnx", warm_up=False).card
     assert row.split()[:9] == ["sofa", "sofa", "none", "x",
@@ -106,7 +107,7 @@ def test_models_in_a_folder_without_models_is_an_error(tmp_path):
 def test_export_names_the_model_after_its_category(tmp_path):
     """A model trained with --category mug is served as 'mug' (it used to be 'chair')."""
     torch = pytest.importorskip("torch")
-    state = torch.load(SHIPPED / "chair.pt", map_location="cpu", weights_only=False)
+    state = torch.load(WEIGHTS / "chair.pt", map_location="cpu", weights_only=False)
     state["config"] = {**state["config"], "category": "mug"}
     checkpoint = tmp_path / "mug.pt"
     torch.save(state, checkpoint)
@@ -120,15 +121,14 @@ def test_export_names_the_model_after_its_category(tmp_path):
 
 @pytest.mark.parametrize("name", ["chair", "toilet"])
 def test_shipped_weights_are_the_shipped_model(name):
-    """itnet/models/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
-    serves, up to the int8 rounding of its point layers: a few degrees on clouds of noise (up
-    to 6 for one of these eight with the session-12 chair), while another model's weights are
+    """lab/weights/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
+    serves, up to the int8 rounding of its point layers: a few degrees on clouds of noise, while another model's weights are
     over 150 degrees off (median)."""
     torch = pytest.importorskip("torch")
     from itnet.geometry import rotation_error_deg
     from itnet.model.train import load_checkpoint
 
-    net, _ = load_checkpoint(SHIPPED / f"{name}.pt")
+    net, _ = load_checkpoint(WEIGHTS / f"{name}.pt")
     served = load_model(SHIPPED / f"{name}.onnx", warm_up=False)
     x = np.random.default_rng(0).normal(size=(8, 256, 3)).astype(np.float32)
     pose = np.tile(np.eye(4, dtype=np.float32), (8, 1, 1))

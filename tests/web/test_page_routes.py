@@ -48,6 +48,9 @@ def test_examples_list_and_points(client):
     pair = next(p for p in listed["pairs"] if p["name"] == "chair")
     truth = json.loads((EXAMPLES / "chair_truth.json").read_text())["T_b_from_a"]
     assert (pair["a"], pair["b"], pair["T_b_from_a"]) == ("chair_a", "chair_b", truth)
+    # each pair names its category, so that the align tab can pick the model that fits it
+    assert {p["name"]: p["category"] for p in listed["pairs"]}["bed"] == "bed"
+    assert all(p["category"] == p["name"].split("_quarter")[0] for p in listed["pairs"])
     unknown = client.get("/v1/examples/nope")
     assert unknown.status_code == 404 and "chair_a" in unknown.json()["detail"]
 
@@ -90,6 +93,8 @@ def test_a_bad_file_gets_a_clear_4xx(client, filename, body, status, says):
 def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_model_dir):
     from itnet.alignment.estimators import in_process_estimator
     from itnet.alignment.pipeline import AlignOptions, align_clouds
+    from itnet.pose.catalog import Catalog
+    from itnet.pose.request import PoseRequest
     from itnet.pose.runtime import load_models
 
     a, b = read_cloud(EXAMPLES / "chair_a.ply"), read_cloud(EXAMPLES / "chair_b.ply")
@@ -97,12 +102,14 @@ def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_mo
     reply = client.post("/v1/align", json=body)
     assert reply.status_code == 200, reply.text
     got = reply.json()
-    (model,) = load_models(tiny_model_dir, warm_up=False).values()
+    catalog = Catalog(load_models(tiny_model_dir, warm_up=False))
     options = AlignOptions(symmetry=got["symmetry"], refine=False)
-    want = align_clouds(a, b, in_process_estimator(model, 2000), options)
+    request = PoseRequest(model="tiny", budget_ms=2000)
+    want = align_clouds(a, b, in_process_estimator(catalog, request), options)
     assert got["model"] == "tiny" and got["refined"] is False
     assert np.allclose(got["T_b_from_a"], want.T_b_from_a, atol=1e-9)
-    assert got["iterations"] == want.iterations == 48  # 4 starts x 6 iterations, both clouds
+    # each cloud: its served pose (5 steps) and 4 fused runs of 5 as alternatives
+    assert got["iterations"] == want.iterations == 20
 
 
 def test_align_with_each_clouds_up_holds_both_poses_upright(client):

@@ -56,7 +56,7 @@ def _catalogue() -> dict[str, Any]:
             known = json.loads(truth.read_text())
             ups = {k: known[k] for k in ("up_a", "up_b") if k in known}  # each scan's up
             pairs.append({"name": pair, "a": f"{pair}_a", "b": f"{pair}_b",
-                          "T_b_from_a": known["T_b_from_a"],
+                          "category": known.get("category"), "T_b_from_a": known["T_b_from_a"],
                           "source": known.get("source", ""), **ups})  # fmt: skip
     return {"clouds": clouds, "pairs": pairs}
 
