@@ -188,7 +188,7 @@ def sample_cloud(points: int, seed: int = 0) -> np.ndarray:
 
 
 # Closed-loop clients in separate processes (``run_clients``): one asyncio loop serving 64
-# clients on the server's two cores measured its own queueing as the server's (issue 14).
+# clients on the server's two cores would measure its own queueing as the server's.
 # A row per reply: (status, client wall ms, server elapsed_ms or nan, iterations, last step ms).
 Row = tuple[int, float, float, int, float]
 

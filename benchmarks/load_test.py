@@ -131,8 +131,7 @@ def main(
         None,
         min=1,
         max=16,
-        help="'ensemble' of every request (default: none, the card's; the chair's is 8 runs "
-        "since session 34, one run before: docs/service.md's earlier tables are one run)",
+        help="'ensemble' of every request (default: none, the card's plan)",
     ),
 ) -> None:
     """Run the load test and print its table."""

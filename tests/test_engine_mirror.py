@@ -93,7 +93,7 @@ def test_ensembles_leave_it_off_unless_asked(mirrored, cloud):
 
 
 def test_a_card_with_mirror_fused_finishes_fused_runs_by_default(mirror_dir, cloud):
-    """mirror_fused on the card (the chair's, session 19) finishes the ensemble's fused pose too,
+    """mirror_fused on the card finishes the ensemble's fused pose too,
     unless the request says not to; a single run is finished either way."""
     model = load_model(mirror_dir / "tiny.onnx", threads=1)
     model.card = model.card.model_copy(update={"mirror_fused": True})

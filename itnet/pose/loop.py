@@ -179,9 +179,13 @@ class AnytimeRun(Iterator[Estimate]):
         """A step of ``runs`` runs of ``points`` points each, by the running prediction."""
         return self.model.run_step_ms(runs, points)
 
-    def planned_work_ms(self) -> float:
-        """The plan's steps at the model's current step time (the admission's measure)."""
-        return self.plan.max_iterations * self.model.run_step_ms(self.plan.runs, self._size)
+    def needed_work_ms(self) -> float:
+        """The steps this run still needs at the model's current step time: its plan's, up to
+        the model's recommended iterations (a request for more takes those as the budget
+        allows). The service admits by it (``service/admission.py``)."""
+        needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
+        left = max(0, needed - self.iteration)
+        return left * self.model.run_step_ms(self.plan.runs, self._size)
 
     def subset_points(self) -> int:
         """Points of one fused run's subset of this cloud (the stages' extra runs use it)."""
@@ -288,8 +292,9 @@ class AnytimeRun(Iterator[Estimate]):
                 f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
             )
         raise OverloadedError(
-            f"no step of model {self.model.card.name!r} fit in budget_ms "
-            f"{self.plan.budget_ms:g} (the machine is busy: retry, or give a larger budget)"
+            f"no step of model {self.model.card.name!r} fit in budget_ms {self.plan.budget_ms:g}: "
+            f"{self.elapsed_ms():.0f} ms had passed since the request arrived (receiving it, "
+            "waiting for the busy machine); retry, or give a larger budget"
         )
 
     def category_message(self) -> dict:

@@ -206,22 +206,18 @@ def test_the_shipped_table_poses_and_aligns_its_example_within_its_symmetry():
 
 def test_the_shipped_toilet_aligns_its_example_pair():
     """The installed toilet model on a held-out ModelNet10 toilet scanned twice in metres (the
-    first pair made, not picked). Posed alone, both views miss (session 12's toilet: 27° and
-    69° off); the pair is aligned all the same, because itnet-align tries each view's iterates
-    and turns and lets ICP and the overlap score choose."""
+    first pair made, not picked). The composed served poses miss; the pair is aligned all the
+    same, because itnet-align weighs each view's runs (and 4 fused runs where the toilet's card
+    plans one) and lets ICP and the overlap score choose."""
     assert_aligns_example_pair("toilet")
 
 
 def test_the_shipped_bed_aligns_its_example_pair_and_auto_finds_the_bed_given_up():
-    """The installed bed model (8 runs fused by default for a pose; itnet-align runs its own
-    starts) on a held-out ModelNet10 bed scanned twice in metres (the first pair made, seed 3).
-    With --model auto and each scan's up (a level-sensing camera's: the truth's canonical +y in
-    the scan's frame) the upright classifier joins and the pair is a bed. Without up this pair
-    is unsure: sessions 28-30's classifier read it as a sofa (the first cloud: sofa 0.52, bed
-    0.17), session 31's as a bathtub (0.40 for the two, bed 0.23; the first cloud alone leans
-    bed, 0.31 against bathtub 0.30): a low, long shape seen edge-on, the bed's commonest
-    confusions. Since session 32 (the cascade, and 4 looks for an unsure cloud) it reads as a
-    bed, still unsure (0.54)."""
+    """The installed bed model (8 runs fused by default; itnet-align weighs each of them) on a
+    held-out ModelNet10 bed scanned twice in metres (the first pair made, seed 3). With --model
+    auto and each scan's up (a level-sensing camera's: the truth's canonical +y in the scan's
+    frame) the upright classifier joins and the pair is a bed. Without up this pair is unsure
+    (bed 0.54): a low, long shape seen edge-on, the bed's commonest confusions."""
     assert_aligns_example_pair("bed")
     a, b = EXAMPLES / "bed_a.ply", EXAMPLES / "bed_b.ply"
     truth = json.loads((EXAMPLES / "bed_truth.json").read_text())
