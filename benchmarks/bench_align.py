@@ -1,14 +1,14 @@
 """Benchmark: itnet-align against registration baselines on pairs of partial scans.
 
-    .venv/bin/python -m benchmarks.bench_align --pairs 100
-    .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align --refine" \
-        "itnet-align --refine --up"        # each scan's up given, tilted 2 deg from the truth
-    .venv/bin/python -m benchmarks.bench_align --model night_stand --up 2 \
-        --data ../shared/data/modelnet10/night_stand/test
+    .venv/bin/python -m benchmarks.bench_align --pairs 100               # validation pairs
+    .venv/bin/python -m benchmarks.bench_align --pairs 200 --split test  # measured once
+    .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align" \
+        "itnet-align --up"        # each scan's up given, tilted 2 deg from the truth
+    .venv/bin/python -m benchmarks.bench_align --model night_stand --up 2
 
-Pairs: two partial scans of the same held-out object (ModelNet10 *test* chairs, or the model's
-category, mapped to the canonical frame by ``itnet.model.shapes`` and the category's turn,
-radius 1), each from an independent random viewpoint
+Pairs: two partial scans of the same held-out object (the model's category from ModelNet10: the
+validation shapes its training left out, or the test split; mapped to the canonical frame by
+``itnet.model.shapes`` and the category's turn, radius 1), each from an independent random viewpoint
 (full SO(3), ``itnet.model.scanner``), in its own camera frame; seeded, so every method sees the
 same pairs. Truth: T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a of the scans.
 Metric (SPEC.md, ``itnet.metrics.alignment_errors``): rotation error and the distance between
@@ -36,15 +36,18 @@ from benchmarks import baselines
 from benchmarks.report import write_report
 from itnet.alignment.estimators import in_process_estimator
 from itnet.alignment.hypotheses import category_symmetry, relative_pose
-from itnet.alignment.pipeline import AlignOptions, PoseEstimator, align_clouds
+from itnet.alignment.pipeline import AlignOptions, align_clouds
 from itnet.metrics import alignment_errors, is_correct
 from itnet.model import categories
 from itnet.model.scanner import ScanConfig, scan_shape
-from itnet.model.shapes import list_shape_files, load_shape
-from itnet.pose.runtime import LoadedModel, default_model_dir, load_models
+from itnet.model.shapes import load_shape
+from itnet.pose.catalog import Catalog
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import LoadedModel
 from itnet.upright import tilted
 
 ROOT = Path(__file__).resolve().parents[1]
+SWITCH_MARGINS = (0.05, 0.2)  # beside the default's (itnet.alignment.pipeline.SWITCH_MARGIN)
 
 
 @dataclass
@@ -72,11 +75,11 @@ class Outcome:
         return is_correct(np.array(self.rotation_deg), np.array(self.translation))
 
 
-def make_pairs(folder: Path, count: int, seed: int, category: str = "chair") -> list[Pair]:
-    """``count`` scan pairs cycling over the shapes in ``folder`` (ModelNet frame, turned into
+def make_pairs(files: list[Path], count: int, seed: int, category: str = "chair") -> list[Pair]:
+    """``count`` scan pairs cycling over the shape ``files`` (ModelNet frame, turned into
     ``category``'s canonical frame)."""
     turns = categories.category(category).quarter_turns
-    shapes = [load_shape(p, "modelnet", turns) for p in list_shape_files(folder)]
+    shapes = [load_shape(p, "modelnet", turns) for p in files]
     rng = np.random.default_rng(seed)
     config = ScanConfig()
     pairs = []
@@ -87,6 +90,14 @@ def make_pairs(folder: Path, count: int, seed: int, category: str = "chair") -> 
         ups = (pose_a[1, :3], pose_b[1, :3])  # R^T e_y: the canonical +y in each camera frame
         pairs.append(Pair(a, b, relative_pose(pose_a, pose_b), 1.0, shape.name, ups))
     return pairs
+
+
+def split_shapes(data: Path, category: str, split: str) -> list[Path]:
+    """The shapes of ``split``: ModelNet's test folder, or the validation shapes the category's
+    models were trained without (``itnet train``'s split: a tenth of the training folder)."""
+    from itnet.model.data import split_files
+
+    return split_files(data, category, 0.1, 0)["val" if split == "validation" else "test"]
 
 
 def given_ups(pairs: list[Pair], error_deg: float, seed: int) -> None:
@@ -101,22 +112,22 @@ def itnet_methods(
 ) -> tuple[dict[str, Callable], LoadedModel]:
     """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info);
     ``with_up``: also each with ``--up`` (it then takes the pair's ups; only those where the
-    model requires up)."""
-    model = load_models(model_dir or default_model_dir())[model_name]
-    estimate = in_process_estimator(model, budget_ms)
+    model requires up). "composed poses" is inv(T_canonical_from_b) · T_canonical_from_a of the
+    two served poses alone (no rival ever chosen), the reference the alignment must beat."""
+    catalog = Catalog.load(model_dir)
+    model = catalog.model(model_name)
+    estimate = in_process_estimator(catalog, PoseRequest(model=model_name, budget_ms=budget_ms))
     symmetry = category_symmetry(model.card.category, model.card.symmetry)
     variants = {
-        "itnet-align": AlignOptions(symmetry=symmetry),
-        "itnet-align --refine": AlignOptions(symmetry=symmetry, refine=True),
-        "itnet-align --refine --starts 1 --candidates 4": AlignOptions(
-            symmetry=symmetry, refine=True, starts=1, candidates=4
-        ),
-        "itnet-align --refine --starts 6 --candidates 16": AlignOptions(
-            symmetry=symmetry, refine=True, starts=6, candidates=16
-        ),
-    }
+        "composed poses": AlignOptions(symmetry=symmetry, switch_margin=2.0),
+        "itnet-align --no-refine": AlignOptions(symmetry=symmetry),
+        "itnet-align": AlignOptions(symmetry=symmetry, refine=True),
+        **{f"itnet-align (switch margin {m})": AlignOptions(symmetry=symmetry, refine=True,
+                                                           switch_margin=m)
+           for m in SWITCH_MARGINS},
+    }  # fmt: skip
 
-    def method(estimate: PoseEstimator, options: AlignOptions, up: bool) -> Callable:
+    def method(options: AlignOptions, up: bool) -> Callable:
         def align(a: NDArray, b: NDArray, ups: tuple | None = None) -> tuple[NDArray, dict]:
             result = align_clouds(a, b, estimate, options, *(ups if up else (None, None)))
             chosen = result.hypotheses[result.chosen].source
@@ -131,9 +142,9 @@ def itnet_methods(
     out = {}
     for name, options in variants.items():
         if not model.card.requires_up:
-            out[name] = method(estimate, options, False)
+            out[name] = method(options, False)
         if with_up or model.card.requires_up:
-            out[f"{name} --up"] = method(estimate, options, True)
+            out[f"{name} --up"] = method(options, True)
     return out, model
 
 
@@ -178,8 +189,10 @@ def _without_notes(argv: list[str]) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path,
-                        default=ROOT.parent / "shared/data/modelnet10/chair/test")  # fmt: skip
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared/data/modelnet10",
+                        help="ModelNet10's folder (CATEGORY/train, CATEGORY/test)")  # fmt: skip
+    parser.add_argument("--split", choices=("validation", "test"), default="validation",
+                        help="validation: choose on it; test: measure once")  # fmt: skip
     parser.add_argument("--pairs", type=int, default=100)
     parser.add_argument("--seed", type=int, default=2024)
     parser.add_argument("--model", default="chair")
@@ -207,7 +220,9 @@ def main() -> None:
         return
 
     methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms, args.up is not None)
-    pairs = make_pairs(args.data, args.pairs, args.seed, model.card.category or "chair")
+    category = model.card.category or "chair"
+    pairs = make_pairs(split_shapes(args.data, category, args.split), args.pairs, args.seed,
+                       category)  # fmt: skip
     given_ups(pairs, 2.0 if args.up is None else args.up, args.seed + 1)
     methods.update(baselines.available())
     if args.only:
@@ -218,12 +233,14 @@ def main() -> None:
         print(f"{name:40s} {ok.mean():6.1%} of {len(ok)}  median "
               f"{np.median(outcome.ms):7.1f} ms", flush=True)  # fmt: skip
     model_stat = model.path.stat()
+    shipped = model.path.parent.name == "models" and model.path.parent.parent.name == "itnet"
     modified = time.strftime("%Y-%m-%d %H:%M", time.localtime(model_stat.st_mtime))
     meta = {
         "pairs": len(pairs),
         "seed": args.seed,
+        "split": args.split,
         "data": str(args.data),
-        "model": f"`{model.card.name}` ({model.path}, {model_stat.st_size // 1024} KB, modified "
+        "model": f"`{model.card.name}` ({'itnet/models/' + model.path.name if shipped else model.path}, {model_stat.st_size // 1024} KB, modified "
         f"{modified}; trained {model.card.training.get('steps', '?')} steps, validation "
         f"accuracy {model.card.training.get('validation', '?')})",
         "budget_ms": args.budget_ms,

@@ -146,17 +146,12 @@ def same_alignment(
     return angle < max_deg and float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < max_shift * scale
 
 
-def choose(hypotheses: list[Hypothesis], margin: float = 0.0, refined: bool = True) -> int:
-    """Index of the hypothesis to report: the first (the composed poses) unless the best of the
-    others beats it by more than ``margin`` of the points: by the tight ``fitness`` (then
-    ``rmse``) where they were refined, else by the ``loose_fitness`` (unrefined hypotheses are
-    each a few degrees off, and a tight score cannot rank them)."""
-
-    def score(h: Hypothesis) -> tuple[float, float]:
-        return (h.fitness, -h.rmse) if refined else (h.loose_fitness, -h.rmse)
-
-    best = max(range(len(hypotheses)), key=lambda i: score(hypotheses[i]))
-    return best if score(hypotheses[best])[0] > score(hypotheses[0])[0] + margin else 0
+def choose(hypotheses: list[Hypothesis], margin: float = 0.0) -> int:
+    """Index of the (refined) hypothesis to report: the first (the composed poses) unless the
+    best of the others by fitness, then rmse, beats its fitness by more than ``margin`` of the
+    points."""
+    best = max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
+    return best if hypotheses[best].fitness > hypotheses[0].fitness + margin else 0
 
 
 def confidence(hypotheses: list[Hypothesis], chosen: int, scale: float) -> dict[str, float]:

@@ -39,6 +39,7 @@ def pose(
     viewpoint: str | None = typer.Option(None, help=field_help("viewpoint"), callback=check_xyz),
     up: str | None = typer.Option(None, help=field_help("up"), callback=check_xyz),
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
+    runs: bool = typer.Option(False, "--runs", help=field_help("runs")),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
 ) -> None:
     """Estimate T_canonical_from_input for each file. Bad files are reported and skipped (exit 2)."""
@@ -57,7 +58,7 @@ def pose(
     request = request_from_options(
         budget_ms=budget_ms, max_iterations=max_iterations, model=model, ensemble=ensemble,
         mirror=mirror, verify=verify, recheck=recheck, centre=centre, viewpoint=viewpoint, up=up,
-        units=units,
+        units=units, runs=runs,
     )  # fmt: skip
 
     def start(cloud: NDArray[np.float64]) -> AnytimeRun:

@@ -282,10 +282,11 @@ class AnytimeRun(Iterator[Estimate]):
     def check_served(self) -> None:
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
-        than the whole budget, else OverloadedError (503: the machine was too busy)."""
+        than the whole budget on an idle machine, else OverloadedError (503: the machine was
+        too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
-        step_ms = self.predicted_step_ms()
+        step_ms = self.plan.first_step_ms(len(self.cloud))  # on an idle machine: not the load
         if step_ms > self.plan.budget_ms:
             raise BudgetTooSmallError(
                 f"budget_ms {self.plan.budget_ms:g} is below one step of model "

@@ -96,7 +96,8 @@ def test_answers_equal_the_single_process_service(url: str, points: list) -> Non
 
 def test_both_replicas_answer_within_the_budget(url: str, points: list) -> None:
     """4 clients at once (coroutines of one thread: threads would fight for the GIL), 40 ms
-    budgets: both replicas answer, and the budget holds: p90 within budget + 25 ms. (One ``itnet
+    budgets: both replicas answer with poses (a request the busy machine cannot serve in its
+    budget is refused at once), and the budget holds: p90 within budget + 25 ms. (One ``itnet
     serve`` holds + 15 ms in tests/hardening; here two replicas, Ray's proxy and the client share
     the 2 cores, and a fresh-clone CI run measured p90 56 ms on a noisy 2-core host.)"""
     budget_ms, margin_ms = 40.0, 25.0
@@ -111,18 +112,22 @@ def test_both_replicas_answer_within_the_budget(url: str, points: list) -> None:
             return [r for rs in await asyncio.gather(*(client() for _ in range(4))) for r in rs]
 
     replies = asyncio.run(load())
-    assert [r.status_code for r in replies] == [200] * 40
-    assert len({r.headers[REPLICA] for r in replies}) == 2
+    # A reply is a pose, or a refusal at once where the machine cannot serve it in its budget:
+    # never the start handed back as a pose.
+    assert {r.status_code for r in replies} <= {200, 503}
+    refused = [r for r in replies if r.status_code == 503]
+    assert all(r.json()["kind"] == "overloaded" and "retry-after" in r.headers for r in refused)
+    replies = [r for r in replies if r.status_code == 200]
+    assert len(replies) >= 10 and all(r.json()["iterations"] >= 1 for r in replies)
+    served = [r.headers[REPLICA] for r in replies]
+    assert len(set(served)) == 2 and min(map(served.count, set(served))) >= 2
     elapsed = np.array([r.json()["elapsed_ms"] for r in replies])
     assert np.percentile(elapsed, 90) <= budget_ms + margin_ms, np.sort(elapsed)[-10:]
     assert elapsed.max() <= budget_ms + 4 * margin_ms, np.sort(elapsed)[-10:]
-    # Work was done on both replicas (a reply may run no step when its budget went to waiting
-    # on a busy machine: a fresh-clone run on a slow host did 37 steps for the 40 replies, so
-    # the bound is half a step a reply, not one).
     steps: dict[str, int] = {}
     for r in replies:
         steps[r.headers[REPLICA]] = steps.get(r.headers[REPLICA], 0) + r.json()["iterations"]
-    assert min(steps.values()) > 0 and sum(steps.values()) >= 20, steps
+    assert min(steps.values()) > 0 and sum(steps.values()) >= len(replies), steps
 
 
 def test_stream_through_the_gateway(url: str, points: list) -> None:
