@@ -1,0 +1,110 @@
+"""The one place where scenes call the pose machinery: load the models and the classifier,
+classify a cluster (``model: "auto"``, with up and the unit known), and run its category's
+anytime pipeline with up and the viewpoint given, within a share of the scene's budget.
+
+Everything a scene needs of the pose side goes through ``PoseKit`` and ``pose_object``, so that
+moving the pose pipeline elsewhere is a change of this file alone.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.service.engine import AnytimeRun, BadCloudError, Limits, pose_fields
+from itnet.service.recognition import classify, pose_model_for
+from itnet.service.runtime import LoadedClassifier, LoadedModel, default_model_dir, load_all
+
+SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
+
+
+@dataclass
+class PoseKit:
+    """The loaded pose models (by name) and the category classifier."""
+
+    models: dict[str, LoadedModel]
+    classifier: LoadedClassifier | None
+    limits: Limits = field(default_factory=Limits)
+
+    @classmethod
+    def load(cls, model_dir: Path | None = None, threads: int = 2) -> PoseKit:
+        """Every model of a folder (default: the shipped ones). Raises ModelLoadError."""
+        models, classifier = load_all(model_dir or default_model_dir(), threads)
+        return cls(models, classifier)
+
+
+@dataclass
+class ObjectPose:
+    """One cluster's category and, where its category has a pose model and the budget held a
+    run, its pose: ``result`` is the anytime run's reply (``T_canonical_from_input``, both
+    quaternions, iterations, ...) without the recognition's fields; ``pose`` (4, 4)."""
+
+    category: str
+    probability: float
+    candidates: list[dict[str, Any]]
+    unsure: bool
+    pose: NDArray[np.float64] | None = None
+    result: dict[str, Any] | None = None
+    no_pose: str | None = None  # why there is no pose: 'no_pose_model' or 'budget'
+
+
+class NoClassifierError(RuntimeError):
+    """The models' folder has no category classifier: scenes need one."""
+
+
+def pose_object(
+    kit: PoseKit,
+    points: NDArray,
+    up: NDArray,
+    viewpoint: NDArray,
+    budget_ms: float,
+    started: float | None = None,
+    min_run_ms: float = 2.0,
+) -> ObjectPose:
+    """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
+    ObjectPose, the classification and the run within ``budget_ms`` from ``started``
+    (``time.perf_counter()``; default now). No run where less than ``min_run_ms`` is left after
+    the classification. Raises BadCloudError (too few points, degenerate)."""
+    started = time.perf_counter() if started is None else started
+    if kit.classifier is None:
+        raise NoClassifierError("scenes need the category classifier, and none is loaded")
+    recognition = classify(
+        kit.classifier, points, limits=kit.limits, units=SCENE_UNITS, up=up,
+        deadline=started + budget_ms / 2e3,
+    )  # fmt: skip
+    seen = ObjectPose(
+        recognition.category,
+        recognition.probability,
+        recognition.as_dict()["candidates"],
+        recognition.unsure,
+    )
+    model = pose_model_for(recognition.category, kit.models)
+    if model is None:
+        seen.no_pose = "no_pose_model"
+        return seen
+    left_ms = budget_ms - (time.perf_counter() - started) * 1e3
+    if left_ms < min_run_ms:
+        seen.no_pose = "budget"
+        return seen
+    run = AnytimeRun(
+        model, points, budget_ms=budget_ms, started=started, limits=kit.limits,
+        up=up, viewpoint=viewpoint,
+    )  # fmt: skip
+    run.run_to_end()
+    seen.result = run.result()
+    seen.pose = run.last.pose
+    return seen
+
+
+def with_pose(result: dict[str, Any], pose: NDArray[np.float64]) -> dict[str, Any]:
+    """A run's reply with its pose fields (matrix, quaternions, translation) replaced by
+    ``pose`` (4, 4)."""
+    return {**result, **pose_fields(pose)}
+
+
+__all__ = ["BadCloudError", "NoClassifierError", "ObjectPose", "PoseKit", "pose_object", "with_pose"]
