@@ -16,6 +16,7 @@ from itnet.commands import (
     export,
     models,
     pose,
+    scene,
     serve,
     train,
     verifier,
@@ -44,6 +45,7 @@ def main(
 
 
 app.command("pose")(pose.pose)
+app.command("scene")(scene.scene)
 app.command("align")(align.align)
 app.command("serve")(serve.serve)
 app.command("train")(train.train)

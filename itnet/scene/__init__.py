@@ -6,7 +6,13 @@
 See docs/scenes.md.
 """
 
-from itnet.scene.camera import Intrinsics, SceneInputError, intrinsics_from_json, parse_intrinsics
+from itnet.scene.camera import (
+    Intrinsics,
+    SceneInputError,
+    SceneTooLargeError,
+    intrinsics_from_json,
+    parse_intrinsics,
+)
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_cloud, from_depth, from_file
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
 from itnet.scene.posing import PoseKit
@@ -23,6 +29,7 @@ __all__ = [
     "SceneLimits",
     "SceneObject",
     "SceneResult",
+    "SceneTooLargeError",
     "SegmentOptions",
     "find_objects",
     "from_array",

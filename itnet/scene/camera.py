@@ -22,6 +22,10 @@ class SceneInputError(ValueError):
     too large, unreadable. The message says what is wrong, in one line."""
 
 
+class SceneTooLargeError(SceneInputError):
+    """A scene over the stated limits (pixels, points)."""
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """A pinhole camera: focal lengths and principal point in pixels."""

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.scene.camera import SceneInputError
+from itnet.scene.camera import SceneInputError, SceneTooLargeError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 DEFAULT_DEPTH_SCALE = 1000.0  # depth units per metre of a 16-bit image: millimetres
@@ -37,7 +37,7 @@ def png_to_depth(data: bytes, max_pixels: int | None = None) -> NDArray[np.uint1
             f"{kind.get(colour, f'colour type {colour}')}"
         )
     if max_pixels is not None and width * height > max_pixels:
-        raise SceneInputError(
+        raise SceneTooLargeError(
             f"the depth image has {width}x{height} pixels, over the limit of {max_pixels}"
         )
     try:
@@ -92,5 +92,5 @@ def read_npy(data: bytes) -> NDArray:
 
 def read_bytes(path: Path) -> bytes:
     if not path.is_file():
-        raise SceneInputError(f"{path}: no such file")
+        raise SceneInputError("no such file")
     return path.read_bytes()

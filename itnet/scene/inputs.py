@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.scene.camera import Intrinsics, SceneInputError, depth_to_cloud
+from itnet.scene.camera import Intrinsics, SceneInputError, SceneTooLargeError, depth_to_cloud
 from itnet.scene.depth_io import depth_in_metres, png_to_depth, read_bytes, read_npy
 
 IMAGE_SUFFIXES = (".png",)
@@ -60,7 +60,7 @@ def from_depth(
     if image.ndim != 2:
         raise SceneInputError(f"a depth image must be 2-D (H, W), got shape {image.shape}")
     if image.size > limits.max_pixels:
-        raise SceneInputError(
+        raise SceneTooLargeError(
             f"the depth image has {image.shape[1]}x{image.shape[0]} pixels, over the limit of "
             f"{limits.max_pixels}"
         )
@@ -81,7 +81,7 @@ def from_cloud(points: NDArray, limits: SceneLimits = SceneLimits()) -> SceneInp
     if cloud.ndim != 2 or cloud.shape[1] != 3:
         raise SceneInputError(f"a scene cloud must have shape (N, 3), got {cloud.shape}")
     if len(cloud) > limits.max_points:
-        raise SceneInputError(
+        raise SceneTooLargeError(
             f"the scene has {len(cloud)} points, over the limit of {limits.max_points}"
         )
     rows = np.flatnonzero(np.isfinite(cloud).all(axis=1))

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from itnet.scene.camera import Intrinsics
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.planes import Plane
-from itnet.scene.posing import PoseKit, pose_object, with_pose
+from itnet.scene.posing import BadCloudError, PoseKit, pose_object, with_pose
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.segment import CAMERA_UP, SegmentOptions, segment
 
@@ -68,7 +68,10 @@ def find_objects(
         points = given.points[rows]
         left_ms = budget_ms - (time.perf_counter() - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
-        seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3))
+        try:
+            seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3))
+        except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
+            continue
         if floor_centre and seen.pose is not None and seen.result is not None:
             assert found.floor is not None  # objects are found only on a floor
             seen.pose = floor_centred(seen.pose, points, found.floor)

@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 
 from itnet.service.engine import AnytimeRun, BadCloudError, Limits, pose_fields
 from itnet.service.recognition import classify, pose_model_for
-from itnet.service.runtime import LoadedClassifier, LoadedModel, default_model_dir, load_all
+from itnet.service.runtime import (
+    LoadedClassifier,
+    LoadedModel,
+    ModelLoadError,
+    default_model_dir,
+    load_all,
+)
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 
@@ -33,8 +39,12 @@ class PoseKit:
 
     @classmethod
     def load(cls, model_dir: Path | None = None, threads: int = 2) -> PoseKit:
-        """Every model of a folder (default: the shipped ones). Raises ModelLoadError."""
-        models, classifier = load_all(model_dir or default_model_dir(), threads)
+        """Every model of a folder (default: the shipped ones). Raises ModelLoadError, also
+        where the folder has no category classifier (scenes classify every object)."""
+        folder = model_dir or default_model_dir()
+        models, classifier = load_all(folder, threads)
+        if classifier is None:
+            raise ModelLoadError(f"{folder}: no category classifier (scenes need classifier.onnx)")
         return cls(models, classifier)
 
 
@@ -107,4 +117,4 @@ def with_pose(result: dict[str, Any], pose: NDArray[np.float64]) -> dict[str, An
     return {**result, **pose_fields(pose)}
 
 
-__all__ = ["BadCloudError", "NoClassifierError", "ObjectPose", "PoseKit", "pose_object", "with_pose"]
+__all__ = ["BadCloudError", "ModelLoadError", "NoClassifierError", "ObjectPose", "PoseKit", "pose_object", "with_pose"]
