@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from itnet.geometry import invert_rigid
 from itnet.metrics import is_correct
 from itnet.model.categories import MODELNET10
 from itnet.model.scenes import Scene, make_scene, split_shapes
-from itnet.scene import Intrinsics, SceneResult, find_objects
+from itnet.scene import SceneResult, find_objects
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
-from itnet.geometry import invert_rigid
 from itnet.symmetry import symmetric_rotation_error_deg
 
 
@@ -59,7 +59,9 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
                "predicted": obj.category, "visible": bool(sizes[k] >= min_pixels)}  # fmt: skip
         if obj.pose is not None and obj.category == truth.category:
             symmetry = MODELNET10[truth.category].symmetry
-            rot = float(symmetric_rotation_error_deg(obj.pose[:3, :3], truth.pose[:3, :3], symmetry))
+            rot = float(
+                symmetric_rotation_error_deg(obj.pose[:3, :3], truth.pose[:3, :3], symmetry)
+            )
             centre = np.linalg.norm(invert_rigid(obj.pose)[:3, 3] - invert_rigid(truth.pose)[:3, 3])
             row.update(rotation_deg=rot, centre_r=float(centre / truth.radius))
             row["right"] = bool(is_correct(rot, centre / truth.radius))
@@ -93,7 +95,9 @@ def summary(rows: list[dict], returned: int) -> dict:
     return {
         "right": pct(sum(r["right"] for r in objects), len(objects)),
         "found": pct(sum(r["found"] for r in objects), len(objects)),
-        "category_right": pct(sum(r.get("predicted") == r["category"] for r in objects), len(objects)),
+        "category_right": pct(
+            sum(r.get("predicted") == r["category"] for r in objects), len(objects)
+        ),
         "false": pct(false, returned),
         "by_category": by_category,
     }
@@ -153,7 +157,10 @@ def upscaled(scene: Scene, shapes: dict, seed: int, index: int) -> Scene:
 
 
 def timing(ms: list[float]) -> dict:
-    return {"ms_median": round(float(np.median(ms)), 1), "ms_p95": round(float(np.percentile(ms, 95)), 1)}
+    return {
+        "ms_median": round(float(np.median(ms)), 1),
+        "ms_p95": round(float(np.percentile(ms, 95)), 1),
+    }
 
 
 if __name__ == "__main__":

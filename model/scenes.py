@@ -69,9 +69,7 @@ class Scene:
     objects: list[SceneObjectTruth]
 
 
-def split_shapes(
-    data: Path, split: str, cache: Path, seed: int = 0
-) -> dict[str, list[Shape]]:
+def split_shapes(data: Path, split: str, cache: Path, seed: int = 0) -> dict[str, list[Shape]]:
     """The ``split`` half ('validation' or 'test') of each category's test shapes, canonical
     and orientation-checked."""
     if split not in SPLITS:
@@ -113,7 +111,11 @@ def _rays(intrinsics: Intrinsics, width: int, height: int) -> NDArray[np.float64
     depth)."""
     u, v = np.meshgrid(np.arange(width), np.arange(height))
     return np.stack(
-        [(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones(u.shape)],
+        [
+            (u - intrinsics.cx) / intrinsics.fx,
+            (v - intrinsics.cy) / intrinsics.fy,
+            np.ones(u.shape),
+        ],
         axis=-1,
     )
 
@@ -140,8 +142,13 @@ def _splat(
     reach = np.minimum(np.ceil(radii * intrinsics.fx / z).astype(np.int64), max_reach)
     span = np.arange(-reach.max(), reach.max() + 1)
     du, dv = (o.ravel() for o in np.meshgrid(span, span, indexing="ij"))
-    point, k = np.nonzero((np.abs(du)[None] <= reach[:, None]) & (np.abs(dv)[None] <= reach[:, None]))
-    pu, pv = np.round(u[point]).astype(np.int64) + du[k], np.round(v[point]).astype(np.int64) + dv[k]
+    point, k = np.nonzero(
+        (np.abs(du)[None] <= reach[:, None]) & (np.abs(dv)[None] <= reach[:, None])
+    )
+    pu, pv = (
+        np.round(u[point]).astype(np.int64) + du[k],
+        np.round(v[point]).astype(np.int64) + dv[k],
+    )
     inside = (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
     point, pu, pv = point[inside], pu[inside], pv[inside]
     rays = np.stack([(pu - intrinsics.cx) / intrinsics.fx, (pv - intrinsics.cy) / intrinsics.fy,
@@ -220,7 +227,13 @@ def make_scene(
         cam = corners @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
         u = intrinsics.fx * cam[:, 0] / cam[:, 2] + intrinsics.cx
         v = intrinsics.fy * cam[:, 1] / cam[:, 2] + intrinsics.cy
-        if cam[:, 2].min() < 0.5 or u.min() < 0 or u.max() >= width or v.min() < 0 or v.max() >= height:
+        if (
+            cam[:, 2].min() < 0.5
+            or u.min() < 0
+            or u.max() >= width
+            or v.min() < 0
+            or v.max() >= height
+        ):
             continue
         placed.append((shape, scale, world, category, footprint))
     wall_turn = math.radians(rng.uniform(-30, 30))
@@ -235,5 +248,7 @@ def make_scene(
     for shape, scale, world, category, _ in placed:
         metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
         camera_from_canonical = camera_from_world @ metric
-        truths.append(SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale))
+        truths.append(
+            SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
+        )
     return Scene(depth, intrinsics, labels, truths)

@@ -13,7 +13,14 @@ from itnet.scene.camera import (
     intrinsics_from_json,
     parse_intrinsics,
 )
-from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_cloud, from_depth, from_file
+from itnet.scene.inputs import (
+    SceneInput,
+    SceneLimits,
+    from_array,
+    from_cloud,
+    from_depth,
+    from_file,
+)
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
 from itnet.scene.posing import PoseKit
 from itnet.scene.result import Box, SceneObject, SceneResult

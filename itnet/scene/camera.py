@@ -59,7 +59,9 @@ def parse_intrinsics(text: str) -> Intrinsics:
         try:
             return Intrinsics(*(float(p) for p in parts))
         except ValueError:
-            raise SceneInputError(f"intrinsics {text!r}: expected four numbers fx,fy,cx,cy") from None
+            raise SceneInputError(
+                f"intrinsics {text!r}: expected four numbers fx,fy,cx,cy"
+            ) from None
     path = Path(text)
     if not path.is_file():
         raise SceneInputError(f"intrinsics {text!r}: neither 'fx,fy,cx,cy' nor a JSON file")
@@ -102,7 +104,7 @@ def depth_to_cloud(
     """Depth image (H, W) in metres (0, NaN or beyond ``max_depth_m``: no reading) ->
     (camera-frame points (N, 3), their flat pixel indices (N,) into the image, row-major)."""
     depth = np.asarray(depth_m, dtype=np.float64)
-    h, w = depth.shape
+    w = depth.shape[1]
     valid = np.isfinite(depth) & (depth > 0) & (depth <= max_depth_m)
     pixels = np.flatnonzero(valid)
     z = depth.ravel()[pixels]

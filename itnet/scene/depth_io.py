@@ -61,7 +61,9 @@ def depth_to_png(depth: NDArray[np.uint16]) -> bytes:
     rows = np.concatenate([np.zeros((h, 1), np.uint8), d.view(np.uint8).reshape(h, 2 * w)], 1)
 
     def chunk(kind: bytes, body: bytes) -> bytes:
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
 
     header = struct.pack(">IIBBBBB", w, h, 16, 0, 0, 0, 0)
     return (PNG_SIGNATURE + chunk(b"IHDR", header)

@@ -112,9 +112,7 @@ def floor_centred(pose: NDArray, points: NDArray, floor: Plane) -> NDArray[np.fl
     return out
 
 
-def object_box(
-    points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray | None
-) -> Box:
+def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray | None) -> Box:
     """The box of an object's points (K, 3) in the camera frame, standing on the floor: along
     its canonical axes where it has a pose (4, 4), else along up and its widest horizontal
     direction. Its bottom reaches down to the floor where there is one."""

@@ -73,5 +73,9 @@ def ransac_plane(
             return None
         refined = fit_plane(fitted[inliers])
         # keep the refined normal on the hypothesis' side (the fit's sign is arbitrary)
-        plane = refined if refined.normal @ plane.normal >= 0 else Plane(-refined.normal, -refined.offset)
+        plane = (
+            refined
+            if refined.normal @ plane.normal >= 0
+            else Plane(-refined.normal, -refined.offset)
+        )
     return plane, np.abs(plane.distance(points)) < threshold

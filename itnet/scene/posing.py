@@ -117,4 +117,12 @@ def with_pose(result: dict[str, Any], pose: NDArray[np.float64]) -> dict[str, An
     return {**result, **pose_fields(pose)}
 
 
-__all__ = ["BadCloudError", "ModelLoadError", "NoClassifierError", "ObjectPose", "PoseKit", "pose_object", "with_pose"]
+__all__ = [
+    "BadCloudError",
+    "ModelLoadError",
+    "NoClassifierError",
+    "ObjectPose",
+    "PoseKit",
+    "pose_object",
+    "with_pose",
+]

@@ -16,8 +16,9 @@ stands on the floor, filtered by size.
    median point farther than ``wall_piece_m`` from every wall (a wall's noise, in front of the
    plane by more than its threshold, is a thin sheet that would otherwise pass).
 5. Pieces: a cluster that does not reach down to the floor (its lowest point higher than
-   ``max_base_m``) is a piece of an object that occlusion or a thin part cut off (a table's top
-   behind a chair): it joins the nearest object within ``attach_m``, or is dropped.
+   ``max_base_m``) or stays low (its top below ``min_object_m``) is a piece of an object that
+   occlusion or a thin part cut off (a table's top behind a chair, a chair's leg below its
+   seat): it joins the nearest object within ``attach_m``, or is dropped.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class SegmentOptions:
     footprint_m: float = 0.04
     wall_piece_m: float = 0.15  # a cluster whose median point lies this near a wall is of it
     max_base_m: float = 0.15  # a cluster whose lowest point is higher floats: a piece ...
+    min_object_m: float = 0.35  # ... as is one whose top is lower (a leg seen below a seat) ...
     attach_m: float = 0.3  # ... of the object within this, else no object
     min_points: int = 80
     min_height_m: float = 0.2
@@ -118,9 +120,7 @@ def find_walls(
     return walls
 
 
-def clusters(
-    points: NDArray, up: NDArray, options: SegmentOptions
-) -> list[NDArray[np.int64]]:
+def clusters(points: NDArray, up: NDArray, options: SegmentOptions) -> list[NDArray[np.int64]]:
     """Points (N, 3) standing on the floor -> connected groups of them (indices into
     ``points``), linked in 3-D and by footprint (see the module)."""
     if len(points) == 0:
@@ -182,12 +182,17 @@ def attach_pieces(
 ) -> list[NDArray[np.int64]]:
     """Clusters (indices into points (N, 3), heights (N,)) -> the ones standing on the floor,
     each with the floating ones whose nearest point lies within ``attach_m`` of it."""
-    based = [g for g in groups if heights[g].min() <= options.max_base_m]
+
+    def whole(g: NDArray) -> bool:
+        top = float(np.percentile(heights[g], 98))
+        return heights[g].min() <= options.max_base_m and top >= options.min_object_m
+
+    based = [g for g in groups if whole(g)]
     if not based:
         return []
     trees = [cKDTree(points[g]) for g in based]
     joined = [[g] for g in based]
-    for piece in (g for g in groups if heights[g].min() > options.max_base_m):
+    for piece in (g for g in groups if not whole(g)):
         sample = points[piece[:: max(1, len(piece) // 200)]]
         gaps = [float(tree.query(sample, k=1)[0].min()) for tree in trees]
         nearest = int(np.argmin(gaps))

@@ -46,8 +46,11 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     400: {"model": ErrorResponse, "description": "malformed JSON or truncated binary body"},
     413: {"model": ErrorResponse, "description": "body, image or cloud over its limit"},
     415: {"model": ErrorResponse, "description": "not PNG, .npy, octet-stream or JSON"},
-    422: {"model": ErrorResponse, "description": "bad scene (no intrinsics, wrong bit depth, "
-          "no valid depth, ...) or parameters"},  # fmt: skip
+    422: {
+        "model": ErrorResponse,
+        "description": "bad scene (no intrinsics, wrong bit depth, "
+        "no valid depth, ...) or parameters",
+    },
     503: {"model": ErrorResponse, "description": "not ready, or busy (see Retry-After)"},
 }
 OPENAPI_EXTRA = {
@@ -57,11 +60,23 @@ OPENAPI_EXTRA = {
             "image/png": {"schema": {"type": "string", "format": "binary"}},
             "application/x-npy": {"schema": {"type": "string", "format": "binary"}},
             "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
-            "application/json": {"schema": {
-                "type": "object", "required": ["points"],
-                "properties": {"points": {"type": "array", "items": {
-                    "type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}}},
-            }},  # fmt: skip
+            "application/json": {
+                "schema": {
+                    "type": "object",
+                    "required": ["points"],
+                    "properties": {
+                        "points": {
+                            "type": "array",
+                            "items": {
+                                "type": "array",
+                                "items": {"type": "number"},
+                                "minItems": 3,
+                                "maxItems": 3,
+                            },
+                        }
+                    },
+                }
+            },
         },
     }
 }
@@ -108,7 +123,9 @@ async def scene(
         )
 
 
-def _decode(body: bytes, kind: str, camera: Intrinsics | None, depth_scale: float | None) -> SceneInput:
+def _decode(
+    body: bytes, kind: str, camera: Intrinsics | None, depth_scale: float | None
+) -> SceneInput:
     """The body -> the scene's points (SceneInputError, ServiceError 400/415)."""
     if kind == "image/png":
         return from_png(body, camera, depth_scale, LIMITS)
@@ -124,7 +141,7 @@ def _decode(body: bytes, kind: str, camera: Intrinsics | None, depth_scale: floa
             points = json.loads(body)["points"]
             cloud = np.asarray(points, dtype=np.float64)
         except (ValueError, KeyError, TypeError) as err:
-            raise malformed_json(f"expected {{\"points\": [[x, y, z], ...]}} ({err})") from None
+            raise malformed_json(f'expected {{"points": [[x, y, z], ...]}} ({err})') from None
         return from_cloud(cloud, LIMITS)
     raise ServiceError(
         415, "unsupported_media_type",
