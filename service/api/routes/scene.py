@@ -42,6 +42,7 @@ from itnet.service.state import ServiceState
 
 router = APIRouter(prefix="/v1", tags=["scene"])
 LIMITS = SceneLimits()
+MAX_SHOWN = 50_000  # scene points a reply may carry for drawing
 ERRORS: dict[int | str, dict[str, Any]] = {
     400: {"model": ErrorResponse, "description": "malformed JSON or truncated binary body"},
     413: {"model": ErrorResponse, "description": "body, image or cloud over its limit"},
@@ -104,6 +105,15 @@ async def scene(
         float, Query(gt=0, description="time budget for the whole scene, ms")
     ] = DEFAULT_BUDGET_MS,
     indices: Annotated[bool, Query(description="each object's point indices")] = True,
+    points: Annotated[
+        int,
+        Query(
+            ge=0,
+            le=MAX_SHOWN,
+            description="also send this many of the scene's points, "
+            "drawn at random, with the object each belongs to (for drawing; -1: none)",
+        ),
+    ] = 0,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
@@ -119,7 +129,7 @@ async def scene(
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
-            _find, state, body, kind, camera, depth_scale, budget_ms, indices
+            _find, state, body, kind, camera, depth_scale, budget_ms, indices, points
         )
 
 
@@ -151,7 +161,7 @@ def _decode(
 
 def _find(
     state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None,
-    depth_scale: float | None, budget_ms: float, indices: bool,
+    depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
@@ -159,10 +169,28 @@ def _find(
     kit = PoseKit(state.models, state.classifier, state.settings.limits.engine_limits())
     try:
         given = _decode(body, kind, camera, depth_scale)
-        return find_objects(given, budget_ms=budget_ms, kit=kit).as_dict(indices)
+        result = find_objects(given, budget_ms=budget_ms, kit=kit)
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
         raise ServiceError(422, "bad_scene", str(err)) from None
     except NoClassifierError as err:
         raise ServiceError(422, "no_classifier", str(err)) from None
+    reply = result.as_dict(indices)
+    if shown:
+        reply.update(_shown_points(given, [o.indices for o in result.objects], shown))
+    return reply
+
+
+def _shown_points(given: SceneInput, objects: list[np.ndarray], count: int) -> dict[str, Any]:
+    """Up to ``count`` of the scene's points (random, in order), rounded to 0.1 mm, and the
+    object each belongs to (its place in ``objects``, -1: none)."""
+    owner = np.full(len(given.points), -1)
+    for k, rows in enumerate(objects):
+        owner[np.searchsorted(given.indices, rows)] = k
+    rng = np.random.default_rng(0)
+    chosen = np.sort(rng.choice(len(given.points), min(count, len(given.points)), replace=False))
+    return {
+        "scene_points": np.round(given.points[chosen], 4).tolist(),
+        "scene_point_objects": owner[chosen].tolist(),
+    }
