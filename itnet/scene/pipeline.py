@@ -46,10 +46,13 @@ def find_objects(
     limits: SceneLimits = SceneLimits(),
     started: float | None = None,
     floor_centre: bool = True,
+    categories: frozenset[str] | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``kit``: the
-    models (default: the shipped ones, loaded once per process). Raises SceneInputError for a
+    models (default: the shipped ones, loaded once per process). ``categories``: the ones the
+    scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
+    Raises SceneInputError for a
     scene that cannot be used, ValueError for a budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
@@ -69,7 +72,8 @@ def find_objects(
         left_ms = budget_ms - (time.perf_counter() - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         try:
-            seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3))
+            seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3),
+                               categories=categories)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         if floor_centre and seen.pose is not None and seen.result is not None:

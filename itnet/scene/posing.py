@@ -75,25 +75,38 @@ def pose_object(
     budget_ms: float,
     started: float | None = None,
     min_run_ms: float = 2.0,
+    categories: frozenset[str] | None = None,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
     ObjectPose, the classification and the run within ``budget_ms`` from ``started``
-    (``time.perf_counter()``; default now). No run where less than ``min_run_ms`` is left after
-    the classification. Raises BadCloudError (too few points, degenerate)."""
+    (``time.perf_counter()``; default now). ``categories``: the ones the object may be (the
+    classifier's probabilities renormalised over them; default: any). No run where less than
+    ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
+    degenerate)."""
     started = time.perf_counter() if started is None else started
     if kit.classifier is None:
         raise NoClassifierError("scenes need the category classifier, and none is loaded")
     recognition = classify(
-        kit.classifier, points, limits=kit.limits, units=SCENE_UNITS, up=up,
-        deadline=started + budget_ms / 2e3,
+        kit.classifier, points, top=len(kit.classifier.card.classes), limits=kit.limits,
+        units=SCENE_UNITS, up=up, deadline=started + budget_ms / 2e3,
     )  # fmt: skip
+    candidates = [
+        c for c in recognition.candidates if categories is None or c.category in categories
+    ]
+    if not candidates:
+        raise BadCloudError(f"none of the categories {sorted(categories or ())} is known")
+    total = sum(c.probability for c in candidates)
+    top = [
+        {"category": c.category, "probability": round(c.probability / total, 6)}
+        for c in candidates[:3]
+    ]
     seen = ObjectPose(
-        recognition.category,
-        recognition.probability,
-        recognition.as_dict()["candidates"],
-        recognition.unsure,
+        top[0]["category"],
+        top[0]["probability"],
+        top,
+        top[0]["probability"] < recognition.threshold,
     )
-    model = pose_model_for(recognition.category, kit.models)
+    model = pose_model_for(seen.category, kit.models)
     if model is None:
         seen.no_pose = "no_pose_model"
         return seen
