@@ -58,6 +58,7 @@ class SegmentOptions:
     min_points: int = 80
     min_height_m: float = 0.2
     max_size_m: float = 3.0
+    max_points: int = 80_000  # a larger cloud is segmented on a random subset (see ``segment``)
 
 
 @dataclass
@@ -213,18 +214,48 @@ def segment(
     rng = np.random.default_rng(seed)
     prior = np.asarray(expected_up, dtype=np.float64)
     prior = prior / np.linalg.norm(prior)
-    floor = find_floor(points, prior, options, rng)
+    subset = None
+    if len(points) > options.max_points:  # a 640x480 frame: the planes and clusters on a subset
+        subset = np.sort(rng.choice(len(points), options.max_points, replace=False))
+    work = points if subset is None else points[subset]
+    floor = find_floor(work, prior, options, rng)
     if floor is None:
         return Segmentation(None, prior)
     up = floor.normal
-    heights = floor.distance(points)
+    heights = floor.distance(work)
     keep = heights > options.floor_threshold_m
-    walls = find_walls(points[keep], up, floor, options, rng)
+    walls = find_walls(work[keep], up, floor, options, rng)
+    for wall in walls:
+        keep &= wall.distance(work) > options.wall_threshold_m
+    index = np.flatnonzero(keep)
+    groups = [index[g] for g in clusters(work[index], up, options)]
+    objects = [g for g in groups if standing(work[g], heights[g], up, walls, options)]
+    objects = attach_pieces(work, heights, objects, options)
+    if subset is not None:
+        objects = spread(points, floor, walls, [subset[g] for g in objects], options)
+    objects.sort(key=len, reverse=True)
+    return Segmentation(floor, up, walls, objects)
+
+
+def spread(
+    points: NDArray, floor: Plane, walls: list[Plane], objects: list[NDArray[np.int64]],
+    options: SegmentOptions,
+) -> list[NDArray[np.int64]]:  # fmt: skip
+    """Objects found on a subset of ``points`` (N, 3) (indices into it) -> every point that is
+    neither floor nor wall joins the object whose subset points share its voxel (indices)."""
+    if not objects:
+        return []
+    keep = floor.distance(points) > options.floor_threshold_m
     for wall in walls:
         keep &= wall.distance(points) > options.wall_threshold_m
     index = np.flatnonzero(keep)
-    groups = [index[g] for g in clusters(points[index], up, options)]
-    objects = [g for g in groups if standing(points[g], heights[g], up, walls, options)]
-    objects = attach_pieces(points, heights, objects, options)
-    objects.sort(key=len, reverse=True)
-    return Segmentation(floor, up, walls, objects)
+    cells = np.floor(points[index] / options.voxel_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    keys = np.ravel_multi_index(cells.T, cells.max(axis=0) + 1)
+    owned = np.concatenate([keys[np.searchsorted(index, rows)] for rows in objects])
+    owner = np.concatenate([np.full(len(rows), k) for k, rows in enumerate(objects)])
+    owned, first = np.unique(owned, return_index=True)
+    where = np.minimum(np.searchsorted(owned, keys), len(owned) - 1)
+    hit = owned[where] == keys
+    label = owner[first][where]
+    return [index[hit & (label == k)] for k in range(len(objects))]
