@@ -4,9 +4,10 @@ scenes (``model/scenes.py``: ModelNet10 test objects on a floor before a wall).
     python -m benchmarks.bench_scene --split validation --scenes 150
     python -m benchmarks.bench_scene --split test --scenes 150 --out runs/scenes-test.json
 
-Each scene is rendered at 320x240 and as the same rays at 640x480, written as a 16-bit PNG
-(millimetres) and found by ``itnet.scene.find_objects`` as a user's file would be (the PNG read
-back, the intrinsics given). Scoring:
+Each scene is rendered at 320x240 (and, unless ``--no-large``, another scene of the same kind at
+640x480), written as a 16-bit PNG (millimetres) and found by ``itnet.scene.find_objects`` as a
+user's file would be (the PNG read back, the intrinsics given); the time is the call's, PNG
+decoding included. Scoring:
 
 * a returned object matches the scene's object whose pixels it overlaps most, where their
   intersection over union is at least 0.5 (each scene object matched once, best first);
@@ -14,7 +15,7 @@ back, the intrinsics given). Scoring:
   fragments, halves of objects, two objects as one);
 * right: matched, the category right, and the pose within (10 degrees, 0.1 radius) of the truth
   with the category's symmetry (SPEC.md); counted over the scene objects that are visible
-  (at least ``--min-pixels`` pixels at 320x240).
+  (at least ``--min-pixels`` pixels at 320x240, four times as many at 640x480).
 """
 
 from __future__ import annotations
@@ -39,7 +40,6 @@ from itnet.symmetry import symmetric_rotation_error_deg
 def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
     """One row per scene object and per unmatched returned object: matched, right, errors."""
     labels = scene.labels.ravel()
-    width = scene.labels.shape[1]
     sizes = np.bincount(labels, minlength=len(scene.objects) + 1)
     pairs = []
     for i, obj in enumerate(result.objects):
@@ -74,7 +74,6 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
                          "found": False, "right": False, "visible": bool(sizes[k] >= min_pixels)})  # fmt: skip
     rows += [{"kind": "false", "predicted": result.objects[i].category}
              for i in range(len(result.objects)) if i not in taken_obj]  # fmt: skip
-    del width
     return rows
 
 
@@ -140,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
         rows += match(result, scene, args.min_pixels)
         returned += len(result.objects)
         if not args.no_large:
-            big = upscaled(scene, shapes, seed, s)
+            big = large_scene(shapes, seed, s)
             png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
             start = time.perf_counter()
             result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
@@ -159,8 +158,8 @@ def main(argv: list[str] | None = None) -> None:
         args.out.write_text(json.dumps({**report, "rows": rows}, indent=1))
 
 
-def upscaled(scene: Scene, shapes: dict, seed: int, index: int) -> Scene:
-    """The same kind of scene at 640x480: drawn from its own generator (seed, index)."""
+def large_scene(shapes: dict, seed: int, index: int) -> Scene:
+    """A scene of the same kind at 640x480, drawn from its own generator (seed, index)."""
     return make_scene(shapes, np.random.default_rng([seed, index, 640]), 640, 480)
 
 
