@@ -20,6 +20,7 @@ from itnet.scene.inputs import (
     from_cloud,
     from_depth,
     from_file,
+    from_png,
 )
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
 from itnet.scene.posing import PoseKit
@@ -43,6 +44,7 @@ __all__ = [
     "from_cloud",
     "from_depth",
     "from_file",
+    "from_png",
     "intrinsics_from_json",
     "parse_intrinsics",
 ]
