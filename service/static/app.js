@@ -54,9 +54,11 @@ function setTab(tab) {
   view.showCanonical(tab === 'pose');  // the alignment is shown in B's frame, not canonical
   if (view.sceneGroup) view.sceneGroup.visible = tab === 'scene';
   $('pose-title').textContent = { pose: 'Pose: T_canonical_from_input', align: 'Alignment: T_b_from_a', scene: '' }[tab];
-  $('legend').textContent = tab === 'pose'
-    ? 'orange: the cloud, by the pose so far (iteration 0: centred)'
-    : 'blue: B (reference) · orange: A, moved onto B · in B\'s frame, centred on B';
+  $('legend').textContent = {
+    pose: 'orange: the cloud, by the pose so far (iteration 0: centred)',
+    align: 'blue: B (reference) · orange: A, moved onto B · in B\'s frame, centred on B',
+    scene: 'grey: the scene · each object in its colour: its points, its box, its axes (x red, y green up, z blue back)',
+  }[tab];
   showClouds();
 }
 

@@ -1,9 +1,10 @@
 // The scene tab: POST /v1/scene with a depth image or a scene cloud, then the scene drawn with
 // each object's points coloured, its box and, where it has a pose, its canonical axes.
 //
-// Display: the camera's frame (x right, y down, z ahead) turned half a turn about x, so the
-// floor is below and the objects face the viewer; centred on the scene's points and scaled by
-// their RMS radius, as the other tabs scale a cloud.
+// Display: the camera's frame (x right, y down, z ahead) turned half a turn about its z axis, so
+// the floor is below and the view's camera (in front, on -z) looks into the scene as the depth
+// camera did; centred on the scene's points and scaled by their RMS radius, as the other tabs
+// scale a cloud.
 
 import * as THREE from 'three';
 import { normalization } from './view.js';
@@ -66,7 +67,7 @@ export function drawScene(view, reply) {
   const points = reply.scene_points ?? [];
   const { centre, scale } = normalization(points.length ? points : [[0, 0, 0]]);
   const group = new THREE.Group();
-  group.rotation.x = Math.PI;  // camera frame (y down, z ahead) -> y up
+  group.rotation.z = Math.PI;  // camera frame (x right, y down) -> y up, seen from -z
   group.scale.setScalar(1 / scale);
   const inner = new THREE.Group();
   inner.position.set(-centre[0], -centre[1], -centre[2]);
