@@ -16,9 +16,12 @@ stands on the floor, filtered by size.
    median point farther than ``wall_piece_m`` from every wall (a wall's noise, in front of the
    plane by more than its threshold, is a thin sheet that would otherwise pass).
 5. Pieces: a cluster that does not reach down to the floor (its lowest point higher than
-   ``max_base_m``) or stays low (its top below ``min_object_m``) is a piece of an object that
-   occlusion or a thin part cut off (a table's top behind a chair, a chair's leg below its
-   seat): it joins the nearest object within ``attach_m``, or is dropped.
+   ``max_base_m``, where the floor is seen within ``attach_m`` under its lowest points) or stays
+   low (its top below ``min_object_m``) is a piece of an object that occlusion or a thin part
+   cut off (a table's top behind a chair, a chair's leg below its seat): it joins the nearest
+   object within ``attach_m``, or is dropped. A cluster nearer the camera than any floor it
+   sees stands all the same (a level camera at head height sees the floor from a few metres on:
+   what is nearer shows no base).
 """
 
 from __future__ import annotations
@@ -128,10 +131,7 @@ def clusters(points: NDArray, up: NDArray, options: SegmentOptions) -> list[NDAr
         return []
     voxel_of, centres = _voxels(points, options.voxel_m)
     # the footprint: voxels over one cell of the floor are one object's (a star per cell)
-    across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
-    across /= np.linalg.norm(across)
-    flat = np.stack([centres @ across, centres @ np.cross(up, across)], axis=1)
-    cell_of, _ = _voxels(flat, options.footprint_m)
+    cell_of, _ = _voxels(_footprint(centres, up), options.footprint_m)
     first = np.full(cell_of.max() + 1, -1)
     first[cell_of[::-1]] = np.arange(len(cell_of))[::-1]  # each cell's first voxel
     stars = np.stack([np.arange(len(cell_of)), first[cell_of]], axis=1)
@@ -179,14 +179,28 @@ def standing(
 
 
 def attach_pieces(
-    points: NDArray, heights: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions
-) -> list[NDArray[np.int64]]:
+    points: NDArray, heights: NDArray, groups: list[NDArray[np.int64]], up: NDArray,
+    options: SegmentOptions,
+) -> list[NDArray[np.int64]]:  # fmt: skip
     """Clusters (indices into points (N, 3), heights (N,)) -> the ones standing on the floor,
-    each with the floating ones whose nearest point lies within ``attach_m`` of it."""
+    each with the pieces whose nearest point lies within ``attach_m`` of it. A cluster whose
+    base is high stands all the same where it is nearer the camera (the origin), along the
+    floor, than any floor the camera sees: its base is below the view (a level camera at head
+    height sees the floor only from a few metres on)."""
+    floor = np.abs(heights) <= options.floor_threshold_m
+    reach = np.linalg.norm(_footprint(points[floor][::4], up), axis=1)  # the camera: 0, 0
+    nearest_floor = float(np.percentile(reach, 1)) if len(reach) else np.inf
 
     def whole(g: NDArray) -> bool:
         top = float(np.percentile(heights[g], 98))
-        return heights[g].min() <= options.max_base_m and top >= options.min_object_m
+        if top < options.min_object_m:
+            return False
+        if heights[g].min() <= options.max_base_m:
+            return True
+        lowest = g[np.argsort(heights[g])[: max(1, len(g) // 10)]]
+        return float(np.median(np.linalg.norm(_footprint(points[lowest], up), axis=1))) < (
+            nearest_floor
+        )
 
     based = [g for g in groups if whole(g)]
     if not based:
@@ -200,6 +214,14 @@ def attach_pieces(
         if gaps[nearest] <= options.attach_m:
             joined[nearest].append(piece)
     return [np.sort(np.concatenate(parts)) for parts in joined]
+
+
+def _footprint(points: NDArray, up: NDArray) -> NDArray[np.float64]:
+    """Points (N, 3) -> their places on the floor (N, 2): coordinates along two directions
+    normal to ``up``."""
+    across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    return np.stack([points @ across, points @ np.cross(up, across)], axis=1)
 
 
 def segment(
@@ -230,7 +252,7 @@ def segment(
     index = np.flatnonzero(keep)
     groups = [index[g] for g in clusters(work[index], up, options)]
     objects = [g for g in groups if standing(work[g], heights[g], up, walls, options)]
-    objects = attach_pieces(work, heights, objects, options)
+    objects = attach_pieces(work, heights, objects, up, options)
     if subset is not None:
         objects = spread(points, floor, walls, [subset[g] for g in objects], options)
     objects.sort(key=len, reverse=True)
@@ -251,7 +273,7 @@ def spread(
     index = np.flatnonzero(keep)
     cells = np.floor(points[index] / options.voxel_m).astype(np.int64)
     cells -= cells.min(axis=0)
-    keys = np.ravel_multi_index(cells.T, cells.max(axis=0) + 1)
+    keys = np.asarray(np.ravel_multi_index(cells.T, cells.max(axis=0) + 1), dtype=np.int64)
     owned = np.concatenate([keys[np.searchsorted(index, rows)] for rows in objects])
     owner = np.concatenate([np.full(len(rows), k) for k, rows in enumerate(objects)])
     owned, first = np.unique(owned, return_index=True)
