@@ -78,3 +78,10 @@ def chair_scene() -> Scene:
 @pytest.fixture(scope="session")
 def empty_scene() -> Scene:
     return make_test_scene([])
+
+
+@pytest.fixture(scope="session")
+def level_chair_scene() -> Scene:
+    """A level camera 1.7 m up, a chair 2.2 m away: its base is below the view."""
+    return make_test_scene([(chair_shape(), 0.5, 0.0, 2.2, 200.0)], camera_height=1.7,
+                           pitch_deg=0.0)  # fmt: skip

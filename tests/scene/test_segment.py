@@ -74,13 +74,10 @@ def test_no_floor_no_objects():
     assert segment(rng.normal(size=(500, 3)) + np.array([0.0, 0.0, 3.0])).objects == []
 
 
-def test_a_chair_cut_off_by_a_level_camera_still_stands():
+def test_a_chair_cut_off_by_a_level_camera_still_stands(level_chair_scene):
     """A level camera 1.7 m up sees the floor only from about 4 m on: a chair 2.2 m away shows
     its upper part alone, and is an object all the same."""
-    from conftest import chair_shape, make_test_scene
-
-    scene = make_test_scene([(chair_shape(), 0.5, 0.0, 2.2, 200.0)], camera_height=1.7,
-                            pitch_deg=0.0)  # fmt: skip
+    scene = level_chair_scene
     given = from_depth(scene.depth, scene.intrinsics)
     labels = scene.labels.ravel()[given.indices]
     found = segment(given.points)
