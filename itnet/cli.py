@@ -16,6 +16,7 @@ from itnet.commands import (
     export,
     models,
     pose,
+    scene,
     serve,
     train,
     verifier,
@@ -51,6 +52,7 @@ BUILD = "Building models"
 # fmt: off
 COMMANDS = [
     ("pose", pose.pose, USE, "Pose each cloud file in its category's canonical frame."),
+    ("scene", scene.scene, USE, "Find the objects of a depth image or scene cloud, each posed."),
     ("align", align.align, USE, "Align cloud A onto cloud B (T_b_from_a), optionally refined by ICP."),
     ("classify", classify.classify, USE, "Name each cloud's category, with its probability."),
     ("serve", serve.serve, USE, "Serve the HTTP/WebSocket API and the web page."),

@@ -14,7 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from itnet import __version__
 from itnet.pose.runtime import LoadedModel
-from itnet.service.api.routes import align, estimate, examples, page, stream, system
+from itnet.service.api.routes import align, estimate, examples, page, scene, stream, system
 from itnet.service.errors import ServiceError, describe_errors
 from itnet.service.gc_tuning import GcPauseRecorder, freeze_startup_objects
 from itnet.service.metrics import Metrics, RequestMetricsMiddleware
@@ -70,6 +70,7 @@ def create_app(
     app.include_router(stream.router)
     app.include_router(system.router)
     app.include_router(align.router)
+    app.include_router(scene.router)
     app.include_router(examples.router)
     app.include_router(page.router)  # GET /: the web page, its files under /static
     app.mount("/static", page.static_files(), name="static")

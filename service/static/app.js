@@ -10,6 +10,7 @@
 
 import { getJSON, readCloudFile, streamEstimate } from './api.js';
 import { runAlign, showPair } from './align.js';
+import { describeObjects, runScene } from './scene.js';
 import { drawPlot } from './plot.js';
 import { showPose } from './pose.js';
 import { View, centring, normalization } from './view.js';
@@ -56,10 +57,13 @@ function setTab(tab) {
   document.body.dataset.tab = tab;
   document.querySelectorAll('.tab').forEach((b) => b.classList.toggle('active', b.dataset.tab === tab));
   view.showCanonical(tab === 'pose');  // the alignment is shown in B's frame, not canonical
-  $('pose-title').textContent = tab === 'pose' ? 'Pose: T_canonical_from_input' : 'Alignment: T_b_from_a';
-  $('legend').textContent = tab === 'pose'
-    ? 'orange: the cloud, by the pose so far (iteration 0: centred)'
-    : 'blue: B (reference) · orange: A, moved onto B · in B\'s frame, centred on B';
+  if (view.sceneGroup) view.sceneGroup.visible = tab === 'scene';
+  $('pose-title').textContent = { pose: 'Pose: T_canonical_from_input', align: 'Alignment: T_b_from_a', scene: '' }[tab];
+  $('legend').textContent = {
+    pose: 'orange: the cloud, by the pose so far (iteration 0: centred)',
+    align: 'blue: B (reference) · orange: A, moved onto B · in B\'s frame, centred on B',
+    scene: 'grey: the scene · each object in its colour: its points, its box, its axes (x red, y green up, z blue back)',
+  }[tab];
   showClouds();
 }
 
@@ -68,6 +72,11 @@ function showClouds() {
   const { main, a, b } = state.clouds;
   if (document.body.dataset.tab === 'align') {
     if (a && b) showPair(view, a.points, b.points);
+    return;
+  }
+  if (document.body.dataset.tab === 'scene') {
+    view.removeCloud('reference');
+    view.removeCloud('main');
     return;
   }
   view.removeCloud('reference');
@@ -280,6 +289,27 @@ async function runAlignTab() {
   setButtons(false);
 }
 
+async function runSceneTab() {
+  const file = state.sceneFile ?? $('file-scene').files[0];
+  if (!file) return setStatus('drop or choose a depth image or a scene cloud first', true);
+  setButtons(true);
+  setStatus(`finding the objects of ${file.name}…`);
+  try {
+    const reply = await runScene({ view, file, intrinsics: $('intrinsics').value,
+      depthScale: $('depth-scale').value, budgetMs: Number($('budget').value) });
+    describeObjects($('scene-objects'), reply);
+    $('scene-summary').textContent = `${reply.objects.length} object(s) in ${reply.elapsed_ms.toFixed(0)} ms `
+      + `(segmenting ${reply.segment_ms.toFixed(0)} ms, ${reply.points} points)`;
+    $('result').textContent = JSON.stringify({ ...reply, scene_points: undefined, scene_point_objects: undefined }, null, 1);
+    setStatus(`${file.name}: ${reply.objects.length} object(s)`);
+    document.body.dataset.run = 'done';
+  } catch (err) {
+    setStatus(err.message, true);
+    document.body.dataset.run = 'failed';
+  }
+  setButtons(false);
+}
+
 function setButtons(running) {
   $('run').disabled = running;
   $('cancel').disabled = !running || document.body.dataset.tab !== 'pose';
@@ -321,7 +351,7 @@ async function main() {
   }
   if (params.has('play_ms')) $('play').value = params.get('play_ms') === '0' ? '0' : '250';
   if (params.get('refine') === '0') $('refine').checked = false;
-  setTab(params.get('tab') === 'align' ? 'align' : 'pose');
+  setTab(['align', 'scene'].includes(params.get('tab')) ? params.get('tab') : 'pose');
   showModel();
   if (document.body.dataset.tab === 'align' && !params.has('model')) followPair();
 
@@ -336,7 +366,13 @@ async function main() {
   pick('main', 'example'); pick('a', 'example-a'); pick('b', 'example-b');
   for (const id of ['example-a', 'example-b']) $(id).addEventListener('change', () => { followPair(); saveUrl(); });
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');
-  $('run').addEventListener('click', () => (document.body.dataset.tab === 'pose' ? runPose() : runAlignTab()));
+  $('run').addEventListener('click', () => ({ pose: runPose, align: runAlignTab, scene: runSceneTab })[document.body.dataset.tab]());
+  const sceneZone = $('drop-scene');
+  const takeScene = (file) => { if (file) { state.sceneFile = file; setStatus(`${file.name}: press Run`); } };
+  $('file-scene').addEventListener('change', () => takeScene($('file-scene').files[0]));
+  sceneZone.addEventListener('dragover', (e) => { e.preventDefault(); sceneZone.classList.add('over'); });
+  sceneZone.addEventListener('dragleave', () => sceneZone.classList.remove('over'));
+  sceneZone.addEventListener('drop', (e) => { e.preventDefault(); sceneZone.classList.remove('over'); takeScene(e.dataTransfer.files[0]); });
   $('cancel').addEventListener('click', () => state.stream?.cancel());
 
   await Promise.all([loadCloud('main', $('example').value), loadCloud('a', $('example-a').value), loadCloud('b', $('example-b').value)]);

@@ -1,0 +1,174 @@
+"""Scenes benchmark: objects right, found and false, and the time per scene, on development
+scenes (``model/scenes.py``: ModelNet10 test objects on a floor before a wall).
+
+    python -m benchmarks.bench_scene --split validation --scenes 150
+    python -m benchmarks.bench_scene --split test --scenes 150 --out runs/scenes-test.json
+
+Each scene is rendered at 320x240 (and, unless ``--no-large``, another scene of the same kind at
+640x480), written as a 16-bit PNG (millimetres) and found by ``itnet.scene.find_objects`` as a
+user's file would be (the PNG read back, the intrinsics given); the time is the call's, PNG
+decoding included. Scoring:
+
+* a returned object matches the scene's object whose pixels it overlaps most, where their
+  intersection over union is at least 0.5 (each scene object matched once, best first);
+* found: scene objects matched; false: returned objects matched to none (wall pieces, floor
+  fragments, halves of objects, two objects as one);
+* right: matched, the category right, and the pose within (10 degrees, 0.1 radius) of the truth
+  with the category's symmetry (SPEC.md); counted over the scene objects that are visible
+  (at least ``--min-pixels`` pixels at 320x240, four times as many at 640x480).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from itnet.geometry import invert_rigid
+from itnet.metrics import is_correct
+from itnet.model.categories import MODELNET10
+from itnet.model.scenes import SIZES, Scene, make_scene, split_shapes
+from itnet.scene import SceneResult, find_objects
+from itnet.scene.depth_io import depth_to_png
+from itnet.scene.inputs import from_png
+from itnet.symmetry import symmetric_rotation_error_deg
+
+
+def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
+    """One row per scene object and per unmatched returned object: matched, right, errors."""
+    labels = scene.labels.ravel()
+    sizes = np.bincount(labels, minlength=len(scene.objects) + 1)
+    pairs = []
+    for i, obj in enumerate(result.objects):
+        counts = np.bincount(labels[obj.indices], minlength=len(scene.objects) + 1)
+        for k in range(1, len(scene.objects) + 1):
+            iou = counts[k] / (len(obj.indices) + sizes[k] - counts[k])
+            if iou >= 0.5:
+                pairs.append((iou, i, k))
+    taken_obj, taken_truth, rows = set(), set(), []
+    for _, i, k in sorted(pairs, reverse=True):
+        if i in taken_obj or k in taken_truth:
+            continue
+        taken_obj.add(i)
+        taken_truth.add(k)
+        truth, obj = scene.objects[k - 1], result.objects[i]
+        row = {"kind": "object", "category": truth.category, "found": True,
+               "predicted": obj.category, "visible": bool(sizes[k] >= min_pixels)}  # fmt: skip
+        if obj.pose is not None and obj.category == truth.category:
+            symmetry = MODELNET10[truth.category].symmetry
+            rot = float(
+                symmetric_rotation_error_deg(obj.pose[:3, :3], truth.pose[:3, :3], symmetry)
+            )
+            centre = np.linalg.norm(invert_rigid(obj.pose)[:3, 3] - invert_rigid(truth.pose)[:3, 3])
+            row.update(rotation_deg=rot, centre_r=float(centre / truth.radius))
+            row["right"] = bool(is_correct(rot, centre / truth.radius))
+        else:
+            row["right"] = False
+        rows.append(row)
+    for k in range(1, len(scene.objects) + 1):
+        if k not in taken_truth:
+            rows.append({"kind": "object", "category": scene.objects[k - 1].category,
+                         "found": False, "right": False, "visible": bool(sizes[k] >= min_pixels)})  # fmt: skip
+    rows += [{"kind": "false", "predicted": result.objects[i].category}
+             for i in range(len(result.objects)) if i not in taken_obj]  # fmt: skip
+    return rows
+
+
+def summary(rows: list[dict], returned: int) -> dict:
+    """Percentages with binomial standard errors."""
+    objects = [r for r in rows if r["kind"] == "object" and r["visible"]]
+    false = sum(r["kind"] == "false" for r in rows)
+
+    def pct(k: int, n: int) -> dict:
+        p = k / max(n, 1)
+        return {"percent": round(100 * p, 1), "stderr": round(100 * (p * (1 - p) / max(n, 1)) ** 0.5, 1),
+                "count": k, "of": n}  # fmt: skip
+
+    by_category = {}
+    for name in sorted({r["category"] for r in objects}):
+        mine = [r for r in objects if r["category"] == name]
+        by_category[name] = pct(sum(r["right"] for r in mine), len(mine))
+    return {
+        "right": pct(sum(r["right"] for r in objects), len(objects)),
+        "found": pct(sum(r["found"] for r in objects), len(objects)),
+        "category_right": pct(
+            sum(r.get("predicted") == r["category"] for r in objects), len(objects)
+        ),
+        "false": pct(false, returned),
+        "by_category": by_category,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--split", choices=("validation", "test"), required=True)
+    parser.add_argument("--scenes", type=int, default=150)
+    parser.add_argument("--seed", type=int, default=None, help="default: 1 validation, 2 test")
+    parser.add_argument("--budget-ms", type=float, default=None, help="default: find_objects'")
+    parser.add_argument("--min-pixels", type=int, default=150)
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    parser.add_argument("--no-large", action="store_true", help="skip the 640x480 frames")
+    parser.add_argument("--no-floor-centre", action="store_true", help="the network's centres")
+    parser.add_argument(
+        "--categories",
+        default=None,
+        help="'posed': the scenes' eight categories only (default: any)",
+    )
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args(argv)
+    seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
+    shapes = split_shapes(args.data, args.split, args.cache)
+    budget: dict = {} if args.budget_ms is None else {"budget_ms": args.budget_ms}
+    budget["floor_centre"] = not args.no_floor_centre
+    if args.categories == "posed":
+        budget["categories"] = frozenset(SIZES)
+    find_objects(np.zeros((100, 3)) + np.arange(100)[:, None] * 0.01, **budget)  # load, warm
+    rng = np.random.default_rng(seed)
+    rows: list[dict] = []
+    returned, times, times_large, rows_large, returned_large = 0, [], [], [], 0
+    for s in range(args.scenes):
+        scene = make_scene(shapes, rng)
+        png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
+        start = time.perf_counter()
+        result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
+        times.append((time.perf_counter() - start) * 1e3)
+        rows += match(result, scene, args.min_pixels)
+        returned += len(result.objects)
+        if not args.no_large:
+            big = large_scene(shapes, seed, s)
+            png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
+            start = time.perf_counter()
+            result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
+            times_large.append((time.perf_counter() - start) * 1e3)
+            rows_large += match(result, big, 4 * args.min_pixels)
+            returned_large += len(result.objects)
+    report = {
+        "split": args.split, "scenes": args.scenes, "seed": seed,
+        **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()},
+        "320x240": summary(rows, returned) | timing(times),
+        **({"640x480": summary(rows_large, returned_large) | timing(times_large)} if times_large else {}),
+    }  # fmt: skip
+    print(json.dumps(report, indent=1))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({**report, "rows": rows}, indent=1))
+
+
+def large_scene(shapes: dict, seed: int, index: int) -> Scene:
+    """A scene of the same kind at 640x480, drawn from its own generator (seed, index)."""
+    return make_scene(shapes, np.random.default_rng([seed, index, 640]), 640, 480)
+
+
+def timing(ms: list[float]) -> dict:
+    return {
+        "ms_median": round(float(np.median(ms)), 1),
+        "ms_p95": round(float(np.percentile(ms, 95)), 1),
+    }
+
+
+if __name__ == "__main__":
+    main()

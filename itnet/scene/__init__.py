@@ -1,0 +1,50 @@
+"""Scenes: a depth image or a room's cloud in, every object's category and pose out.
+
+    from itnet.scene import Intrinsics, find_objects
+    result = find_objects(depth, Intrinsics(fx, fy, cx, cy), budget_ms=100)
+
+See docs/scenes.md.
+"""
+
+from itnet.scene.camera import (
+    Intrinsics,
+    SceneInputError,
+    SceneTooLargeError,
+    intrinsics_from_json,
+    parse_intrinsics,
+)
+from itnet.scene.inputs import (
+    SceneInput,
+    SceneLimits,
+    from_array,
+    from_cloud,
+    from_depth,
+    from_file,
+    from_png,
+)
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
+from itnet.scene.posing import PoseKit
+from itnet.scene.result import Box, SceneObject, SceneResult
+from itnet.scene.segment import SegmentOptions
+
+__all__ = [
+    "DEFAULT_BUDGET_MS",
+    "Box",
+    "Intrinsics",
+    "PoseKit",
+    "SceneInput",
+    "SceneInputError",
+    "SceneLimits",
+    "SceneObject",
+    "SceneResult",
+    "SceneTooLargeError",
+    "SegmentOptions",
+    "find_objects",
+    "from_array",
+    "from_cloud",
+    "from_depth",
+    "from_file",
+    "from_png",
+    "intrinsics_from_json",
+    "parse_intrinsics",
+]

@@ -1,0 +1,140 @@
+"""``find_objects``: a scene in, every object's category and pose out, within one budget.
+
+    result = find_objects(depth_image, Intrinsics(fx, fy, cx, cy), budget_ms=100)
+    for obj in result.objects:
+        obj.category, obj.pose        # T_canonical_from_input (4, 4), or None
+
+The clock starts when the call does (or at ``started``): reading the scene's points,
+segmenting them (``segment``), then one object after another, largest first, each given an
+equal share of what is left of ``budget_ms`` (an object that finishes early leaves its time to
+the next). Each object is classified and posed with up (the floor's normal) and the viewpoint
+(the camera) given (``posing.pose_object``).
+
+Then the object stands on the floor (``floor_centred``): its canonical origin is the centre of
+its bounding box, whose bottom is the floor, so the centre's height is half the object's top.
+The top is what the camera sees best (it looks down on furniture); the network places the
+centre of a partial view too near the surface it sees, and the floor says how high it is.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.scene.camera import Intrinsics
+from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
+from itnet.scene.planes import Plane
+from itnet.scene.posing import BadCloudError, PoseKit, pose_object, with_pose
+from itnet.scene.result import Box, SceneObject, SceneResult
+from itnet.scene.segment import CAMERA_UP, SegmentOptions, segment
+
+DEFAULT_BUDGET_MS = 140.0
+VIEWPOINT = np.zeros(3)  # the camera, in its own frame
+
+
+def find_objects(
+    scene: NDArray | str | Path | SceneInput,
+    intrinsics: Intrinsics | None = None,
+    budget_ms: float = DEFAULT_BUDGET_MS,
+    kit: PoseKit | None = None,
+    depth_scale: float | None = None,
+    options: SegmentOptions = SegmentOptions(),
+    expected_up: NDArray | tuple[float, float, float] = CAMERA_UP,
+    limits: SceneLimits = SceneLimits(),
+    started: float | None = None,
+    floor_centre: bool = True,
+    categories: frozenset[str] | None = None,
+) -> SceneResult:
+    """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
+    cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``kit``: the
+    models (default: the shipped ones, loaded once per process). ``categories``: the ones the
+    scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
+    Raises SceneInputError for a
+    scene that cannot be used, ValueError for a budget that is not positive."""
+    started = time.perf_counter() if started is None else started
+    if not budget_ms > 0:
+        raise ValueError(f"budget_ms must be positive, got {budget_ms}")
+    if isinstance(scene, SceneInput):
+        given = scene
+    elif isinstance(scene, (str, Path)):
+        given = from_file(Path(scene), intrinsics, depth_scale, limits)
+    else:
+        given = from_array(np.asarray(scene), intrinsics, depth_scale, limits)
+    kit = kit or shipped_kit()
+    found = segment(given.points, options, expected_up)
+    segment_ms = (time.perf_counter() - started) * 1e3
+    objects = []
+    for k, rows in enumerate(found.objects):
+        points = given.points[rows]
+        left_ms = budget_ms - (time.perf_counter() - started) * 1e3
+        share = max(left_ms, 0.0) / (len(found.objects) - k)
+        try:
+            seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3),
+                               categories=categories)  # fmt: skip
+        except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
+            continue
+        if floor_centre and seen.pose is not None and seen.result is not None:
+            assert found.floor is not None  # objects are found only on a floor
+            seen.pose = floor_centred(seen.pose, points, found.floor)
+            seen.result = with_pose(seen.result, seen.pose) | {"centre_floor": True}
+        box = object_box(points, found.up, found.floor, seen.pose)
+        objects.append(SceneObject(
+            given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
+            box, seen.pose, seen.result, seen.no_pose,
+        ))  # fmt: skip
+    return SceneResult(
+        objects, found.up if found.floor is not None else None, found.floor, found.walls,
+        len(given.points), given.image_shape, budget_ms, segment_ms,
+        (time.perf_counter() - started) * 1e3,
+    )  # fmt: skip
+
+
+_KIT: PoseKit | None = None
+
+
+def shipped_kit() -> PoseKit:
+    """The shipped models, loaded on first use and kept for the process."""
+    global _KIT
+    if _KIT is None:
+        _KIT = PoseKit.load()
+    return _KIT
+
+
+def floor_centred(pose: NDArray, points: NDArray, floor: Plane) -> NDArray[np.float64]:
+    """T_canonical_from_input (4, 4) of an object standing on ``floor``, its points (K, 3) ->
+    the same pose with the object's centre moved along the floor's normal to half the height
+    of its top (the 98th percentile of its points' heights, against noise)."""
+    rotation = pose[:3, :3]
+    centre = -rotation.T @ pose[:3, 3]
+    top = float(np.percentile(floor.distance(points), 98))
+    centre = centre + (top / 2 - float(floor.distance(centre[None])[0])) * floor.normal
+    out = np.array(pose, dtype=np.float64)
+    out[:3, 3] = -rotation @ centre
+    return out
+
+
+def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray | None) -> Box:
+    """The box of an object's points (K, 3) in the camera frame, standing on the floor: along
+    its canonical axes where it has a pose (4, 4), else along up and its widest horizontal
+    direction. Its bottom reaches down to the floor where there is one."""
+    if pose is not None:
+        rotation = pose[:3, :3].T  # R_camera_from_canonical: the canonical axes
+    else:
+        flat = points - points.mean(0)
+        flat -= np.outer(flat @ up, up)
+        _, _, vt = np.linalg.svd(flat, full_matrices=False)
+        x = vt[0] - (vt[0] @ up) * up
+        x /= np.linalg.norm(x)
+        rotation = np.stack([x, up, np.cross(x, up)], axis=1)
+    local = points @ rotation
+    lo, hi = local.min(0), local.max(0)
+    if floor is not None:  # the floor under the box's centre, along the box's y (up)
+        height = float(floor.distance(rotation @ ((lo + hi) / 2)))
+        lo[1] = min(lo[1], (lo[1] + hi[1]) / 2 - height)
+    return Box(rotation @ ((lo + hi) / 2), hi - lo, rotation)
+
+
+__all__ = ["DEFAULT_BUDGET_MS", "find_objects", "object_box", "shipped_kit"]

@@ -1,0 +1,81 @@
+"""Planes of a scene: the floor (which way is up) and the walls, by RANSAC.
+
+Pure numpy. A plane is ``n·p + d = 0`` with ``n`` a unit normal; the floor's normal is oriented
+toward the camera (the camera stands above the floor), so ``n·p + d`` is a point's height.
+Hypotheses are drawn many at once and scored on a random sample of the cloud, the best one
+refined by a least-squares fit to its inliers in the whole cloud. A prior direction restricts
+the hypotheses: the floor's normal lies within ``max_tilt_deg`` of the expected up (a camera
+with its image's y down, held about level: −y), a wall's is horizontal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Plane:
+    """``normal`` (3,) unit, ``offset`` d: the plane is ``normal·p + offset = 0``."""
+
+    normal: NDArray[np.float64]
+    offset: float
+
+    def distance(self, points: NDArray) -> NDArray[np.float64]:
+        """Points (N, 3) -> signed distances (N,) along the normal."""
+        return np.asarray(points, dtype=np.float64) @ self.normal + self.offset
+
+
+def fit_plane(points: NDArray) -> Plane:
+    """Least-squares plane through points (N >= 3, 3): through their centroid, normal to the
+    direction of least variance."""
+    centre = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+    normal = vt[2]
+    return Plane(normal, float(-normal @ centre))
+
+
+def ransac_plane(
+    points: NDArray,
+    rng: np.random.Generator,
+    threshold: float,
+    accept: Callable[[NDArray], NDArray],
+    hypotheses: int = 200,
+    sample: int = 2000,
+    refine: int = 20000,
+) -> tuple[Plane, NDArray[np.bool_]] | None:
+    """The plane with most points within ``threshold`` among ``hypotheses`` random triples
+    whose normals (K, 3) ``accept`` keeps (K,) bool, counted on ``sample`` random points, then
+    refined twice by ``fit_plane`` on its inliers among ``refine`` random points -> (plane,
+    inlier mask (N,)), or None when no hypothesis is kept."""
+    if len(points) < 3:
+        return None
+    scored = points[rng.integers(0, len(points), size=min(sample, len(points)))]
+    triples = scored[rng.integers(0, len(scored), size=(hypotheses, 3))]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = normals / np.maximum(length, 1e-12)
+    kept = (length[:, 0] > 1e-9) & np.asarray(accept(normals), dtype=bool)
+    if not kept.any():
+        return None
+    normals, anchors = normals[kept], triples[kept, 0]
+    offsets = -np.einsum("kj,kj->k", normals, anchors)
+    counts = (np.abs(scored @ normals.T + offsets) < threshold).sum(axis=0)
+    best = int(np.argmax(counts))
+    plane = Plane(normals[best], float(offsets[best]))
+    fitted = points if len(points) <= refine else points[rng.integers(0, len(points), size=refine)]
+    for _ in range(2):
+        inliers = np.abs(plane.distance(fitted)) < threshold
+        if inliers.sum() < 3:
+            return None
+        refined = fit_plane(fitted[inliers])
+        # keep the refined normal on the hypothesis' side (the fit's sign is arbitrary)
+        plane = (
+            refined
+            if refined.normal @ plane.normal >= 0
+            else Plane(-refined.normal, -refined.offset)
+        )
+    return plane, np.abs(plane.distance(points)) < threshold

@@ -1,0 +1,153 @@
+"""The one place where scenes call the pose machinery: load the models and the classifier,
+classify a cluster (``model: "auto"``, with up and the unit known), and run its category's
+anytime pipeline with up and the viewpoint given, within a share of the scene's budget.
+
+Everything a scene needs of the pose side goes through ``PoseKit`` and ``pose_object``: the
+classification restricted to the scene's categories, then the one pose pipeline
+(``itnet.pose.plan`` and its anytime loop) with up and the viewpoint in the request.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.pose.cloud import Limits
+from itnet.pose.errors import BadCloudError, BudgetTooSmallError
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.plan import plan
+from itnet.pose.recognition import classify, pose_model_for
+from itnet.pose.reply import pose_fields
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import (
+    LoadedClassifier,
+    LoadedModel,
+    ModelLoadError,
+    default_model_dir,
+    load_all,
+)
+
+SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
+
+
+@dataclass
+class PoseKit:
+    """The loaded pose models (by name) and the category classifier."""
+
+    models: dict[str, LoadedModel]
+    classifier: LoadedClassifier | None
+    limits: Limits = field(default_factory=Limits)
+
+    @classmethod
+    def load(cls, model_dir: Path | None = None, threads: int = 2) -> PoseKit:
+        """Every model of a folder (default: the shipped ones). Raises ModelLoadError, also
+        where the folder has no category classifier (scenes classify every object)."""
+        folder = model_dir or default_model_dir()
+        models, classifier = load_all(folder, threads)
+        if classifier is None:
+            raise ModelLoadError(f"{folder}: no category classifier (scenes need classifier.onnx)")
+        return cls(models, classifier)
+
+
+@dataclass
+class ObjectPose:
+    """One cluster's category and, where its category has a pose model and the budget held a
+    run, its pose: ``result`` is the anytime run's reply (``T_canonical_from_input``, both
+    quaternions, iterations, ...) without the recognition's fields; ``pose`` (4, 4)."""
+
+    category: str
+    probability: float
+    candidates: list[dict[str, Any]]
+    unsure: bool
+    pose: NDArray[np.float64] | None = None
+    result: dict[str, Any] | None = None
+    no_pose: str | None = None  # why there is no pose: 'no_pose_model' or 'budget'
+
+
+class NoClassifierError(RuntimeError):
+    """The models' folder has no category classifier: scenes need one."""
+
+
+def pose_object(
+    kit: PoseKit,
+    points: NDArray,
+    up: NDArray,
+    viewpoint: NDArray,
+    budget_ms: float,
+    started: float | None = None,
+    min_run_ms: float = 2.0,
+    categories: frozenset[str] | None = None,
+) -> ObjectPose:
+    """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
+    ObjectPose, the classification and the run within ``budget_ms`` from ``started``
+    (``time.perf_counter()``; default now). ``categories``: the ones the object may be (the
+    classifier's probabilities renormalised over them; default: any). No run where less than
+    ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
+    degenerate)."""
+    started = time.perf_counter() if started is None else started
+    if kit.classifier is None:
+        raise NoClassifierError("scenes need the category classifier, and none is loaded")
+    recognition = classify(
+        kit.classifier, points, top=len(kit.classifier.card.classes), limits=kit.limits,
+        units=SCENE_UNITS, up=up, deadline=started + budget_ms / 2e3,
+    )  # fmt: skip
+    candidates = [
+        c for c in recognition.candidates if categories is None or c.category in categories
+    ]
+    if not candidates:
+        raise BadCloudError(f"none of the categories {sorted(categories or ())} is known")
+    total = sum(c.probability for c in candidates)
+    top = [
+        {"category": c.category, "probability": round(c.probability / total, 6)}
+        for c in candidates[:3]
+    ]
+    seen = ObjectPose(
+        top[0]["category"],
+        top[0]["probability"],
+        top,
+        top[0]["probability"] < recognition.threshold,
+    )
+    model = pose_model_for(seen.category, kit.models)
+    if model is None:
+        seen.no_pose = "no_pose_model"
+        return seen
+    left_ms = budget_ms - (time.perf_counter() - started) * 1e3
+    if left_ms < min_run_ms:
+        seen.no_pose = "budget"
+        return seen
+    request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
+                          viewpoint=[float(v) for v in viewpoint])  # fmt: skip
+    try:
+        run = AnytimeRun(plan(model, request, kit.limits), points, started)
+    except BudgetTooSmallError:
+        seen.no_pose = "budget"
+        return seen
+    run.run_to_end()
+    if run.iteration == 0:  # the start is no pose
+        seen.no_pose = "budget"
+        return seen
+    seen.result = run.result()
+    seen.pose = run.last.pose
+    return seen
+
+
+def with_pose(result: dict[str, Any], pose: NDArray[np.float64]) -> dict[str, Any]:
+    """A run's reply with its pose fields (matrix, quaternions, translation) replaced by
+    ``pose`` (4, 4)."""
+    return {**result, **pose_fields(pose)}
+
+
+__all__ = [
+    "BadCloudError",
+    "ModelLoadError",
+    "NoClassifierError",
+    "ObjectPose",
+    "PoseKit",
+    "pose_object",
+    "with_pose",
+]

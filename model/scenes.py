@@ -1,0 +1,254 @@
+"""Development scenes: ModelNet10 test objects standing on a floor before a wall, seen by a
+depth camera, with each object's ground-truth pose.
+
+Never the training shapes: the test split's shapes of each category are cut in two by a seeded
+permutation, a validation half (for choosing the segmentation's settings) and a test half
+(measured once). A scene holds one to three objects of the categories that have pose models,
+at real sizes (a chair 0.8-1.0 m tall, a bed 1.9-2.1 m long, ...), each turned by any yaw and
+standing on the floor, apart from the others, inside the view; a wall stands behind them.
+
+The camera: 1.1-1.7 m above the floor, pitched down 0-25 degrees (0: level), rolled up to
+3 degrees, 60 degrees wide, 320x240 (or any size: the same scene at 640x480 is the same rays,
+finer). Depth is rendered per pixel: the floor and the wall exactly (ray-plane), each object's
+1,024 points as small oriented discs (``model.surface.surface_discs``), the nearest hit kept;
+then depth noise as a structured-light camera has it, ``0.0012 + 0.0019 (z - 0.4)^2`` m, a few
+dropped pixels, and millimetre steps.
+
+Each object's truth is ``T_canonical_from_input`` for the camera-frame cloud (canonical frame in
+metres: the unit-sphere shape scaled by its size), its radius in metres, and the pixels it is
+seen at (``labels``: 0 floor or wall, k for the k-th object).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.geometry import axis_angle_to_matrix, invert_rigid
+from itnet.model.categories import MODELNET10
+from itnet.model.data import load_shapes, split_files
+from itnet.model.shapes import Shape
+from itnet.scene.camera import Intrinsics
+
+# The categories with pose models; (which extent, its range in metres): 'height' or 'length'
+# (the longest horizontal extent).
+SIZES: dict[str, tuple[str, tuple[float, float]]] = {
+    "chair": ("height", (0.8, 1.0)),
+    "table": ("length", (1.0, 1.8)),
+    "toilet": ("height", (0.7, 0.8)),
+    "bed": ("length", (1.9, 2.1)),
+    "bathtub": ("length", (1.5, 1.8)),
+    "sofa": ("length", (1.7, 2.2)),
+    "night_stand": ("height", (0.5, 0.65)),
+    "dresser": ("height", (0.8, 1.2)),
+}
+WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
+SPLITS = ("validation", "test")
+
+
+@dataclass
+class SceneObjectTruth:
+    category: str
+    name: str
+    pose: NDArray[np.float64]  # T_canonical_from_input (4, 4), input = the camera frame, metres
+    radius: float  # bounding-sphere radius, metres
+
+
+@dataclass
+class Scene:
+    """A rendered depth image (H, W) in metres (0: no reading), its intrinsics, the pixels'
+    object labels (H, W) (0: none, k: objects[k - 1]), and the objects' truths."""
+
+    depth: NDArray[np.float64]
+    intrinsics: Intrinsics
+    labels: NDArray[np.int64]
+    objects: list[SceneObjectTruth]
+
+
+def split_shapes(data: Path, split: str, cache: Path, seed: int = 0) -> dict[str, list[Shape]]:
+    """The ``split`` half ('validation' or 'test') of each category's test shapes, canonical
+    and orientation-checked."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    out = {}
+    for name in SIZES:
+        files = split_files(data, name, 0.1, 0)["test"]
+        order = np.random.default_rng(seed + 17).permutation(len(files))
+        half = order[: len(files) // 2] if split == "validation" else order[len(files) // 2 :]
+        cat = MODELNET10[name]
+        shapes, _ = load_shapes([files[i] for i in sorted(half)], "modelnet", cache, True,
+                                cat.quarter_turns, cat.symmetry)  # fmt: skip
+        out[name] = shapes
+    return out
+
+
+def _size_scale(shape: Shape, category: str, rng: np.random.Generator) -> float:
+    """Metres per canonical unit for a real-sized member of the category."""
+    which, (lo, hi) = SIZES[category]
+    extent = shape.points.max(0) - shape.points.min(0)
+    unit = extent[1] if which == "height" else max(extent[0], extent[2])
+    return rng.uniform(lo, hi) / unit
+
+
+def world_from_camera(height: float, pitch_deg: float, roll_deg: float) -> NDArray[np.float64]:
+    """T_world_from_camera (4, 4): world +y up, floor y = 0; the camera at ``height`` looking
+    along world +z, pitched down and rolled."""
+    base = np.diag([-1.0, -1.0, 1.0])  # camera x right, y down, z ahead -> world -x, -y, z
+    pitch = axis_angle_to_matrix([1.0, 0.0, 0.0], -math.radians(pitch_deg))
+    roll = axis_angle_to_matrix([0.0, 0.0, 1.0], math.radians(roll_deg))
+    t = np.eye(4)
+    t[:3, :3] = base @ pitch @ roll  # a positive pitch turns the optical axis toward the floor
+    t[:3, 3] = [0.0, height, 0.0]
+    return t
+
+
+def _rays(intrinsics: Intrinsics, width: int, height: int) -> NDArray[np.float64]:
+    """Each pixel's ray (H, W, 3) in the camera frame, scaled to z = 1 (so a hit's t is its
+    depth)."""
+    u, v = np.meshgrid(np.arange(width), np.arange(height))
+    return np.stack(
+        [
+            (u - intrinsics.cx) / intrinsics.fx,
+            (v - intrinsics.cy) / intrinsics.fy,
+            np.ones(u.shape),
+        ],
+        axis=-1,
+    )
+
+
+def _plane_depth(rays: NDArray, normal: NDArray, offset: float) -> NDArray[np.float64]:
+    """Depth (H, W) at which each ray meets the plane ``normal·p + offset = 0`` (camera frame),
+    inf where it does not (parallel or behind)."""
+    facing = rays @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -offset / facing
+    return np.where((np.abs(facing) > 1e-9) & (t > 0), t, np.inf)
+
+
+def _splat(
+    depth: NDArray, labels: NDArray, label: int, centres: NDArray, normals: NDArray,
+    radii: NDArray, intrinsics: Intrinsics, max_reach: int = 12,
+) -> None:  # fmt: skip
+    """Render discs (camera-frame centres (M, 3) with z > 0, unit normals (M, 3), radii (M,))
+    into ``depth`` (H, W) where nearer, writing ``label`` into ``labels`` there."""
+    h, w = depth.shape
+    z = centres[:, 2]
+    u = intrinsics.fx * centres[:, 0] / z + intrinsics.cx
+    v = intrinsics.fy * centres[:, 1] / z + intrinsics.cy
+    reach = np.minimum(np.ceil(radii * intrinsics.fx / z).astype(np.int64), max_reach)
+    span = np.arange(-reach.max(), reach.max() + 1)
+    du, dv = (o.ravel() for o in np.meshgrid(span, span, indexing="ij"))
+    point, k = np.nonzero(
+        (np.abs(du)[None] <= reach[:, None]) & (np.abs(dv)[None] <= reach[:, None])
+    )
+    pu, pv = (
+        np.round(u[point]).astype(np.int64) + du[k],
+        np.round(v[point]).astype(np.int64) + dv[k],
+    )
+    inside = (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h)
+    point, pu, pv = point[inside], pu[inside], pv[inside]
+    rays = np.stack([(pu - intrinsics.cx) / intrinsics.fx, (pv - intrinsics.cy) / intrinsics.fy,
+                     np.ones(len(pu))], 1)  # fmt: skip
+    n, c = normals[point], centres[point]
+    facing = np.einsum("ij,ij->i", n, rays)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", n, c) / facing
+    hit = t[:, None] * rays
+    ok = (np.abs(facing) > 1e-9) & (t > 0) & (((hit - c) ** 2).sum(1) <= radii[point] ** 2)
+    flat = pv[ok] * w + pu[ok]
+    t = t[ok]
+    nearest = np.full(h * w, np.inf)
+    np.minimum.at(nearest, flat, t)
+    closer = nearest < depth.ravel()
+    depth.ravel()[closer] = nearest[closer]
+    labels.ravel()[closer] = label
+
+
+def render(
+    objects: list[tuple[Shape, float, NDArray]], camera: NDArray, wall: tuple[NDArray, float],
+    intrinsics: Intrinsics, width: int, height: int, rng: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
+    """Objects (shape, metres per unit, T_world_from_canonical (4, 4) of the unit shape's
+    rotation and placement), T_world_from_camera (4, 4), the wall (world normal (3,), offset)
+    -> (depth (H, W) in metres with sensor effects, labels (H, W))."""
+    camera_from_world = invert_rigid(camera)
+    rays = _rays(intrinsics, width, height)
+    planes = [(np.array([0.0, 1.0, 0.0]), 0.0), wall]
+    depth = np.full((height, width), np.inf)
+    for normal, offset in planes:  # into the camera frame: n_c = R^T n, d_c = d + n·t
+        n_c = camera[:3, :3].T @ normal
+        depth = np.minimum(depth, _plane_depth(rays, n_c, offset + float(normal @ camera[:3, 3])))
+    labels = np.zeros((height, width), np.int64)
+    for k, (shape, scale, world_from_canonical) in enumerate(objects, start=1):
+        normals, spacing = shape.discs()
+        t = camera_from_world @ world_from_canonical
+        centres = shape.points * scale @ t[:3, :3].T + t[:3, 3]
+        _splat(depth, labels, k, centres, normals @ t[:3, :3].T, 1.3 * spacing * scale,
+               intrinsics)  # fmt: skip
+    seen = np.isfinite(depth)
+    z = depth[seen]
+    depth[seen] = z + rng.normal(size=z.shape) * (0.0012 + 0.0019 * (z - 0.4) ** 2)
+    depth[~seen] = 0.0
+    depth[rng.random(depth.shape) < 0.01] = 0.0
+    return np.round(depth * 1000) / 1000, labels
+
+
+def make_scene(
+    shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
+    height: int = HEIGHT, fov_deg: float = FOV_DEG,
+) -> Scene:  # fmt: skip
+    """One random scene (see the module) from the given shapes of each category."""
+    intrinsics = Intrinsics.from_fov(width, height, fov_deg)
+    camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(0.0, 25.0), rng.uniform(-3, 3))
+    camera_from_world = invert_rigid(camera)
+    placed: list[tuple[Shape, float, NDArray, str, float]] = []
+    wanted = int(rng.integers(1, 4))
+    for _ in range(60):
+        if len(placed) == wanted:
+            break
+        category = list(SIZES)[int(rng.integers(len(SIZES)))]
+        shape = shapes[category][int(rng.integers(len(shapes[category])))]
+        scale = _size_scale(shape, category, rng)
+        turn = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))
+        bearing = math.radians(rng.uniform(-22, 22))
+        reach = rng.uniform(1.8, 4.5)
+        floor_y = -float(shape.points[:, 1].min()) * scale  # the bottom on the floor
+        where = np.array([reach * math.sin(bearing), floor_y, reach * math.cos(bearing)])
+        footprint = scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
+        if any(np.hypot(*(where - p[2][:3, 3])[[0, 2]]) < footprint + p[4] + 0.15 for p in placed):
+            continue
+        world = np.eye(4)
+        world[:3, :3], world[:3, 3] = turn, where
+        corners = (shape.points * scale) @ turn.T + where
+        cam = corners @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
+        u = intrinsics.fx * cam[:, 0] / cam[:, 2] + intrinsics.cx
+        v = intrinsics.fy * cam[:, 1] / cam[:, 2] + intrinsics.cy
+        if (
+            cam[:, 2].min() < 0.5
+            or u.min() < 0
+            or u.max() >= width
+            or v.min() < 0
+            or v.max() >= height
+        ):
+            continue
+        placed.append((shape, scale, world, category, footprint))
+    wall_turn = math.radians(rng.uniform(-30, 30))
+    wall_normal = np.array([-math.sin(wall_turn), 0.0, -math.cos(wall_turn)])  # toward the camera
+    # behind every object, 0.3-1.5 m beyond its footprint
+    wall_normal_offset = max(
+        [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed] or [3.0]
+    ) + rng.uniform(0.3, 1.5)
+    depth, labels = render([(s, k, w) for s, k, w, _, _ in placed], camera,
+                           (wall_normal, wall_normal_offset), intrinsics, width, height, rng)  # fmt: skip
+    truths = []
+    for shape, scale, world, category, _ in placed:
+        metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
+        camera_from_canonical = camera_from_world @ metric
+        truths.append(
+            SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
+        )
+    return Scene(depth, intrinsics, labels, truths)

@@ -1,0 +1,138 @@
+"""The shipped models on a chair of boxes before a wall: the CLI, HTTP and Python see the same
+one object, with its category, a pose where its category has a model, and its pixels."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from itnet.cli import app
+from itnet.model.scenes import Scene
+from itnet.scene import find_objects
+from itnet.scene.depth_io import depth_to_png
+from itnet.service.app import create_app
+
+runner = CliRunner()
+
+
+def depth_mm(scene: Scene) -> np.ndarray:
+    return np.round(scene.depth * 1000).astype(np.uint16)
+
+
+def camera_arg(scene: Scene) -> str:
+    i = scene.intrinsics
+    return f"{i.fx},{i.fy},{i.cx},{i.cy}"
+
+
+def check_the_chair(objects: list[dict], scene: Scene) -> None:
+    assert len(objects) == 1
+    obj = objects[0]
+    assert obj["category"] and 0 < obj["category_probability"] <= 1
+    assert (obj["T_canonical_from_input"] is None) == (obj.get("no_pose") is not None)
+    if obj["T_canonical_from_input"] is not None:
+        pose = np.asarray(obj["T_canonical_from_input"])
+        assert pose.shape == (4, 4) and np.allclose(
+            pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-5
+        )
+    pixels = np.asarray(obj["indices"])
+    labels = scene.labels.ravel()
+    assert (labels[pixels] == 1).mean() > 0.98 and len(pixels) > 0.8 * (labels == 1).sum()
+    centre = np.asarray(obj["box"]["center"])
+    assert 2.0 < centre[2] < 4.0  # about 3 m ahead
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory, chair_scene: Scene, empty_scene: Scene) -> Path:
+    folder = tmp_path_factory.mktemp("scenes")
+    (folder / "chair.png").write_bytes(depth_to_png(depth_mm(chair_scene)))
+    (folder / "empty.png").write_bytes(depth_to_png(depth_mm(empty_scene)))
+    np.save(folder / "chair_m.npy", chair_scene.depth.astype(np.float32))
+    (folder / "nothing.png").write_bytes(depth_to_png(np.zeros((20, 30), np.uint16)))
+    return folder
+
+
+def test_cli_json_lines_and_bad_files(files: Path, chair_scene: Scene) -> None:
+    args = ["scene", str(files / "chair.png"), str(files / "nothing.png"),
+            str(files / "chair_m.npy"), str(files / "empty.png"),
+            "--intrinsics", camera_arg(chair_scene), "--json", "--budget-ms", "300"]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2  # nothing.png has no valid depth; the others are answered
+    assert "nothing.png: the depth image has no valid depth" in result.stderr
+    lines = [json.loads(line) for line in result.stdout.splitlines()]
+    assert [Path(line["file"]).name for line in lines] == ["chair.png", "chair_m.npy", "empty.png"]
+    check_the_chair(lines[0]["objects"], chair_scene)
+    check_the_chair(lines[1]["objects"], chair_scene)
+    assert lines[2]["objects"] == []  # an empty floor: no objects, not an error
+
+
+def test_cli_without_intrinsics_is_a_one_line_error(files: Path) -> None:
+    result = runner.invoke(app, ["scene", str(files / "chair.png")])
+    assert result.exit_code == 2
+    assert result.stderr.strip().count("\n") == 0 and "intrinsics" in result.stderr
+
+
+@pytest.fixture(scope="module")
+def client():
+    with TestClient(create_app()) as client:
+        yield client
+
+
+def test_http_png_json_and_the_python_api_agree(client: TestClient, files: Path,
+                                                 chair_scene: Scene) -> None:  # fmt: skip
+    i = chair_scene.intrinsics
+    query = f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300"
+    png = (files / "chair.png").read_bytes()
+    reply = client.post(f"/v1/scene?{query}", content=png, headers={"content-type": "image/png"})
+    assert reply.status_code == 200, reply.text
+    check_the_chair(reply.json()["objects"], chair_scene)
+    assert reply.json()["up"][1] < -0.9  # the floor's normal: about -y in a level camera
+    result = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=300)
+    assert [o.category for o in result.objects] == [reply.json()["objects"][0]["category"]]
+
+
+@pytest.mark.parametrize(
+    ("body", "kind", "query", "status", "said"),
+    [
+        (b"\x89PNG\r\n\x1a\n" + b"x" * 40, "image/png", "fx=1&fy=1&cx=1&cy=1", 422, ""),
+        (depth_to_png(np.ones((4, 4), np.uint16)), "image/png", "", 422, "intrinsics"),
+        (
+            depth_to_png(np.zeros((8, 8), np.uint16)),
+            "image/png",
+            "fx=5&fy=5&cx=4&cy=4",
+            422,
+            "no valid depth",
+        ),
+        (
+            depth_to_png(np.ones((1100, 1300), np.uint16)),
+            "image/png",
+            "fx=5&fy=5&cx=4&cy=4",
+            413,
+            "over the limit",
+        ),
+        (b"abcd", "application/octet-stream", "", 400, "multiple of 12"),
+        (b"hello", "text/plain", "", 415, "image/png"),
+        (b'{"points": [[1, 2]]}', "application/json", "", 422, "(N, 3)"),
+        (
+            np.zeros((100, 3), np.float32).tobytes(),
+            "application/octet-stream",
+            "budget_ms=0",
+            422,
+            "budget_ms",
+        ),
+    ],
+)
+def test_http_bad_scenes_get_their_4xx_and_the_service_keeps_serving(
+    client: TestClient, body: bytes, kind: str, query: str, status: int, said: str
+) -> None:
+    reply = client.post(f"/v1/scene?{query}", content=body, headers={"content-type": kind})
+    assert reply.status_code == status, reply.text
+    assert said in reply.json()["detail"]
+    cloud = np.random.default_rng(0).normal(size=(200, 3)) + np.array([0.0, 0.0, 3.0])
+    ok = client.post("/v1/scene", content=cloud.astype("<f4").tobytes(),
+                     headers={"content-type": "application/octet-stream"})  # fmt: skip
+    assert ok.status_code == 200 and ok.json()["objects"] == []  # no floor: no objects

@@ -1,0 +1,87 @@
+import math
+
+import numpy as np
+
+from itnet.scene import from_depth
+from itnet.scene.planes import fit_plane, ransac_plane
+from itnet.scene.segment import segment
+
+
+def test_fit_plane_recovers_a_plane():
+    rng = np.random.default_rng(0)
+    normal = np.array([0.2, -0.9, 0.1]) / np.linalg.norm([0.2, -0.9, 0.1])
+    basis = np.linalg.svd(normal[None])[2][1:]  # two directions in the plane
+    points = rng.uniform(-2, 2, size=(500, 2)) @ basis - 1.3 * normal
+    plane = fit_plane(points)
+    assert abs(abs(plane.normal @ normal) - 1) < 1e-9
+    np.testing.assert_allclose(plane.distance(points), 0, atol=1e-9)
+
+
+def test_floor_and_up_from_a_tilted_camera():
+    """A floor 1.4 m below a camera pitched 20 degrees down and rolled 5: up is the floor's
+    normal toward the camera, whatever the clutter."""
+    rng = np.random.default_rng(1)
+    pitch, roll = math.radians(20), math.radians(5)
+    up = np.array([math.sin(roll), -math.cos(pitch), -math.sin(pitch)])
+    up /= np.linalg.norm(up)
+    basis = np.linalg.svd(up[None])[2][1:]  # two directions in the floor
+    floor = rng.uniform(-8, 8, size=(8000, 2)) @ basis - 1.4 * up
+    floor = floor[(floor[:, 2] > 1.0) & (floor[:, 2] < 6.0)]  # what the camera sees
+    floor += rng.normal(scale=0.005, size=floor.shape)
+    clutter = rng.uniform([-2, -1, 2], [2, 1, 6], size=(1500, 3))
+    found = segment(np.concatenate([floor, clutter]))
+    assert found.floor is not None
+    assert math.degrees(math.acos(min(1.0, found.up @ up))) < 1.0
+    assert abs(found.floor.distance(np.zeros((1, 3)))[0] - 1.4) < 0.02  # the camera's height
+
+
+def test_ransac_keeps_only_accepted_normals():
+    rng = np.random.default_rng(2)
+    wall = np.c_[rng.uniform(-2, 2, 3000), rng.uniform(-2, 0.5, 3000), np.full(3000, 5.0)]  # z = 5
+    floor = np.c_[rng.uniform(-2, 2, 500), np.full(500, 1.0), rng.uniform(1, 5, 500)]
+    points = np.concatenate([wall, floor])  # the wall is the larger plane, and not accepted
+    found = ransac_plane(points, rng, 0.02, lambda n: np.abs(n[:, 1]) > 0.9)
+    assert found is not None
+    plane, inliers = found
+    assert abs(plane.normal[1]) > 0.99 and inliers[-500:].all() and not inliers[:3000].any()
+    assert ransac_plane(points, rng, 0.02, lambda n: np.zeros(len(n), bool)) is None
+
+
+def test_two_boxes_on_a_floor_are_two_objects_with_their_own_points(two_boxes):
+    scene = from_depth(two_boxes.depth, two_boxes.intrinsics)
+    found = segment(scene.points)
+    assert len(found.objects) == 2
+    assert len(found.walls) >= 1
+    labels = two_boxes.labels.ravel()[scene.indices]
+    owners = sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects)
+    assert owners == [1, 2]
+    for rows in found.objects:
+        k = int(np.bincount(labels[rows]).argmax())
+        mine = np.flatnonzero(labels == k)
+        assert (labels[rows] == k).all()  # nothing of the floor, the wall or the other box
+        # all of the box but its lowest centimetres, which the floor's threshold takes
+        assert len(rows) >= 0.85 * len(mine)
+
+
+def test_an_empty_floor_before_a_wall_has_no_objects(empty_scene):
+    scene = from_depth(empty_scene.depth, empty_scene.intrinsics)
+    found = segment(scene.points)
+    assert found.floor is not None and found.objects == []
+
+
+def test_no_floor_no_objects():
+    rng = np.random.default_rng(3)
+    assert segment(rng.normal(size=(500, 3)) + np.array([0.0, 0.0, 3.0])).objects == []
+
+
+def test_a_chair_cut_off_by_a_level_camera_still_stands(level_chair_scene):
+    """A level camera 1.7 m up sees the floor only from about 4 m on: a chair 2.2 m away shows
+    its upper part alone, and is an object all the same."""
+    scene = level_chair_scene
+    given = from_depth(scene.depth, scene.intrinsics)
+    labels = scene.labels.ravel()[given.indices]
+    found = segment(given.points)
+    assert found.floor is not None
+    assert len(found.objects) == 1
+    assert (labels[found.objects[0]] == 1).mean() > 0.95
+    assert len(found.objects[0]) > 0.8 * (labels == 1).sum()
