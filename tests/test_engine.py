@@ -16,6 +16,8 @@ from itnet.pose.errors import BadCloudError, BudgetTooSmallError
 from itnet.pose.runtime import ModelLoadError, load_model, load_models
 from tests.pose_runs import run_with
 
+UNCAPPED = Limits(max_iterations=100_000)  # the budget, not the cap, must end these runs
+
 
 @pytest.fixture(scope="module")
 def model(tiny_model_dir):
@@ -40,7 +42,8 @@ def test_budget_is_honoured_and_stops_before_overrunning(model, cloud):
     for budget in (0.5, 3.0, 8.0):
         overruns = []
         for _ in range(20):
-            run = run_with(model, cloud, budget_ms=budget, max_iterations=200, converge=(0, 0))
+            run = run_with(model, cloud, budget_ms=budget, max_iterations=100_000,
+                           limits=UNCAPPED, converge=(0, 0))  # fmt: skip
             run.run_to_end()
             assert run.stopped_by == "budget"
             overruns.append(run.elapsed_ms() - budget)
