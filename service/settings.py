@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from itnet.pose.cloud import Limits
 from itnet.pose.recognition import MAX_LOOKS, SECOND_LOOKS
-from itnet.pose.runtime import default_model_dir
+from itnet.pose.runtime import RuntimeOptions, default_model_dir
 
 
 class LimitSettings(BaseModel):
@@ -150,6 +151,18 @@ class Settings(BaseSettings):
         ge=1,
         description="steps of one model run at once, others wait (default: cores // threads)",
     )
+    provider: Literal["cpu", "cuda", "tensorrt"] = Field(
+        default="cpu",
+        description="where the graphs run: onnxruntime's CPU, CUDA or TensorRT execution "
+        "provider (the GPU ones need onnxruntime-gpu; ITNET_PROVIDER)",
+    )
+    batch_jobs: int = Field(
+        default=64,
+        ge=1,
+        le=1024,
+        description="steps of different requests one graph call may hold (1: no batching "
+        "across requests; ITNET_BATCH_JOBS)",
+    )
     warm_up: bool = Field(default=True, description="run a few steps per model at start-up")
     gc_freeze: bool = Field(
         default=True,
@@ -171,3 +184,7 @@ class Settings(BaseSettings):
     @classmethod
     def _expand(cls, value: Path) -> Path:
         return value.expanduser()
+
+    def runtime_options(self) -> RuntimeOptions:
+        """Where the graphs run and how steps share calls (``itnet.pose.runtime``)."""
+        return RuntimeOptions(self.provider, self.batch_jobs)

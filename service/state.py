@@ -105,6 +105,7 @@ class ServiceState:
                     self.settings.threads,
                     self.settings.warm_up,
                     self.settings.concurrent_steps,
+                    self.settings.runtime_options(),
                 )
             except ModelLoadError as err:
                 self.load_error = str(err)

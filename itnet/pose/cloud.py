@@ -76,6 +76,6 @@ def validate_up(up: ArrayLike) -> NDArray[np.float64]:
     """A request's up direction -> its unit vector (3,); BadCloudError saying what is wrong
     (not three finite numbers, or zero)."""
     try:
-        return unit_up(np.asarray(up, dtype=np.float64).reshape(-1))
+        return np.asarray(unit_up(np.asarray(up, dtype=np.float64).reshape(-1)), np.float64)
     except (TypeError, ValueError) as err:
         raise BadCloudError(str(err)) from None

@@ -87,7 +87,7 @@ class AnytimeRun(Iterator[Estimate]):
         if self.stopped_by is not None:
             self._finish()
             raise StopIteration
-        stepped = self.extra_step(self.points, self.pose_normalized, self._slack_ms)
+        stepped = self.extra_step(self.points, self.pose_normalized)
         if stepped is None:  # no step slot freed in time, or cancelled while waiting
             self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
             self._finish()
@@ -105,35 +105,28 @@ class AnytimeRun(Iterator[Estimate]):
             self.last = self._update_of(previous, self.pose_normalized[0])
         return self._converged_or(self.last)
 
-    def extra_step(
-        self, points: NDArray, poses: NDArray, slack: Callable[[], float] | None = None
-    ) -> NDArray | None:
-        """One network step of ``points`` (B, N, 3) from ``poses`` (B, 4, 4) in a step slot,
-        waited for only as long as ``slack()`` (default: the budget left) can spare -> the
-        poses after it, or None (no slot in time, or cancelled). Stages call it too."""
-
-        def step() -> NDArray:
-            start = time.perf_counter()
-            out, _ = self.model.step(points, poses)
-            self._last_step_ms = (time.perf_counter() - start) * 1e3
-            self.model.record_step_ms(self._last_step_ms / self.model.step_load(*points.shape[:2]))
-            return out
-
-        return self.extra_call(step, 0.0, slack)
-
-    def extra_call(
-        self, work: Callable[[], T], predicted_ms: float, slack: Callable[[], float] | None = None
-    ) -> T | None:
-        """``work()`` in a step slot, where the budget left holds ``predicted_ms`` more; None
-        where it does not, no slot frees in time, or the run is cancelled."""
-        spare = (slack or self.left_ms)() - predicted_ms
-        if spare < 0 or self._cancel.is_set():
+    def extra_step(self, points: NDArray, poses: NDArray) -> NDArray | None:
+        """One network step of ``points`` (B, N, 3) from ``poses`` (B, 4, 4), batched with the
+        steps of the other runs in flight, ending inside the budget (less the reserve) -> the
+        poses after it, or None (it could not, or the run is cancelled). Stages call it too."""
+        if self._cancel.is_set():
             return None
-        deadline = self.started + self.plan.budget_ms / 1e3
-        with self.model.step_slot(spare / 1e3, deadline) as free:
-            if not free or self._cancel.is_set():
-                return None
-            return work()
+        start = time.perf_counter()
+        stepped = self.model.batched_step(points, poses, self._latest())
+        self._last_step_ms = (time.perf_counter() - start) * 1e3  # the wait included
+        return None if stepped is None or self._cancel.is_set() else stepped[0]
+
+    def extra_call(self, work: Callable[[], T], predicted_ms: float) -> T | None:
+        """``work()`` with a step slot to itself, where it can start and still end inside the
+        budget at ``predicted_ms``; None where it cannot, or the run is cancelled."""
+        if self._cancel.is_set():
+            return None
+        ran, result = self.model.batcher.exclusive(work, self._latest() - predicted_ms / 1e3)
+        return result if ran and not self._cancel.is_set() else None
+
+    def _latest(self) -> float:
+        """When the budget, less the reserve, ends (a ``time.perf_counter()`` value)."""
+        return self.started + (self.plan.budget_ms - self.reserve_ms) / 1e3
 
     def _finish(self) -> None:
         """After the last step (once): a run stopped within the card's free steps is stood up,

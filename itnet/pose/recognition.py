@@ -168,7 +168,7 @@ def classify(
     size then counts, see the module); ``looks``: inputs averaged; ``up``: which way is up in
     the cloud, if known; ``second_looks``, ``deadline``: the second opinion (see the module).
     Raises BadCloudError for a bad cloud, unit, look count or up."""
-    ups = None if up is None else [up]
+    ups: list[ArrayLike | None] | None = None if up is None else [up]
     return classify_together(
         classifier, [points], top, limits, seed, units, looks, ups, second_looks, deadline
     )
@@ -225,7 +225,7 @@ def classify_together(
         raise BadCloudError(f"{len(ups)} up directions for {len(clouds)} clouds")
     upright = classifier.upright
     if ups is not None and upright is not None and all(u is not None for u in ups):
-        levels = [validate_up(u) for u in ups]
+        levels = [validate_up(u) for u in ups if u is not None]
     else:
         upright = None
     card = classifier.card if upright is None else upright.card  # the threshold, the prior

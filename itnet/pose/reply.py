@@ -31,7 +31,8 @@ class Estimate:
 
     @cached_property
     def pose(self) -> NDArray[np.float64]:
-        return pose_from_normalized(self.pose_normalized.astype(np.float64), self.normalization)
+        pose = pose_from_normalized(self.pose_normalized.astype(np.float64), self.normalization)
+        return np.asarray(pose, dtype=np.float64)
 
     def to_dict(self, quat_wxyz: NDArray[np.float64] | None = None) -> dict:
         """The JSON form (``quat_wxyz``: the pose's quaternion, if already computed)."""

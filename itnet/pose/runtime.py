@@ -11,8 +11,6 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -23,7 +21,7 @@ from numpy.typing import NDArray
 
 from itnet.centre import CentreCorrection
 from itnet.model_card import METADATA_KEY, ClassifierCard, ModelCard, VerifierCard, parse_card
-from itnet.pose.step_slots import StepSlots
+from itnet.pose.step_batcher import StepBatcher
 
 
 class ModelLoadError(RuntimeError):
@@ -74,7 +72,8 @@ class LoadedModel:
     baseline_ms: float = 0.0  # fastest warm-up step: the step time without contention
     idle_ms: float = 0.0  # median warm-up step: what plans are made with (load-independent)
     _estimated_at: float = field(default=0.0, repr=False)  # perf_counter of step_ms's last update
-    concurrent_steps: int = 1  # steps that may run at once; the others wait for a slot
+    concurrent_steps: int = 1  # graph calls that may run at once; the others wait for a slot
+    batch_jobs: int = 64  # steps of different runs one call may hold (1: no batching)
     recent_window_s: float = 2.0  # how far back predicted_step_ms looks
     # running estimate of one mirror plane's refinement (itnet.mirror; EWMA): measured by
     # warm_up, else a conservative start (3-5 ms on 2 cores for a 256-point subset)
@@ -84,7 +83,8 @@ class LoadedModel:
     verifier: LoadedVerifier | None = None
 
     def __post_init__(self) -> None:
-        self._slots = StepSlots(self.concurrent_steps)
+        self.batcher = StepBatcher(self.step, self.run_step_ms, self.concurrent_steps,
+                                   self.batch_jobs, self._record_call)  # fmt: skip
         # The card's centre corrections, parsed once: a bad one fails the load, not a request.
         self.centre = self._centre_correction("centre_correction", viewpoint=False)
         self.centre_viewpoint = self._centre_correction(
@@ -109,23 +109,17 @@ class LoadedModel:
             raise ModelLoadError(f"{self.path}: {field_name} must be a correction that {needs}")
         return correction
 
-    @contextmanager
-    def step_slot(self, timeout_s: float, deadline: float | None = None) -> Iterator[bool]:
-        """Hold a step slot; yields False (holding none) if none frees within ``timeout_s``.
+    def batched_step(
+        self, points: NDArray[np.float32], pose: NDArray[np.float32], latest: float
+    ) -> tuple[NDArray, NDArray] | None:
+        """One step of ``points`` (B, N, 3) from ``pose`` (B, 4, 4), in one call with the steps
+        of the other runs in flight (``itnet.pose.step_batcher``), ending by ``latest`` (a
+        ``time.perf_counter()`` value) -> (pose_next, delta); None where it cannot."""
+        return self.batcher.step(points, pose, latest)
 
-        Steps of many concurrent requests that all run at once share the cores, and each takes
-        several times what the engine predicted from the step time: the budget overruns. Run
-        ``concurrent_steps`` at a time instead, so that a step that starts takes its usual time;
-        the others wait only as long as their budgets can spare, and a freed slot goes to the
-        earliest ``deadline`` (a ``time.perf_counter()`` value; default: now + ``timeout_s``)."""
-        if deadline is None:
-            deadline = time.perf_counter() + timeout_s
-        free = self._slots.acquire(deadline, timeout_s)
-        try:
-            yield free
-        finally:
-            if free:
-                self._slots.release()
+    def _record_call(self, ms: float, runs: int, points: int) -> None:
+        """A call's measured time, folded into the estimate of one run's step."""
+        self.record_step_ms(ms / self.step_load(runs, points))
 
     def step(
         self, points: NDArray[np.float32], pose: NDArray[np.float32]
@@ -226,8 +220,10 @@ class LoadedModel:
             self.mirror_ms = min(mirror_times)
 
 
-def read_card(session: ort.InferenceSession, path: Path) -> ModelCard | ClassifierCard:
-    """The card of a pose step or of the category classifier (its ``kind`` says which)."""
+def read_card(
+    session: ort.InferenceSession, path: Path
+) -> ModelCard | ClassifierCard | VerifierCard:
+    """The card of a pose step, a classifier or a verifier (its ``kind`` says which)."""
     meta = session.get_modelmeta().custom_metadata_map
     if METADATA_KEY not in meta:
         raise ModelLoadError(f"{path}: not an itnet model (no '{METADATA_KEY}' metadata)")
@@ -292,26 +288,62 @@ class LoadedVerifier:
         self.score_ms = min(times)
 
 
-def _session(path: Path, threads: int) -> ort.InferenceSession:
+# onnxruntime's execution providers for each device a setting may name, best first.
+PROVIDERS = {
+    "cpu": ["CPUExecutionProvider"],
+    "cuda": ["CUDAExecutionProvider", "CPUExecutionProvider"],
+    "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"],
+}
+
+
+@dataclass(frozen=True)
+class RuntimeOptions:
+    """Where the graphs run and how steps share calls: ``provider`` (``cpu``, ``cuda``,
+    ``tensorrt``: onnxruntime's execution providers; the GPU ones need onnxruntime-gpu) and
+    ``batch_jobs`` (steps of different runs one call may hold; 1: none shared)."""
+
+    provider: str = "cpu"
+    batch_jobs: int = 64
+
+    def providers(self) -> list[str]:
+        """The execution providers to ask for; ModelLoadError where the device is unknown or
+        this onnxruntime build lacks it."""
+        if self.provider not in PROVIDERS:
+            raise ModelLoadError(
+                f"unknown provider {self.provider!r} (one of {', '.join(PROVIDERS)})"
+            )
+        wanted, available = PROVIDERS[self.provider], ort.get_available_providers()
+        if wanted[0] not in available:
+            raise ModelLoadError(
+                f"provider {self.provider!r} needs {wanted[0]}, which this onnxruntime build "
+                f"lacks (it has {', '.join(available)}; install onnxruntime-gpu for a GPU)"
+            )
+        return [p for p in wanted if p in available]
+
+
+def _session(path: Path, threads: int, options: RuntimeOptions) -> ort.InferenceSession:
     if not path.is_file():
         raise ModelLoadError(f"{path}: model file not found")
+    providers = options.providers()
     try:
-        return ort.InferenceSession(
-            str(path), session_options(threads), providers=["CPUExecutionProvider"]
-        )
+        return ort.InferenceSession(str(path), session_options(threads), providers=providers)
     except Exception as err:  # onnxruntime raises its own exception types for corrupt graphs
         raise ModelLoadError(f"{path}: cannot load the ONNX graph ({err})") from err
 
 
 def load_any(
-    path: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+    path: Path,
+    threads: int = 2,
+    warm_up: bool = True,
+    concurrent_steps: int | None = None,
+    options: RuntimeOptions = RuntimeOptions(),
 ) -> LoadedModel | LoadedClassifier | LoadedVerifier:
     """One .onnx file: a pose step (see :func:`load_model`), the category classifier or a
     verifier, as its card says. Raises ModelLoadError with the reason."""
-    session = _session(path, threads)
+    session = _session(path, threads, options)
     card = read_card(session, path)
     if isinstance(card, ModelCard):
-        return load_model(path, threads, warm_up, concurrent_steps, session=session)
+        return load_model(path, threads, warm_up, concurrent_steps, session, options)
     names = [i.name for i in session.get_inputs()]
     if names != ["points"]:
         raise ModelLoadError(f"{path}: a {card.kind} takes ['points'], found {names}")
@@ -331,10 +363,11 @@ def load_model(
     warm_up: bool = True,
     concurrent_steps: int | None = None,
     session: ort.InferenceSession | None = None,
+    options: RuntimeOptions = RuntimeOptions(),
 ) -> LoadedModel:
     """Load one .onnx step graph. Raises ModelLoadError with the reason (a classifier is not a
     step graph). ``concurrent_steps`` defaults to :func:`default_concurrent_steps`."""
-    session = session or _session(path, threads)
+    session = session or _session(path, threads, options)
     card = read_card(session, path)
     if not isinstance(card, ModelCard):
         raise ModelLoadError(f"{path}: a {card.kind}, not a pose step graph")
@@ -342,7 +375,11 @@ def load_model(
     if names != ["points", "pose"]:
         raise ModelLoadError(f"{path}: expected inputs ['points', 'pose'], found {names}")
     steps = concurrent_steps or default_concurrent_steps(threads)
-    model = LoadedModel(card, path, session, concurrent_steps=steps)
+    # An int8 graph quantizes each call's activations as a whole (DynamicQuantizeLinear): a
+    # run's step would then depend on the steps it shares a call with. Only float graphs share.
+    shares = card.precision != "int8"
+    jobs = options.batch_jobs if shares else 1
+    model = LoadedModel(card, path, session, concurrent_steps=steps, batch_jobs=jobs)
     if warm_up:
         model.warm_up()
     return model
@@ -357,13 +394,17 @@ def load_models(
 
 
 def load_all(
-    directory: Path, threads: int = 2, warm_up: bool = True, concurrent_steps: int | None = None
+    directory: Path,
+    threads: int = 2,
+    warm_up: bool = True,
+    concurrent_steps: int | None = None,
+    options: RuntimeOptions = RuntimeOptions(),
 ) -> tuple[dict[str, LoadedModel], LoadedClassifier | None]:
     """(pose models by card name, the category classifier or None) of a directory; an upright
     classifier rides on the other as its ``upright``. Raises ModelLoadError if there is no pose
     model, or more than one classifier of a kind."""
     paths = sorted(directory.glob("*.onnx")) if directory.is_dir() else []
-    loaded = [load_any(p, threads, warm_up, concurrent_steps) for p in paths]
+    loaded = [load_any(p, threads, warm_up, concurrent_steps, options) for p in paths]
     models = {m.card.name: m for m in loaded if isinstance(m, LoadedModel)}
     if not models:
         raise ModelLoadError(f"{directory}: no .onnx models found")

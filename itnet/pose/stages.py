@@ -204,7 +204,7 @@ class Mirror:
             start = time.perf_counter()
             pose = mirror_finished(points, pose, [plane])
             if run.plan.up is not None:  # a mirror plane's refinement may tilt it
-                pose = held_upright(pose, run.plan.up)
+                pose = np.asarray(held_upright(pose, run.plan.up), dtype=np.float64)
             run.model.record_mirror_ms((time.perf_counter() - start) * 1e3)
             planes.append(plane)
         return Finish(pose if planes else None, {"mirror": bool(planes), "mirror_planes": planes})

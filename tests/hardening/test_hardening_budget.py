@@ -42,10 +42,8 @@ def test_a_run_waits_for_a_step_slot_only_as_long_as_its_budget_allows(
     model.warm_up(runs=2)
     holding, release = threading.Event(), threading.Event()
 
-    def hog() -> None:
-        with model.step_slot(1.0):
-            holding.set()
-            release.wait(5)
+    def hog() -> None:  # holds the model's only slot until released
+        model.batcher.exclusive(lambda: (holding.set(), release.wait(5)), time.perf_counter() + 1)
 
     threading.Thread(target=hog).start()
     assert holding.wait(5)

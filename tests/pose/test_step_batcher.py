@@ -1,0 +1,139 @@
+"""Steps of many runs in one call: batched while a call runs, never waiting for company."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from itnet.pose.catalog import Catalog
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import load_model
+from itnet.pose.step_batcher import StepBatcher, _padded
+
+
+class SlowStep:
+    """A graph call that takes ``ms`` and adds each row's index to its pose (to check routing)."""
+
+    def __init__(self, ms: float) -> None:
+        self.ms, self.calls = ms, []
+
+    def __call__(self, points, poses):
+        self.calls.append(len(points))
+        time.sleep(self.ms / 1e3)
+        return poses + points[:, 0, 0][:, None, None], poses
+
+
+def job(value: float, runs: int = 1, points: int = 8):
+    return np.full((runs, points, 3), value, np.float32), np.zeros((runs, 4, 4), np.float32)
+
+
+def test_a_lone_step_runs_at_once():
+    step = SlowStep(1.0)
+    batcher = StepBatcher(step, lambda runs, points: 1.0)
+    start = time.perf_counter()
+    out, _ = batcher.step(*job(3.0), time.perf_counter() + 1.0)
+    assert (time.perf_counter() - start) < 0.05 and step.calls == [1]
+    assert np.all(out == 3.0) and (batcher.batches, batcher.jobs) == (1, 1)
+
+
+def test_steps_that_arrive_during_a_call_share_the_next_and_each_gets_its_rows():
+    step = SlowStep(30.0)
+    batcher = StepBatcher(step, lambda runs, points: 30.0)
+    results: dict[int, np.ndarray] = {}
+
+    def submit(i: int) -> None:
+        out, _ = batcher.step(*job(float(i), runs=2), time.perf_counter() + 2.0)
+        results[i] = out
+
+    first = threading.Thread(target=submit, args=(0,))
+    first.start()
+    time.sleep(0.01)  # the first call is under way: the others queue behind it
+    rest = [threading.Thread(target=submit, args=(i,)) for i in range(1, 6)]
+    for t in rest:
+        t.start()
+    for t in [first, *rest]:
+        t.join(5)
+    assert step.calls == [2, 10]  # the lone first job, then the five others in one call
+    assert all(np.all(results[i] == i) and results[i].shape == (2, 4, 4) for i in range(6))
+
+
+def test_a_step_that_cannot_end_in_time_is_turned_away_and_batches_respect_deadlines():
+    step = SlowStep(30.0)
+    batcher = StepBatcher(step, lambda runs, points: 10.0 * runs)
+    assert batcher.step(*job(1.0), time.perf_counter() + 0.005) is None  # 10 ms > 5 ms
+    assert step.calls == []
+    late = {}
+
+    def submit(i: int, budget_s: float) -> None:
+        late[i] = batcher.step(*job(float(i)), time.perf_counter() + budget_s)
+
+    threads = [threading.Thread(target=submit, args=(0, 1.0))]
+    threads[0].start()
+    time.sleep(0.005)
+    # while the first call runs: a job that fits only a call of one, and two with room
+    threads += [
+        threading.Thread(target=submit, args=(i, b)) for i, b in ((1, 0.05), (2, 1), (3, 1))
+    ]
+    for t in threads[1:]:
+        t.start()
+    for t in threads:
+        t.join(5)
+    assert all(late[i] is not None for i in range(4))
+    assert step.calls[0] == 1 and sorted(step.calls[1:]) == [1, 2]  # 1 alone, then 2 and 3
+
+
+def test_one_batching_run_at_a_time_gets_a_slot_to_itself():
+    batcher = StepBatcher(SlowStep(1.0), lambda runs, points: 1.0)
+    ran, value = batcher.exclusive(lambda: 42, time.perf_counter() + 1.0)
+    assert (ran, value) == (True, 42)
+
+
+def test_a_failing_call_fails_every_step_in_it():
+    def broken(points, poses):
+        raise RuntimeError("graph failed")
+
+    batcher = StepBatcher(broken, lambda runs, points: 1.0)
+    with pytest.raises(RuntimeError, match="graph failed"):
+        batcher.step(*job(1.0), time.perf_counter() + 1.0)
+    assert batcher.step.__self__ is batcher  # still usable: the slot was given back
+    with pytest.raises(RuntimeError):
+        batcher.step(*job(1.0), time.perf_counter() + 1.0)
+
+
+def test_padding_by_repeats_leaves_a_step_as_it_was(tiny_model_dir):
+    model = load_model(tiny_model_dir / "tiny.onnx", threads=1, warm_up=False)
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(3, 100, 3)).astype(np.float32)
+    poses = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))
+    alone, _ = model.step(points, poses)
+    padded, _ = model.step(_padded(points, 256), poses)
+    assert np.allclose(alone, padded, atol=1e-6)
+
+
+def test_requests_in_flight_together_get_the_poses_they_get_alone(tiny_model_dir, slow_copy):
+    # each call sleeps 10 ms besides its work, so the requests' steps meet in the queue
+    model = slow_copy(load_model(tiny_model_dir / "tiny.onnx", threads=1), 0.01, 1)
+    catalog = Catalog({"tiny": model})
+    rng = np.random.default_rng(1)
+    clouds = [rng.normal(size=(n, 3)) * [0.3, 0.2, 0.1] for n in (100, 400, 400, 900, 2000, 60)]
+    request = PoseRequest(budget_ms=10_000, model="tiny", ensemble=2, max_iterations=3)
+    alone = [catalog.pose(c, request)["T_canonical_from_input"] for c in clouds]
+    calls = model.batcher.batches
+    together: dict[int, list] = {}
+    barrier = threading.Barrier(len(clouds))
+
+    def pose(i: int) -> None:
+        barrier.wait()
+        together[i] = catalog.pose(clouds[i], request)["T_canonical_from_input"]
+
+    threads = [threading.Thread(target=pose, args=(i,)) for i in range(len(clouds))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert model.batcher.batches - calls < len(clouds) * 3  # steps shared calls
+    for i in range(len(clouds)):
+        assert np.allclose(together[i], alone[i], atol=1e-5)
