@@ -24,7 +24,7 @@ from itnet.preprocess import (
     resample,
 )
 from itnet.symmetry import symmetric_rotation_error_deg
-from itnet.upright import UP, held_upright, rotation_onto
+from itnet.upright import held_upright, upright_starts
 
 if TYPE_CHECKING:
     from itnet.pose.runtime import LoadedModel
@@ -70,8 +70,8 @@ def anytime_poses(
         x = inputs[start : start + batch]
         up = None if ups is None else np.asarray(ups[start : start + batch], dtype=np.float64)
         pose = np.tile(np.eye(4, dtype=np.float32), (len(x), 1, 1))
-        if up is not None and free_steps == 0:
-            pose[:, :3, :3] = rotation_onto(up, UP)
+        if up is not None and free_steps == 0:  # stood up as the pipeline's plan starts a run
+            pose[:, :3, :3] = np.stack([upright_starts(u, 1)[0] for u in up])
         trail = [pose]
         for k in range(iterations):
             pose = step(x, pose)

@@ -137,3 +137,23 @@ def test_requests_in_flight_together_get_the_poses_they_get_alone(tiny_model_dir
     assert model.batcher.batches - calls < len(clouds) * 3  # steps shared calls
     for i in range(len(clouds)):
         assert np.allclose(together[i], alone[i], atol=1e-5)
+
+
+def test_int8_graphs_share_no_call_and_the_provider_is_checked(tmp_path, export_model):
+    from itnet.model_card import ModelCard
+    from itnet.pose.runtime import ModelLoadError, RuntimeOptions, load_model
+
+    for precision, jobs in (("float32", 8), ("int8", 1)):
+        card = ModelCard(name=precision, category="chair", points=256, precision=precision)
+        export_model(card, tmp_path / f"{precision}.onnx")
+        model = load_model(tmp_path / f"{precision}.onnx", warm_up=False,
+                           options=RuntimeOptions(batch_jobs=8))  # fmt: skip
+        assert model.batcher.max_jobs == jobs
+    with pytest.raises(ModelLoadError, match="unknown provider 'gpu'"):
+        RuntimeOptions("gpu").providers()
+    assert RuntimeOptions("cpu").providers() == ["CPUExecutionProvider"]
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" not in ort.get_available_providers():
+        with pytest.raises(ModelLoadError, match="lacks"):
+            load_model(tmp_path / "int8.onnx", options=RuntimeOptions("cuda"))

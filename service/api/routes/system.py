@@ -6,7 +6,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import JSONResponse
 
 from itnet.pose.recognition import pose_model_for
-from itnet.pose.runtime import LoadedClassifier
+from itnet.pose.runtime import LoadedClassifier, LoadedModel
 from itnet.service.api.deps import StateDep
 from itnet.service.schemas import (
     AutoInfo,
@@ -20,46 +20,30 @@ from itnet.service.schemas import (
 router = APIRouter(tags=["system"])
 
 
+def model_info(name: str, model: LoadedModel, default: bool) -> ModelInfo:
+    """What ``GET /v1/models`` says of a model: every field its card shares with ModelInfo, and
+    what this server knows beside the card (the corrections and verifier loaded, the step
+    time)."""
+    shared = set(ModelInfo.model_fields) - {"name"}  # the name it is served by may be another
+    return ModelInfo(
+        **model.card.model_dump(include=shared),
+        mirror=model.card.mirror,
+        name=name,
+        verifier=None if model.verifier is None else model.verifier.card.name,
+        centre=model.centre is not None,
+        centre_viewpoint=model.centre_viewpoint is not None,
+        centre_up=model.centre_up is not None,
+        step_ms=round(model.step_ms, 3),
+        default=default,
+    )
+
+
 @router.get("/v1/models", response_model=ModelsResponse, summary="The loaded models")
 async def models(state: StateDep) -> ModelsResponse:
     """Each loaded model with its category, point count, trained iterations and measured accuracy
     (from the card inside the model file), and this server's measured step time."""
     default = state.default_model_name()
-    infos = [
-        ModelInfo(
-            name=name,
-            category=m.card.category,
-            precision=m.card.precision,
-            points=m.card.points,
-            trained_iterations=m.card.trained_iterations,
-            recommended_iterations=m.card.recommended_iterations,
-            recommended_ensemble=m.card.recommended_ensemble,
-            mirror=m.card.mirror,
-            mirror_planes=list(m.card.mirror_planes),
-            mirror_evaluation=m.card.mirror_evaluation,
-            mirror_fused=m.card.mirror_fused,
-            verify_fused=m.card.verify_fused,
-            verify_evaluation=m.card.verify_evaluation,
-            recheck_runs=m.card.recheck_runs,
-            recheck_evaluation=m.card.recheck_evaluation,
-            verifier=None if m.verifier is None else m.verifier.card.name,
-            centre=m.centre is not None,
-            centre_viewpoint=m.centre_viewpoint is not None,
-            centre_up=m.centre_up is not None,
-            centre_evaluation=m.card.centre_evaluation,
-            centre_up_evaluation=m.card.centre_up_evaluation,
-            requires_up=m.card.requires_up,
-            up_evaluation=m.card.up_evaluation,
-            accuracy=m.card.accuracy,
-            evaluation=m.card.evaluation,
-            normalization=m.card.normalization,
-            canonical_frame=m.card.canonical_frame,
-            symmetry=m.card.symmetry,
-            step_ms=round(m.step_ms, 3),
-            default=name == default,
-        )
-        for name, m in sorted(state.models.items())
-    ]
+    infos = [model_info(name, m, name == default) for name, m in sorted(state.models.items())]
     auto = None
     if state.classifier is not None:
         card = state.classifier.card
