@@ -221,7 +221,7 @@ def main() -> None:
     )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
-    parser.add_argument("--out", type=Path, default=Path("docs/ensemble_benchmark.json"))
+    parser.add_argument("--out", type=Path, default=Path("runs/ensemble_benchmark.json"))
     args = parser.parse_args()
     views = args.views or (4 if args.split == "val" else 5)
     mirror, centre = SWITCH[args.mirror], SWITCH[args.centre]
@@ -262,6 +262,7 @@ def main() -> None:
             for s in args.scanners
         },
     }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1))
     print(f"wrote {args.out}")
 

@@ -114,7 +114,7 @@ class AnytimeRun(Iterator[Estimate]):
         start = time.perf_counter()
         stepped = self.model.batched_step(points, poses, self._latest())
         self._last_step_ms = (time.perf_counter() - start) * 1e3  # the wait included
-        return None if stepped is None or self._cancel.is_set() else stepped[0]
+        return None if stepped is None else stepped[0]  # a step done counts, cancelled or not
 
     def extra_call(self, work: Callable[[], T], predicted_ms: float) -> T | None:
         """``work()`` with a step slot to itself, where it can start and still end inside the
