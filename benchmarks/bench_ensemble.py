@@ -130,7 +130,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                     "doubted": round(float(np.mean([r is not None for r in rechecked])), 3),
                     "rechecked": round(float(np.mean([r is True for r in rechecked])), 3),
                 }
-                if run.recheck
+                if "recheck" in run.plan.stage_names
                 else {}
             ),
             # where verify was on: the share of runs whose probes the budget held
