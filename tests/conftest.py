@@ -16,6 +16,9 @@ from numpy.typing import NDArray
 
 from itnet.pose.runtime import LoadedModel
 
+# The page tests' fixtures (tests/web, tests/scene): a real server and a headless browser page.
+pytest_plugins = ["tests.page_fixtures"]
+
 # Servers started by the tests (in process and as subprocesses) leave the garbage collector alone:
 # gc.freeze() would keep every object of the pytest process alive. tests/service/test_gc.py
 # checks the freeze itself.

@@ -4,7 +4,6 @@ depth image gives the objects the API gives, drawn over the scene."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -12,36 +11,18 @@ import httpx
 import numpy as np
 import pytest
 
-from benchmarks.harness import Server, serve
+from benchmarks.harness import Server
 from itnet.model.scenes import Scene
-from itnet.pose.runtime import default_model_dir
 from itnet.scene.depth_io import depth_to_png
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 DONE = "['done', 'failed'].includes(document.body.dataset.run)"
 
 
-@pytest.fixture(scope="module")
-def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    log = tmp_path_factory.mktemp("scene-web") / "serve.log"
-    with serve(default_model_dir(), log, timeout_s=60) as running:
-        yield running
-
-
-@pytest.fixture(scope="module")
-def page() -> Iterator[Any]:
-    pytest.importorskip("playwright", reason="Playwright is not installed (pip install itnet[dev])")
-    from scripts.screenshot_page import find_chromium, open_browser
-
-    if find_chromium() is None:
-        pytest.skip("no chromium on this machine (apt-get install chromium)")
-    with open_browser() as opened:
-        yield opened
-
-
 def test_a_dropped_depth_image_shows_the_apis_objects(
-    live_server: Server, page: Any, chair_scene: Scene, tmp_path: Path
+    live_server: Server, browser_page: Any, chair_scene: Scene, tmp_path: Path
 ) -> None:
+    page = browser_page
     png = tmp_path / "chair.png"
     png.write_bytes(depth_to_png(np.round(chair_scene.depth * 1000).astype(np.uint16)))
     i = chair_scene.intrinsics

@@ -1,4 +1,5 @@
-"""Fixtures of the web page tests: a real ``itnet serve`` with the shipped models, a browser."""
+"""Fixtures of the page tests (tests/web, tests/scene): a real ``itnet serve`` with the shipped
+models, and a page in headless Chromium."""
 
 from __future__ import annotations
 
