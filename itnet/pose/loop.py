@@ -33,7 +33,6 @@ from itnet.pose.reply import Estimate, pose_fields
 from itnet.preprocess import cap_points, pose_from_normalized
 from itnet.upright import held_upright
 
-STOP_REASONS = ("budget", "max_iterations", "converged", "cancelled")
 T = TypeVar("T")
 
 
@@ -168,10 +167,6 @@ class AnytimeRun(Iterator[Estimate]):
         time, if longer)."""
         return max(self.model.run_step_ms(self.plan.runs, self._size), self._last_step_ms)
 
-    def predicted_run_step_ms(self, runs: int, points: int) -> float:
-        """A step of ``runs`` runs of ``points`` points each, by the running prediction."""
-        return self.model.run_step_ms(runs, points)
-
     def needed_work_ms(self) -> float:
         """The steps this run still needs at the model's current step time: its plan's, up to
         the model's recommended iterations (a request for more takes those as the budget
@@ -179,10 +174,6 @@ class AnytimeRun(Iterator[Estimate]):
         needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
         left = max(0, needed - self.iteration)
         return left * self.model.run_step_ms(self.plan.runs, self._size)
-
-    def subset_points(self) -> int:
-        """Points of one fused run's subset of this cloud (the stages' extra runs use it)."""
-        return self.plan.subset_points(len(self.cloud))
 
     def _slack_ms(self) -> float:
         """Budget left after the predicted next step and the reserve (negative: the step would

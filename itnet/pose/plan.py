@@ -76,11 +76,6 @@ class PosePlan:
         share = max(self.limits.min_points, int(ENSEMBLE_SUBSET * cloud_points))
         return min(self.model.card.points, share)
 
-    def predicted_ms(self, cloud_points: int | None = None) -> float:
-        """The whole plan's predicted time on an idle machine: every step of every run."""
-        points = self.run_points(cloud_points or self.model.card.points)
-        return self.max_iterations * self.model.run_step_ms(self.runs, points, idle=True)
-
     def first_step_ms(self, cloud_points: int | None = None) -> float:
         """One step of every run on an idle machine: the least a served pose costs."""
         points = self.run_points(cloud_points or self.model.card.points)

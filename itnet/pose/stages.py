@@ -99,10 +99,8 @@ class Recheck:
         if doubt >= 0.0:
             return Finish(None)
         k = card.recheck_runs or RECHECK_RUNS
-        size = run.subset_points()
-        predicted = run.iteration * run.predicted_run_step_ms(k, size) + verifier.predicted_ms(
-            k, size
-        )
+        size = run.plan.subset_points(len(run.cloud))
+        predicted = run.iteration * run.model.run_step_ms(k, size) + verifier.predicted_ms(k, size)
         if run.left_ms() < predicted:
             return Finish(None, {"rechecked": False})
         rng = np.random.default_rng(run.plan.seed + 1)
