@@ -56,16 +56,13 @@ class AnytimeRun(Iterator[Estimate]):
         self.plan, self.model, self.recognition = plan, plan.model, recognition
         self.cloud = validate_cloud(points, plan.limits)
         self.reserve_ms = min(max(0.0, reserve_ms), plan.budget_ms / 2)
-        # The whole cloud sets the centre and scale; each run sees at most the model's count.
+        # The whole cloud sets the centre and scale; each run sees its own seeded draw of at
+        # most the model's count (fused runs: a subset each).
         self.normalization = normalization_of(self.cloud)
         rng = np.random.default_rng(plan.seed)
         size = plan.run_points(len(self.cloud))
-        if plan.fuse:
-            runs = range(plan.runs)
-            inputs = [self.normalization.apply(cap_points(self.cloud, size, rng)) for _ in runs]
-        else:  # one run's points serve every start (alignment's)
-            inputs = [self.normalization.apply(cap_points(self.cloud, size, rng))] * plan.runs
-        self.points = np.stack(inputs).astype(np.float32)
+        draws = [cap_points(self.cloud, size, rng) for _ in range(plan.runs)]
+        self.points = np.stack([self.normalization.apply(d) for d in draws]).astype(np.float32)
         self.pose_normalized = np.tile(np.eye(4, dtype=np.float32), (plan.runs, 1, 1))
         self.pose_normalized[:, :3, :3] = plan.starts
         self._size = size
