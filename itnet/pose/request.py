@@ -74,7 +74,7 @@ class PoseRequest(BaseModel):
         description="with fused runs: anchor the fusion on the run that looks right to the "
         "category's learned verifier (one call), or without one on the run that sits most "
         "firmly in its basin (network probes); default: where the model's card says so; "
-        "refused for a single run and with 'up'",
+        "refused for a single run, and with 'up' where no learned verifier is loaded",
     )
     recheck: bool | None = Field(
         default=None,

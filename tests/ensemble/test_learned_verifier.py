@@ -152,6 +152,11 @@ def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeyp
     anchored = fuse_poses(run.pose_normalized, "yaw180", anchor=likeliest_run(scores))
     expected = pose_from_normalized(anchored, run.normalization)
     assert np.allclose(run.result()["T_canonical_from_input"], expected, atol=1e-5)
+    # runs held upright are weighed by the learned verifier too (the probes would tilt them)
+    upright = run_with(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3, up=[0, 1, 0])
+    assert "verify" in upright.plan.stage_names
+    upright.run_to_end()
+    assert upright.result()["verified"] is True and upright.result()["up"] == [0.0, 1.0, 0.0]
     tight = run_with(model, cloud, budget_ms=5000, max_iterations=2, ensemble=3)
     model.verifier.score_ms = 1e9  # a call the budget cannot hold: the fusion stays as it is
     tight.run_to_end()

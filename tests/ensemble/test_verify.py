@@ -60,7 +60,10 @@ def test_a_cancelled_run_is_not_verified(model, cloud):
     [
         ({"verify": True}, "needs ensemble > 1"),
         ({"verify": True, "ensemble": 1}, "needs ensemble > 1"),
-        ({"verify": True, "ensemble": 4, "up": [0.0, 1.0, 0.0]}, "cannot be combined with up"),
+        (
+            {"verify": True, "ensemble": 4, "up": [0.0, 1.0, 0.0]},
+            "verify with up needs the category.s learned verifier",
+        ),
     ],
 )
 def test_verify_without_fused_runs_or_with_up_is_refused(model, cloud, kwargs, message):
