@@ -111,6 +111,9 @@ class StepBatcher:
         """Run batches until ``own`` is done (or turned away), then pass the lead on."""
         while own.state in ("waiting", "taken"):
             with self._cond:
+                if own.state == "taken":  # in another leader's call (several slots): wait
+                    self._cond.wait()
+                    continue
                 batch = self._take()
             if batch:
                 self._run(batch)

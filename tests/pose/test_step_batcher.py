@@ -157,3 +157,21 @@ def test_int8_graphs_share_no_call_and_the_provider_is_checked(tmp_path, export_
     if "CUDAExecutionProvider" not in ort.get_available_providers():
         with pytest.raises(ModelLoadError, match="lacks"):
             load_model(tmp_path / "int8.onnx", options=RuntimeOptions("cuda"))
+
+
+def test_with_two_slots_every_step_is_served_once():
+    step = SlowStep(5.0)
+    batcher = StepBatcher(step, lambda runs, points: 5.0, slots=2)
+    results: dict[int, np.ndarray] = {}
+
+    def submit(i: int) -> None:
+        out, _ = batcher.step(*job(float(i)), time.perf_counter() + 5.0)
+        results[i] = out
+
+    threads = [threading.Thread(target=submit, args=(i,)) for i in range(12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert sorted(results) == list(range(12)) and sum(step.calls) == 12
+    assert all(np.all(results[i] == i) for i in range(12)) and batcher.waiting == 0
