@@ -15,15 +15,38 @@ from itnet.pose.step_batcher import StepBatcher, _padded
 
 
 class SlowStep:
-    """A graph call that takes ``ms`` and adds each row's index to its pose (to check routing)."""
+    """A graph call that takes ``ms`` and adds each row's value to its pose (to check routing);
+    the first call waits for ``gate`` where one is given (so others queue behind it)."""
 
-    def __init__(self, ms: float) -> None:
-        self.ms, self.calls = ms, []
+    def __init__(self, ms: float, gate: threading.Event | None = None) -> None:
+        self.ms, self.calls, self.gate = ms, [], gate
+        self.entered = threading.Event()  # a call has begun
 
     def __call__(self, points, poses):
+        self.entered.set()
+        if self.gate is not None and not self.calls:
+            self.gate.wait(5)
         self.calls.append(len(points))
         time.sleep(self.ms / 1e3)
         return poses + points[:, 0, 0][:, None, None], poses
+
+
+def queue_behind_the_first(batcher: StepBatcher, step: SlowStep, submit, later) -> None:
+    """Start ``submit(0)``; once its call holds the slot, start every ``later`` submission and
+    open the first call when they all wait in the queue."""
+    first = threading.Thread(target=submit, args=(0,))
+    first.start()
+    assert step.entered.wait(5)  # the first call holds the slot, at its gate
+    rest = [threading.Thread(target=submit, args=args) for args in later]
+    for t in rest:
+        t.start()
+    deadline = time.perf_counter() + 5
+    while batcher.waiting < len(rest) and time.perf_counter() < deadline:
+        time.sleep(0.001)
+    assert step.gate is not None
+    step.gate.set()
+    for t in [first, *rest]:
+        t.join(5)
 
 
 def job(value: float, runs: int = 1, points: int = 8):
@@ -40,49 +63,35 @@ def test_a_lone_step_runs_at_once():
 
 
 def test_steps_that_arrive_during_a_call_share_the_next_and_each_gets_its_rows():
-    step = SlowStep(30.0)
-    batcher = StepBatcher(step, lambda runs, points: 30.0)
+    step = SlowStep(1.0, threading.Event())
+    batcher = StepBatcher(step, lambda runs, points: 1.0)
     results: dict[int, np.ndarray] = {}
 
     def submit(i: int) -> None:
-        out, _ = batcher.step(*job(float(i), runs=2), time.perf_counter() + 2.0)
+        out, _ = batcher.step(*job(float(i), runs=2), time.perf_counter() + 5.0)
         results[i] = out
 
-    first = threading.Thread(target=submit, args=(0,))
-    first.start()
-    time.sleep(0.01)  # the first call is under way: the others queue behind it
-    rest = [threading.Thread(target=submit, args=(i,)) for i in range(1, 6)]
-    for t in rest:
-        t.start()
-    for t in [first, *rest]:
-        t.join(5)
+    queue_behind_the_first(batcher, step, submit, [(i,) for i in range(1, 6)])
     assert step.calls == [2, 10]  # the lone first job, then the five others in one call
     assert all(np.all(results[i] == i) and results[i].shape == (2, 4, 4) for i in range(6))
 
 
 def test_a_step_that_cannot_end_in_time_is_turned_away_and_batches_respect_deadlines():
-    step = SlowStep(30.0)
-    batcher = StepBatcher(step, lambda runs, points: 10.0 * runs)
-    assert batcher.step(*job(1.0), time.perf_counter() + 0.005) is None  # 10 ms > 5 ms
+    step = SlowStep(1.0, threading.Event())
+    batcher = StepBatcher(step, lambda runs, points: 200.0 * runs)  # predicted: 200 ms a run
+    assert batcher.step(*job(1.0), time.perf_counter() + 0.1) is None  # 200 ms > 100 ms
     assert step.calls == []
     late = {}
+    # seconds from each submission: job 1 holds a call of one run (0.2 s), never of two (0.4 s)
+    ends = {0: 10.0, 1: 0.35, 2: 10.0, 3: 10.0}
 
-    def submit(i: int, budget_s: float) -> None:
-        late[i] = batcher.step(*job(float(i)), time.perf_counter() + budget_s)
+    def submit(i: int) -> None:
+        late[i] = batcher.step(*job(float(i)), time.perf_counter() + ends[i])
 
-    threads = [threading.Thread(target=submit, args=(0, 1.0))]
-    threads[0].start()
-    time.sleep(0.005)
-    # while the first call runs: a job that fits only a call of one, and two with room
-    threads += [
-        threading.Thread(target=submit, args=(i, b)) for i, b in ((1, 0.05), (2, 1), (3, 1))
-    ]
-    for t in threads[1:]:
-        t.start()
-    for t in threads:
-        t.join(5)
+    # behind the first call: one whose deadline holds a call of one run only, two with room
+    queue_behind_the_first(batcher, step, submit, [(1,), (2,), (3,)])
     assert all(late[i] is not None for i in range(4))
-    assert step.calls[0] == 1 and sorted(step.calls[1:]) == [1, 2]  # 1 alone, then 2 and 3
+    assert step.calls == [1, 1, 2]  # the first; the tight one alone; then the two together
 
 
 def test_one_batching_run_at_a_time_gets_a_slot_to_itself():
