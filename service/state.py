@@ -161,12 +161,8 @@ class ServiceState:
 
     def model(self, name: str | None) -> LoadedModel:
         """The named (or default) model, or a 503/404/422 that says what is available."""
-        if not self.ready:
-            raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
-        try:
+        with self._replying():
             return self.catalog.model(name)
-        except PoseError as err:
-            raise ServiceError.of(err) from None
 
     def start_run(
         self,
@@ -178,9 +174,25 @@ class ServiceState:
         """Resolve the model (classifying for ``auto``), plan the request and set up its run
         (CPU: call from a worker thread). The budget counts from ``arrived``
         (``time.perf_counter()`` when the request came in). Raises ServiceError."""
+        with self._replying():
+            return self.catalog.start(points, request, arrived, reserve_ms)
+
+    @contextmanager
+    def serving(self, run: AnytimeRun) -> Iterator[None]:
+        """Hold ``run`` among the admitted while it runs (``service/admission.py``), then check
+        that it served a pose; a refusal (its work does not fit, no step fit its budget) is
+        raised as the ServiceError to answer with."""
+        with self._replying():
+            with self.admission.admit(run):
+                yield
+            run.check_served()
+
+    @contextmanager
+    def _replying(self) -> Iterator[None]:
+        """Not ready: the 503; what the pose pipeline refuses: its ServiceError."""
         if not self.ready:
             raise ServiceError(503, "not_ready", f"no model is loaded: {self.load_error}")
         try:
-            return self.catalog.start(points, request, arrived, reserve_ms)
+            yield
         except PoseError as err:
             raise ServiceError.of(err) from None

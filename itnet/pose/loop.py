@@ -88,8 +88,7 @@ class AnytimeRun(Iterator[Estimate]):
             self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
             self._finish()
             raise StopIteration
-        previous = self.pose_normalized[0]
-        self.pose_normalized = stepped
+        self.pose_normalized, delta = stepped
         if self.plan.up is not None and self.iteration >= self.plan.up_free:
             self.pose_normalized = held_upright(self.pose_normalized, self.plan.up).astype(
                 np.float32
@@ -98,19 +97,20 @@ class AnytimeRun(Iterator[Estimate]):
         if self.plan.fuse:
             self.last = self._moved_to(fuse_poses(self.pose_normalized, self.model.card.symmetry))
         else:
-            self.last = self._update_of(previous, self.pose_normalized[0])
+            self.last = self._update_of(self.pose_normalized[0], delta[0])
         return self._converged_or(self.last)
 
-    def extra_step(self, points: NDArray, poses: NDArray) -> NDArray | None:
+    def extra_step(self, points: NDArray, poses: NDArray) -> tuple[NDArray, NDArray] | None:
         """One network step of ``points`` (B, N, 3) from ``poses`` (B, 4, 4), batched with the
         steps of the other runs in flight, ending inside the budget (less the reserve) -> the
-        poses after it, or None (it could not, or the run is cancelled). Stages call it too."""
+        poses after it and the step's updates, each (B, 4, 4); None where it could not, or the
+        run is cancelled. Stages call it too."""
         if self._cancel.is_set():
             return None
         start = time.perf_counter()
         stepped = self.model.batched_step(points, poses, self._latest())
         self._last_step_ms = (time.perf_counter() - start) * 1e3  # the wait included
-        return None if stepped is None else stepped[0]  # a step done counts, cancelled or not
+        return stepped  # a step done counts, cancelled or not
 
     def extra_call(self, work: Callable[[], T], predicted_ms: float) -> T | None:
         """``work()`` with a step slot to itself, where it can start and still end inside the
@@ -188,10 +188,9 @@ class AnytimeRun(Iterator[Estimate]):
 
     # -- estimates -----------------------------------------------------------------------------
 
-    def _update_of(self, previous: NDArray, pose: NDArray) -> Estimate:
-        """The estimate at ``pose`` (4, 4), its update measured from ``previous`` in scalar
-        math (numpy's per-call cost is the loop's)."""
-        d = pose.astype(np.float64) @ invert_rigid(previous.astype(np.float64))
+    def _update_of(self, pose: NDArray, d: NDArray) -> Estimate:
+        """The estimate at ``pose`` (4, 4), its update the network's ``d`` (4, 4), measured in
+        scalar math (numpy's per-call cost is the loop's)."""
         cos = (float(d[0, 0]) + float(d[1, 1]) + float(d[2, 2]) - 1.0) / 2.0
         rotation = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
         return self._estimate(

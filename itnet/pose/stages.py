@@ -113,7 +113,7 @@ class Recheck:
             stepped = run.extra_step(x, poses)
             if stepped is None:
                 return Finish(None, {"rechecked": False})
-            poses = stepped
+            poses = stepped[0]
         scores = np.concatenate([[doubt], verifier.scores(canonical_points(x, poses))])
         runs = np.concatenate([run.pose_normalized[:1], poses])
         fused = fuse_poses(runs, card.symmetry, anchor=likeliest_run(scores))

@@ -11,7 +11,6 @@ import anyio
 import pydantic_core
 from fastapi import APIRouter, Request, Response
 
-from itnet.pose.errors import PoseError
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.reply import estimates_to_dicts
 from itnet.pose.request import PoseRequest
@@ -158,16 +157,12 @@ def _decode_and_run(
         return err
     handle.attach(run)
     try:
-        with state.admission.admit(run):
+        with state.serving(run):
             estimates = list(run)
-    except PoseError as err:
-        return ServiceError.of(err)
+    except ServiceError as err:
+        return err
     loop_end = time.perf_counter()
     stopped_by = "disconnected" if handle.client_left else str(run.stopped_by)
-    try:
-        run.check_served()
-    except PoseError as err:
-        return ServiceError.of(err)
     reply = {**run.result(), "stopped_by": stopped_by,
              "estimates": estimates_to_dicts(estimates)}  # fmt: skip
     del reply["elapsed_ms"]  # stamped by the handler when the reply leaves (see estimate)

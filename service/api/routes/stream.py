@@ -27,7 +27,6 @@ import anyio
 from fastapi import APIRouter, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
-from itnet.pose.errors import PoseError
 from itnet.pose.loop import AnytimeRun
 from itnet.service.api.deps import StateDep
 from itnet.service.errors import ServiceError, too_large
@@ -74,21 +73,14 @@ async def _serve(websocket: WebSocket, state: ServiceState) -> int:
     with state.gate.slot():
         with state.buffers.hold(len(text), state.settings.limits.retry_after_s):
             run = await anyio.to_thread.run_sync(_prepare, state, text, arrived)
-        try:
-            with state.drain.track(run), state.admission.admit(run):
-                if run.recognition is not None:  # model "auto": the category comes first
-                    await websocket.send_json(run.category_message())
-                peer = await _stream_run(websocket, run, send_timeout_s)
-        except PoseError as err:  # refused by its work (service/admission.py)
-            raise ServiceError.of(err) from None
+        with state.drain.track(run), state.serving(run):
+            if run.recognition is not None:  # model "auto": the category comes first
+                await websocket.send_json(run.category_message())
+            peer = await _stream_run(websocket, run, send_timeout_s)
     stopped_by = "disconnected" if peer.disconnected else str(run.stopped_by)
     state.metrics.observe_run(run.model.card.name, run.iteration, stopped_by)
     if peer.disconnected:
         return 1006
-    try:
-        run.check_served()
-    except PoseError as err:
-        raise ServiceError.of(err) from None
     code = 1001 if state.drain.draining.is_set() else 1000
     try:
         with anyio.fail_after(send_timeout_s):
