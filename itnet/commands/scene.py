@@ -40,7 +40,7 @@ def scene(
 
     from itnet.geometry import rotation_angle_deg
     from itnet.scene import SceneInputError, find_objects, parse_intrinsics
-    from itnet.scene.posing import ModelLoadError, PoseKit
+    from itnet.scene.posing import ModelLoadError, scene_catalog
 
     if not 0 < budget_ms <= 60_000:
         raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
@@ -49,14 +49,14 @@ def scene(
     except SceneInputError as err:
         raise typer.BadParameter(str(err)) from None
     try:
-        kit = PoseKit.load(model_dir)
+        catalog = scene_catalog(model_dir)
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     failed = False
     for path in files:
         try:
-            result = find_objects(path, camera, budget_ms=budget_ms, kit=kit,
+            result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
                                   depth_scale=depth_scale)  # fmt: skip
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)

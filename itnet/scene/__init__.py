@@ -23,7 +23,7 @@ from itnet.scene.inputs import (
     from_png,
 )
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
-from itnet.scene.posing import PoseKit
+from itnet.scene.posing import scene_catalog
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.segment import SegmentOptions
 
@@ -31,7 +31,6 @@ __all__ = [
     "DEFAULT_BUDGET_MS",
     "Box",
     "Intrinsics",
-    "PoseKit",
     "SceneInput",
     "SceneInputError",
     "SceneLimits",
@@ -47,4 +46,5 @@ __all__ = [
     "from_png",
     "intrinsics_from_json",
     "parse_intrinsics",
+    "scene_catalog",
 ]

@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.planes import Plane
-from itnet.scene.posing import BadCloudError, PoseKit, pose_object, with_pose
+from itnet.scene.posing import BadCloudError, pose_object, scene_catalog, with_pose
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.segment import CAMERA_UP, SegmentOptions, segment
 
@@ -39,7 +40,7 @@ def find_objects(
     scene: NDArray | str | Path | SceneInput,
     intrinsics: Intrinsics | None = None,
     budget_ms: float = DEFAULT_BUDGET_MS,
-    kit: PoseKit | None = None,
+    catalog: Catalog | None = None,
     depth_scale: float | None = None,
     options: SegmentOptions = SegmentOptions(),
     expected_up: NDArray | tuple[float, float, float] = CAMERA_UP,
@@ -49,8 +50,8 @@ def find_objects(
     categories: frozenset[str] | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
-    cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``kit``: the
-    models (default: the shipped ones, loaded once per process). ``categories``: the ones the
+    cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
+    the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
     Raises SceneInputError for a
     scene that cannot be used, ValueError for a budget that is not positive."""
@@ -63,7 +64,7 @@ def find_objects(
         given = from_file(Path(scene), intrinsics, depth_scale, limits)
     else:
         given = from_array(np.asarray(scene), intrinsics, depth_scale, limits)
-    kit = kit or shipped_kit()
+    catalog = catalog or shipped_catalog()
     found = segment(given.points, options, expected_up)
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
@@ -72,7 +73,7 @@ def find_objects(
         left_ms = budget_ms - (time.perf_counter() - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         try:
-            seen = pose_object(kit, points, found.up, VIEWPOINT, max(share, 1e-3),
+            seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
                                categories=categories)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
@@ -92,15 +93,15 @@ def find_objects(
     )  # fmt: skip
 
 
-_KIT: PoseKit | None = None
+_SHIPPED: Catalog | None = None
 
 
-def shipped_kit() -> PoseKit:
+def shipped_catalog() -> Catalog:
     """The shipped models, loaded on first use and kept for the process."""
-    global _KIT
-    if _KIT is None:
-        _KIT = PoseKit.load()
-    return _KIT
+    global _SHIPPED
+    if _SHIPPED is None:
+        _SHIPPED = scene_catalog()
+    return _SHIPPED
 
 
 def floor_centred(pose: NDArray, points: NDArray, floor: Plane) -> NDArray[np.float64]:
@@ -137,4 +138,4 @@ def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray 
     return Box(rotation @ ((lo + hi) / 2), hi - lo, rotation)
 
 
-__all__ = ["DEFAULT_BUDGET_MS", "find_objects", "object_box", "shipped_kit"]
+__all__ = ["DEFAULT_BUDGET_MS", "find_objects", "object_box", "shipped_catalog"]

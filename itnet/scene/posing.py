@@ -2,7 +2,7 @@
 classify a cluster (``model: "auto"``, with up and the unit known), and run its category's
 anytime pipeline with up and the viewpoint given, within a share of the scene's budget.
 
-Everything a scene needs of the pose side goes through ``PoseKit`` and ``pose_object``: the
+Everything a scene needs of the pose side goes through a ``Catalog`` and ``pose_object``: the
 classification restricted to the scene's categories, then the one pose pipeline
 (``itnet.pose.plan`` and its anytime loop) with up and the viewpoint in the request.
 """
@@ -10,14 +10,14 @@ classification restricted to the scene's categories, then the one pose pipeline
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.pose.cloud import Limits
+from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError, BudgetTooSmallError
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.plan import plan
@@ -25,33 +25,22 @@ from itnet.pose.recognition import classify, pose_model_for
 from itnet.pose.reply import pose_fields
 from itnet.pose.request import PoseRequest
 from itnet.pose.runtime import (
-    LoadedClassifier,
-    LoadedModel,
     ModelLoadError,
     default_model_dir,
-    load_all,
 )
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 
 
-@dataclass
-class PoseKit:
-    """The loaded pose models (by name) and the category classifier."""
-
-    models: dict[str, LoadedModel]
-    classifier: LoadedClassifier | None
-    limits: Limits = field(default_factory=Limits)
-
-    @classmethod
-    def load(cls, model_dir: Path | None = None, threads: int = 2) -> PoseKit:
-        """Every model of a folder (default: the shipped ones). Raises ModelLoadError, also
-        where the folder has no category classifier (scenes classify every object)."""
-        folder = model_dir or default_model_dir()
-        models, classifier = load_all(folder, threads)
-        if classifier is None:
-            raise ModelLoadError(f"{folder}: no category classifier (scenes need classifier.onnx)")
-        return cls(models, classifier)
+def scene_catalog(model_dir: Path | None = None, threads: int = 2) -> Catalog:
+    """Every model of a folder (default: the shipped ones) as the pose pipeline serves them.
+    Raises ModelLoadError, also where the folder has no category classifier (scenes classify
+    every object)."""
+    folder = model_dir or default_model_dir()
+    catalog = Catalog.load(folder, threads)
+    if catalog.classifier is None:
+        raise ModelLoadError(f"{folder}: no category classifier (scenes need classifier.onnx)")
+    return catalog
 
 
 @dataclass
@@ -74,7 +63,7 @@ class NoClassifierError(RuntimeError):
 
 
 def pose_object(
-    kit: PoseKit,
+    catalog: Catalog,
     points: NDArray,
     up: NDArray,
     viewpoint: NDArray,
@@ -90,10 +79,10 @@ def pose_object(
     ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
     degenerate)."""
     started = time.perf_counter() if started is None else started
-    if kit.classifier is None:
+    if catalog.classifier is None:
         raise NoClassifierError("scenes need the category classifier, and none is loaded")
     recognition = classify(
-        kit.classifier, points, top=len(kit.classifier.card.classes), limits=kit.limits,
+        catalog.classifier, points, top=len(catalog.classifier.card.classes), limits=catalog.limits,
         units=SCENE_UNITS, up=up, deadline=started + budget_ms / 2e3,
     )  # fmt: skip
     candidates = [
@@ -106,13 +95,10 @@ def pose_object(
         {"category": c.category, "probability": round(c.probability / total, 6)}
         for c in candidates[:3]
     ]
-    seen = ObjectPose(
-        top[0]["category"],
-        top[0]["probability"],
-        top,
-        top[0]["probability"] < recognition.threshold,
-    )
-    model = pose_model_for(seen.category, kit.models)
+    best = candidates[0]
+    probability = round(best.probability / total, 6)
+    seen = ObjectPose(best.category, probability, top, probability < recognition.threshold)
+    model = pose_model_for(seen.category, catalog.models)
     if model is None:
         seen.no_pose = "no_pose_model"
         return seen
@@ -123,7 +109,7 @@ def pose_object(
     request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
                           viewpoint=[float(v) for v in viewpoint])  # fmt: skip
     try:
-        run = AnytimeRun(plan(model, request, kit.limits), points, started)
+        run = AnytimeRun(plan(model, request, catalog.limits), points, started)
     except BudgetTooSmallError:
         seen.no_pose = "budget"
         return seen
@@ -147,7 +133,7 @@ __all__ = [
     "ModelLoadError",
     "NoClassifierError",
     "ObjectPose",
-    "PoseKit",
     "pose_object",
+    "scene_catalog",
     "with_pose",
 ]

@@ -34,7 +34,7 @@ from itnet.scene import (
 from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS
-from itnet.scene.posing import NoClassifierError, PoseKit
+from itnet.scene.posing import NoClassifierError
 from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, malformed_json
 from itnet.service.schemas import ErrorResponse
@@ -166,10 +166,9 @@ def _find(
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
         raise ServiceError(503, "not_ready", f"no model is loaded: {state.load_error}")
-    kit = PoseKit(state.models, state.classifier, state.settings.limits.engine_limits())
     try:
         given = _decode(body, kind, camera, depth_scale)
-        result = find_objects(given, budget_ms=budget_ms, kit=kit)
+        result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog)
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
