@@ -16,7 +16,6 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from itnet.pose.catalog import Catalog
     from itnet.pose.loop import AnytimeRun
     from itnet.pose.request import PoseRequest
 
@@ -46,15 +45,15 @@ def pose(
     import numpy as np
 
     from itnet.cloud_io import CloudReadError
-    from itnet.commands.in_process import get_catalog, get_classifier
+    from itnet.commands.in_process import get_catalog, get_classifier, get_model
     from itnet.geometry import rotation_angle_deg
     from itnet.pose.errors import PoseError
 
     catalog = get_catalog(model_dir)
     if catalog.is_auto(model):
         get_classifier(model_dir)  # a folder without a classifier: one clear error, exit 2
-    elif model not in catalog.models:
-        get_model_or_exit(catalog, model)
+    else:
+        get_model(model, model_dir)  # an unknown name: one clear error, exit 2
     request = request_from_options(
         budget_ms=budget_ms, max_iterations=max_iterations, model=model, ensemble=ensemble,
         mirror=mirror, verify=verify, recheck=recheck, centre=centre, viewpoint=viewpoint, up=up,
@@ -124,12 +123,3 @@ def request_from_options(**options: Any) -> PoseRequest:
         name = "--" + str(first["loc"][0]).replace("_", "-") if first["loc"] else "options"
         typer.echo(f"error: {name}: {first['msg']}", err=True)
         raise typer.Exit(2) from None
-
-
-def get_model_or_exit(catalog: Catalog, name: str) -> None:
-    """A typer error (exit 2) naming the models there are, for an unknown ``name``."""
-    typer.echo(
-        f"error: unknown model {name!r} (available: {', '.join(sorted(catalog.models))})",
-        err=True,
-    )
-    raise typer.Exit(2)
