@@ -134,15 +134,9 @@ def axis_angle_to_matrix(axis: ArrayLike, angle_rad: ArrayLike) -> FloatArray:
     return quat_wxyz_to_matrix(np.concatenate([np.cos(half), np.sin(half) * a], axis=-1))
 
 
-def viewing_axis_turns(count: int, tilt_deg: float = 0.0) -> FloatArray:
+def viewing_axis_turns(count: int) -> FloatArray:
     """``count`` starting rotations (count x3x3) for IT-Net runs on one cloud: turns about z
-    (a camera's viewing axis) 360/count degrees apart from the identity, every second one also
-    tilted by ``tilt_deg`` about x (the view direction moves a little). A turn about the
+    (a camera's viewing axis) 360/count degrees apart from the identity. A turn about the
     viewing axis keeps a view one the network was trained on, from a different place."""
-    out = []
-    for k in range(count):
-        turn = axis_angle_to_matrix([0.0, 0.0, 1.0], 2 * np.pi * k / count)
-        if k % 2 and tilt_deg:
-            turn = axis_angle_to_matrix([1.0, 0.0, 0.0], np.radians(tilt_deg)) @ turn
-        out.append(turn)
-    return np.asarray(out).reshape(count, 3, 3)
+    angles = 2 * np.pi * np.arange(count) / count
+    return np.asarray(axis_angle_to_matrix([0.0, 0.0, 1.0], angles)).reshape(count, 3, 3)

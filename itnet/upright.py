@@ -60,15 +60,6 @@ def held_upright(poses: ArrayLike, up: ArrayLike) -> FloatArray:
     return out
 
 
-def turns_about(up: ArrayLike, count: int) -> FloatArray:
-    """``count`` rotations (count x3x3) of a cloud about its ``up`` (3,, unit), 360/count
-    degrees apart (the first: the identity): a turned cloud keeps its up, so each turn is a
-    start that a run held upright can begin from (alignment's starts with up);
-    ``upright_starts(up, n) == stand @ turns_about(up, n)``."""
-    stand = rotation_onto(np.asarray(up, dtype=np.float64), UP)
-    return stand.T @ upright_starts(up, count)
-
-
 def upright_starts(up: ArrayLike, count: int) -> FloatArray:
     """``count`` starting rotations (count x3x3) that take ``up`` (3,, unit) onto +y, turned
     about +y 360/count degrees apart (the first: the least rotation alone)."""

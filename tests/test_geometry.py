@@ -71,9 +71,3 @@ def test_viewing_axis_turns_are_evenly_spread_about_z(count):
     if count > 2:  # neighbours 360/count apart (with 1 or 2 the angle folds past 180)
         steps = g.rotation_error_deg(turns, np.roll(turns, -1, axis=0))
         assert np.allclose(steps, 360.0 / count)
-
-
-def test_viewing_axis_turns_tilt_every_second_start():
-    plain, tilted = g.viewing_axis_turns(4), g.viewing_axis_turns(4, tilt_deg=20.0)
-    assert np.allclose(tilted[::2], plain[::2])
-    assert np.allclose(g.rotation_error_deg(tilted[1::2], plain[1::2]), 20.0)

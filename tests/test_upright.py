@@ -18,7 +18,6 @@ from itnet.upright import (
     rotation_onto,
     sensed_ups,
     tilted,
-    turns_about,
     unit_up,
     upright_starts,
 )
@@ -106,13 +105,15 @@ def test_engine_refuses_bad_or_conflicting_up(model, rng) -> None:
         run_with(model, cloud, up=[0, 1])
 
 
-def test_turns_about_up_keep_up_and_compose_into_the_upright_starts(rng) -> None:
+def test_upright_starts_stand_up_and_turn_about_up(rng) -> None:
     up = unit_up([0.3, -1.0, 0.2])
-    turns = turns_about(up, 4)
-    np.testing.assert_allclose(turns[0], np.eye(3), atol=1e-9)
-    np.testing.assert_allclose(turns @ up, np.tile(up, (4, 1)), atol=1e-9)
-    stand = rotation_onto(up, UP)
-    np.testing.assert_allclose(stand @ turns, upright_starts(up, 4), atol=1e-9)
+    starts = upright_starts(up, 4)
+    np.testing.assert_allclose(starts[0], rotation_onto(up, UP), atol=1e-9)
+    np.testing.assert_allclose(starts @ up, np.tile(UP, (4, 1)), atol=1e-9)
+    turns = starts @ starts[0].T  # each start after the first's: a turn about +y
+    np.testing.assert_allclose(turns @ UP, np.tile(UP, (4, 1)), atol=1e-9)
+    np.testing.assert_allclose(np.degrees(np.arccos(np.clip(turns[1:, 0, 0], -1, 1))),
+                               [90.0, 180.0, 90.0], atol=1e-6)  # fmt: skip
 
 
 def test_tilted_ups_are_off_by_the_error_and_levelled_clouds_stand(rng) -> None:

@@ -4,7 +4,8 @@ The steps (the policy is explained in ``itnet.alignment.hypotheses``)::
 
     pose_a = estimate(A)          # the pose ``itnet pose`` serves: the same request and plan,
     pose_b = estimate(B)          # in-process or through a service
-    hypotheses = inv(pose_b) · S · pose_a  for every symmetry S of the category (identity first)
+    hypotheses = inv(T_b) · S · T_a  for every pose T_a of A and T_b of B (the served one first,
+                 then each run's) and every symmetry S of the category (identity first)
     candidates = the distinct ones, best by a loose fit        # ``hypotheses.distinct``
     each       = ICP(candidate)                                # only with refine=True
     chosen     = the composed poses (S = identity), unless with ICP another candidate fits
