@@ -2,6 +2,7 @@
 
     python benchmarks/load_test.py                                  # 1, 4, 16, 64 clients
     python benchmarks/load_test.py --concurrency 1,4,16 --duration-s 20 --budget-ms 50
+    python benchmarks/load_test.py --concurrency 1,16,64 --budget-ms 20 --batching on,off
 
 Starts a real ``itnet serve`` (uvicorn, the CLI's settings) on a free loopback port, then for
 each client count runs that many closed-loop clients (each sends its next request as soon as its
@@ -16,7 +17,11 @@ the server and the clients used are printed with each row.
 Per row: replies by status (200, 503 = refused by the concurrency gate), throughput, client
 round trip p50/p99, the engine's ``elapsed_ms`` (which starts when the request reaches the app)
 p50/p99/max, and the overrun ``elapsed_ms - budget_ms`` at p99 and max. The budget holds when the
-p99 overrun is within ``--margin-ms``. Prints a markdown table; ``--json-out`` saves the rows.
+p99 overrun is within ``--margin-ms``. ``--batching on,off`` runs every row against a server
+that batches the steps of requests in flight into shared calls (the default) and then one that
+makes a call a step (``ITNET_BATCH_JOBS=1``), side by side; each setting's share column is its
+replies with at least 5 iterations over its first row's. Prints a markdown table; ``--json-out``
+saves the rows.
 """
 
 from __future__ import annotations
@@ -88,19 +93,24 @@ def summarise(result: dict, clients: int, budget_ms: float) -> dict:
 
 def table(rows: list[dict], margin_ms: float) -> str:
     lines = [
-        "| clients | requests | 200 / 503 / other | ok/s | ≥5 iterations/s | round trip p50 / p99 ms "
-        "| engine p50 / p99 / max ms | overrun p99 / max ms | wall - budget p99 ms "
-        "| iterations (mean) | budget held | CPU busy (machine) / server / clients |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| batching | clients | requests | 200 / 503 / other | ok/s | ≥5 iterations/s | share of the "
+        "first row's | round trip p50 / p99 ms | engine p50 / p99 / max ms | overrun p99 / max ms "
+        "| wall - budget p99 ms | iterations (mean) | budget held "
+        "| CPU busy (machine) / server / clients |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    first: dict[str, float] = {}
     for r in rows:
+        alone = first.setdefault(r["batching"], r["good_per_s"])
+        share = f"{r['good_per_s'] / alone:.0%}" if alone else "-"
         s = r["statuses"]
         other = sum(v for k, v in s.items() if k not in ("200", "503"))
         other += r["transport_errors"]
         held = "yes" if r["overrun_p99_ms"] <= margin_ms else "NO"
         lines.append(
-            f"| {r['clients']} | {r['requests']} | {s.get('200', 0)} / {s.get('503', 0)} / {other}"
-            f" | {r['ok_per_s']:.1f} | {r['good_per_s']:.1f} | {r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
+            f"| {r['batching']} | {r['clients']} | {r['requests']} | {s.get('200', 0)} / "
+            f"{s.get('503', 0)} / {other} | {r['ok_per_s']:.1f} | {r['good_per_s']:.1f} | {share} | "
+            f"{r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
             f"{r['engine_p50_ms']:.1f} / {r['engine_p99_ms']:.1f} / {r['engine_max_ms']:.1f} | "
             f"{r['overrun_p99_ms']:+.1f} / {r['overrun_max_ms']:+.1f} | "
             f"{r['wall_minus_budget_p99_ms']:+.1f} | {r['iterations_mean']:.2f} | {held} | "
@@ -136,6 +146,11 @@ def main(
         max=16,
         help="'ensemble' of every request (default: none, the card's plan)",
     ),
+    batching: str = typer.Option(
+        "on",
+        help="'on' (steps of requests in flight share calls), 'off' (ITNET_BATCH_JOBS=1), "
+        "or 'on,off': every row against both, a server each.",
+    ),
 ) -> None:
     """Run the load test and print its table."""
     folder = model_dir(models)
@@ -147,31 +162,39 @@ def main(
     fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
     body = json.dumps({"points": cloud.tolist(), **fields}).encode()
     rows = []
-    with serve(folder, log, env, args=["--workers", str(workers)]) as server:
-        for _ in range(20 * workers):  # warm up (each worker)
-            assert httpx.post(f"{server.url}/v1/estimate", content=body, headers=JSON,
-                              timeout=30).status_code == 200  # fmt: skip
-        rss_before = server.rss_mb()
-        for clients in (int(c) for c in concurrency.split(",")):
-            procs = -(-clients // per_process)
-            plan = ClientPlan(server.url, body, fresh=fresh, retry_s=None if retry_s < 0 else retry_s,
-                              cap=max(1, max_requests // procs))  # fmt: skip
-            meter = CpuMeter(server.process.pid)
-            meter.start()
-            result = run_clients(plan, clients, duration_s, per_process)
-            result["cpu"] = meter.stop()
-            rows.append(summarise(result, clients, budget_ms))
-            typer.echo(f"{clients} clients: {json.dumps(rows[-1])}", err=True)
-        health = httpx.get(f"{server.url}/healthz", timeout=5).status_code
-        rss_after = server.rss_mb()
+    settings = [b.strip() for b in batching.split(",") if b.strip()]
+    if not settings or set(settings) - {"on", "off"}:
+        raise typer.BadParameter(f"--batching: 'on', 'off' or 'on,off', not {batching!r}")
+    health, rss = {}, {}
+    for setting in settings:
+        jobs = {} if setting == "on" else {"ITNET_BATCH_JOBS": "1"}
+        with serve(folder, log, {**env, **jobs}, args=["--workers", str(workers)]) as server:
+            for _ in range(20 * workers):  # warm up (each worker)
+                assert httpx.post(f"{server.url}/v1/estimate", content=body, headers=JSON,
+                                  timeout=30).status_code == 200  # fmt: skip
+            rss_before = server.rss_mb()
+            for clients in (int(c) for c in concurrency.split(",")):
+                procs = -(-clients // per_process)
+                plan = ClientPlan(server.url, body, fresh=fresh,
+                                  retry_s=None if retry_s < 0 else retry_s,
+                                  cap=max(1, max_requests // procs))  # fmt: skip
+                meter = CpuMeter(server.process.pid)
+                meter.start()
+                result = run_clients(plan, clients, duration_s, per_process)
+                result["cpu"] = meter.stop()
+                rows.append({"batching": setting, **summarise(result, clients, budget_ms)})
+                typer.echo(f"{clients} clients: {json.dumps(rows[-1])}", err=True)
+            health[setting] = httpx.get(f"{server.url}/healthz", timeout=5).status_code
+            rss[setting] = f"{rss_before:.0f} -> {server.rss_mb():.0f} MiB"
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points (JSON, "
                f"{len(body):,} bytes); budget {budget_ms:g} ms; ensemble {ensemble or 'by the card'}; "
                f"{workers} server process(es), "
                f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip
     typer.echo(table(rows, margin_ms))
-    typer.echo(f"after the run: /healthz {health}; server RSS {rss_before:.0f} -> "
-               f"{rss_after:.0f} MiB")  # fmt: skip
+    for setting in settings:
+        typer.echo(f"batching {setting}, after its rows: /healthz {health[setting]}; server RSS "
+                   f"{rss[setting]}")  # fmt: skip
     if json_out is not None:
         json_out.write_text(json.dumps({"rows": rows, "budget_ms": budget_ms}, indent=1))
 

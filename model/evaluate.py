@@ -132,11 +132,14 @@ def run_poses(
     starts: NDArray | None,
     seed: int,
     iterations: int = 10,
+    up: NDArray | None = None,
 ) -> tuple[NDArray, NDArray, Normalization]:
     """One scan (N, 3), input units -> each run's pose after ``iterations`` steps (K, 4, 4),
     its points (K, n, 3), both in the normalised frame, and the normalisation: the runs as the
     engine runs them (the whole cloud sets the normalisation; one run of the card's points, or
-    ``starts`` (K, 3, 3) each on its own random subset of ``min(points, 0.8 N)``), no clock."""
+    ``starts`` (K, 3, 3) each on its own random subset of ``min(points, 0.8 N)``), no clock.
+    ``up`` (3,): the scan's up as a request gives it; the runs are then held upright after the
+    card's ``up_free_steps`` (``starts`` should be ``upright_starts`` of it)."""
     from itnet.pose.cloud import Limits
     from itnet.pose.plan import ENSEMBLE_SUBSET
 
@@ -152,6 +155,8 @@ def run_poses(
         pose = np.tile(np.eye(4, dtype=np.float32), (len(starts), 1, 1))
         pose[:, :3, :3] = starts
     x = x.astype(np.float32)
-    for _ in range(iterations):
+    for k in range(iterations):
         pose, _ = model.step(x, pose)
+        if up is not None and k >= model.card.up_free_steps:
+            pose = held_upright(pose, up).astype(np.float32)
     return pose, x, norm

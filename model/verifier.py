@@ -39,6 +39,7 @@ from itnet.geometry import axis_angle_to_matrix, random_rotation, viewing_axis_t
 from itnet.model.classify.network import PointNetHead
 from itnet.preprocess import pose_to_normalized, resample
 from itnet.symmetry import symmetric_rotation_error_deg
+from itnet.upright import sensed_ups, upright_starts
 
 if TYPE_CHECKING:
     from itnet.model.data import ScanSet
@@ -58,6 +59,11 @@ class VerifierConfig(BaseModel):
     batch: int = Field(128, ge=2)
     lr: float = Field(1e-3, gt=0)
     synthetic: float = Field(0.5, ge=0, le=1, description="share of knocked-off truths a batch")
+    up_error_deg: float | None = Field(
+        None, ge=0, le=45,
+        description="runs held upright, each scan's up given this far off the truth (default: "
+        "2 where the pose model requires up, else the runs are free)",
+    )  # fmt: skip
     right_deg: float = 15.0
     wrong_deg: float = 25.0
     point_channels: tuple[int, ...] = (64, 128, 512)
@@ -88,19 +94,29 @@ _FIELDS = ("points", "poses", "errors", "truths")
 
 
 def pose_runs(
-    model: LoadedModel, scans: ScanSet, ensemble: int, points: int, seed: int = 0
+    model: LoadedModel,
+    scans: ScanSet,
+    ensemble: int,
+    points: int,
+    seed: int = 0,
+    up_error_deg: float | None = None,
 ) -> PoseRuns:
     """A LoadedModel's runs on a ScanSet as the engine fuses them (``ensemble`` turned starts,
-    each on its own subset), every run's points resampled to ``points``."""
+    each on its own subset), every run's points resampled to ``points``. ``up_error_deg``: the
+    runs start stood up and are held upright, each scan's up given this far off the truth."""
     from itnet.model.evaluate import run_poses
 
     starts = viewing_axis_turns(ensemble) if ensemble > 1 else None
     symmetry = model.card.symmetry
     out: dict[str, list] = {f: [] for f in _FIELDS}
     for i, cloud in enumerate(scans.clouds):
-        poses, x, norm = run_poses(model, cloud, starts, seed + i)
-        truth = pose_to_normalized(scans.poses[i], norm)
         rng = np.random.default_rng(seed + i)
+        up = None
+        if up_error_deg is not None:
+            up = sensed_ups(scans.poses[i][None], up_error_deg, rng)[0]
+            starts = upright_starts(up, ensemble)
+        poses, x, norm = run_poses(model, cloud, starts, seed + i, up=up)
+        truth = pose_to_normalized(scans.poses[i], norm)
         out["points"].append(np.stack([resample(run, points, rng) for run in x]))
         out["poses"].append(poses)
         out["errors"].append(
@@ -127,9 +143,12 @@ def training_runs(
 
     cat = category(config.category, model.card.symmetry)
     digest = hashlib.sha256(config.pose_model.read_bytes()).hexdigest()[:12]
+    up_error = runs_up_error(model, config)
     parts = []
     for index, scanner in enumerate(config.scanners):
         key = f"{digest}-{config.category}-{scanner}-{config.views}-{config.ensemble}"
+        if up_error is not None:
+            key += f"-up{up_error:g}"
         path = config.cache / f"verifier-runs-{key}-{config.points}-{config.seed}.npz"
         if path.exists():
             z = np.load(path)
@@ -140,7 +159,7 @@ def training_runs(
             config.data, cat, views=config.views, seed=config.seed + 101 + index,
             scan=scan_config(VIEW_RULES[scanner]), cache=config.cache,
         )  # fmt: skip
-        runs = pose_runs(model, scans, config.ensemble, config.points, config.seed)
+        runs = pose_runs(model, scans, config.ensemble, config.points, config.seed, up_error)
         config.cache.mkdir(parents=True, exist_ok=True)
         np.savez(path, **{f: getattr(runs, f) for f in _FIELDS})
         wrong = float((runs.errors > config.wrong_deg).mean())
@@ -148,6 +167,14 @@ def training_runs(
             f"({time.perf_counter() - started:.0f} s)")  # fmt: skip
         parts.append(runs)
     return PoseRuns.concatenate(parts)
+
+
+def runs_up_error(model: LoadedModel, config: VerifierConfig) -> float | None:
+    """The up error the training runs are held upright with: the config's, else 2 degrees where
+    the pose model requires up, else None (free runs)."""
+    if config.up_error_deg is not None:
+        return config.up_error_deg
+    return 2.0 if model.card.requires_up else None
 
 
 def cube_turns() -> NDArray[np.float64]:
@@ -169,11 +196,23 @@ def _small_turns(rng: np.random.Generator, count: int, max_deg: float) -> NDArra
     return axis_angle_to_matrix(axes, np.radians(rng.uniform(0, max_deg, count)))
 
 
+def _yaws(rng: np.random.Generator, angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Turns about the canonical up by ``angles`` (radians), each tilted up to 3 degrees."""
+    turns = axis_angle_to_matrix(np.array([0.0, 1.0, 0.0]), angles)
+    return turns @ _small_turns(rng, len(angles), 3.0)
+
+
 def hypothesis_batch(
-    runs: PoseRuns, config: VerifierConfig, symmetry: str, rng: np.random.Generator
+    runs: PoseRuns,
+    config: VerifierConfig,
+    symmetry: str,
+    rng: np.random.Generator,
+    upright: bool = False,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """One batch -> (points where each hypothesis puts them (B, P, 3), labels (B,) 1 right /
-    0 wrong, weights (B,) 0 for the band between right and wrong)."""
+    0 wrong, weights (B,) 0 for the band between right and wrong). ``upright``: the knocked-off
+    truths stay upright (turned about up: a few degrees, a quarter or half turn, or any yaw), as
+    runs held upright can only be wrong."""
     s = rng.integers(len(runs.errors), size=config.batch)
     k = rng.integers(runs.errors.shape[1], size=config.batch)
     points = runs.points[s, k].astype(np.float32)
@@ -191,6 +230,11 @@ def hypothesis_batch(
         )
         anywhere = kind >= 0.8
         turns[anywhere] = random_rotation(rng, int(anywhere.sum()))
+        if upright:
+            near, quarter = kind < 0.4, np.radians(90.0) * rng.integers(1, 4, n)
+            angles = np.where(near, 0.0, np.where(cube, quarter, rng.uniform(0, 2 * np.pi, n)))
+            angles += np.radians(rng.uniform(-10.0, 10.0, n))
+            turns = _yaws(rng, angles)
         hypotheses = truths.copy()
         hypotheses[:, :3, :3] = turns @ truths[:, :3, :3]
         hypotheses[:, :3, 3] = np.einsum("nij,nj->ni", turns, truths[:, :3, 3])
@@ -222,6 +266,7 @@ def train_verifier(config: VerifierConfig, out: Path, log: Callable[[str], None]
     symmetry = model.card.symmetry
     category(config.category, symmetry)  # an unknown category fails before the runs
     runs = training_runs(model, config, log)
+    upright = runs_up_error(model, config) is not None
     net = make_verifier(config)
     optimiser = torch.optim.Adam(net.parameters(), config.lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps)
@@ -229,7 +274,8 @@ def train_verifier(config: VerifierConfig, out: Path, log: Callable[[str], None]
     path, started = out / "verifier.pt", time.perf_counter()
     with (out / "log.jsonl").open("w") as log_file:
         for step in range(1, config.steps + 1):
-            x, y, w = (torch.from_numpy(a) for a in hypothesis_batch(runs, config, symmetry, rng))
+            batch = hypothesis_batch(runs, config, symmetry, rng, upright)
+            x, y, w = (torch.from_numpy(a) for a in batch)
             logits = net(x)[:, 0]
             loss = torch.nn.functional.binary_cross_entropy_with_logits(
                 logits, y, weight=w, reduction="sum"

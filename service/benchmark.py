@@ -1,12 +1,17 @@
-"""Timing of one IT-Net step and of the anytime loop around it (onnxruntime, no torch)."""
+"""Timing of one IT-Net step, of the anytime loop around it, and of many requests posed at once
+(onnxruntime, no torch)."""
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
+from itnet.pose.catalog import Catalog
+from itnet.pose.errors import PoseError
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.plan import plan
 from itnet.pose.request import PoseRequest
@@ -61,4 +66,53 @@ def loop_overhead(
         "loop_iteration_ms": loop,
         "overhead_pct": 100 * (loop / raw - 1),
         "setup_ms": float(np.median(setup)),
+    }
+
+
+GOOD_ITERATIONS = 5  # a reply with fewer steps is a pose, but a poor one
+
+
+def concurrent_poses(
+    catalog: Catalog, request: PoseRequest, cloud: NDArray, clients: int, duration_s: float
+) -> dict[str, float]:
+    """``clients`` threads, each posing ``cloud`` with ``request`` (its ``model`` named) and
+    asking again as soon as its pose is back, for ``duration_s`` -> replies a
+    second, replies with at least ``GOOD_ITERATIONS`` steps a second, iterations a reply (mean),
+    requests that got no step (the budget spent before their first: the service's 503), graph
+    calls made and steps a call on average."""
+    batcher = catalog.model(request.model).batcher
+    calls, jobs = batcher.batches, batcher.jobs
+    stop = time.perf_counter() + duration_s
+    lock = threading.Lock()
+    iterations: list[int] = []
+    refused = 0
+
+    def client() -> None:
+        nonlocal refused
+        while time.perf_counter() < stop:
+            try:
+                steps = int(catalog.pose(cloud, request)["iterations"])
+            except PoseError:
+                with lock:
+                    refused += 1
+                continue
+            with lock:
+                iterations.append(steps)
+
+    started = time.perf_counter()
+    workers = [threading.Thread(target=client) for _ in range(clients)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    seconds = time.perf_counter() - started
+    calls, jobs = batcher.batches - calls, batcher.jobs - jobs
+    return {
+        "clients": clients,
+        "replies_per_s": len(iterations) / seconds,
+        "good_per_s": sum(i >= GOOD_ITERATIONS for i in iterations) / seconds,
+        "iterations_mean": float(np.mean(iterations)) if iterations else 0.0,
+        "refused": refused,
+        "calls": calls,
+        "steps_a_call": jobs / max(calls, 1),
     }

@@ -22,6 +22,13 @@ def verifier_train(
     synthetic: float = typer.Option(
         0.5, min=0.0, max=1.0, help="Share of each batch that is the truth knocked off."
     ),
+    up_error_deg: float | None = typer.Option(
+        None,
+        min=0.0,
+        max=45.0,
+        help="Hold the runs upright, each scan's up given this far off (degrees). Default: 2 "
+        "where the pose model requires up, else free runs.",
+    ),
     threads: int = typer.Option(2, min=1),
     data: Path = typer.Option(Path("../shared/data/modelnet10"), help="ModelNet-style root."),
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes, scans and runs."),
@@ -40,7 +47,7 @@ def verifier_train(
     config = VerifierConfig(
         category=category or card.category, pose_model=pose_model, steps=steps, batch=batch,
         views=views, scanners=[s for s in scanners.split(",") if s], ensemble=ensemble,
-        synthetic=synthetic, threads=threads, data=data, cache=cache,
+        synthetic=synthetic, up_error_deg=up_error_deg, threads=threads, data=data, cache=cache,
     )  # fmt: skip
     path = train_verifier(config, out, log=lambda line: typer.echo(line, err=True))
     typer.echo(str(path))

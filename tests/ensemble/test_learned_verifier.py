@@ -85,6 +85,49 @@ def test_knocked_off_truths_are_right_within_10_degrees_and_wrong_beyond_25(rng)
     assert np.isclose(weights[labels == 1].min(), 1.0)
 
 
+def test_upright_knocked_off_truths_keep_the_truths_up_and_turn_about_it(rng):
+    """For runs held upright, every synthetic hypothesis takes the truth's up onto the canonical
+    up within the 3 degrees of tilt it is given; the wrong ones are turned about up."""
+    runs = _runs(rng)
+    config = VerifierConfig(pose_model=Path("x.onnx"), batch=400, synthetic=1.0)
+    x, labels, weights = hypothesis_batch(runs, config, "none", np.random.default_rng(5), True)
+    pick = np.random.default_rng(5)
+    s, k = pick.integers(6, size=400), pick.integers(3, size=400)
+    truth_placed = canonical_points(runs.points[s, k].astype(np.float32), runs.truths[s])
+    turns = np.array([_best_rotation(t, h) for t, h in zip(truth_placed, x)])
+    tilt = np.degrees(np.arccos(np.clip(turns[:, 1, 1], -1.0, 1.0)))
+    assert tilt.max() < 3.5
+    angles = rotation_error_deg(turns, np.eye(3))
+    assert angles[labels == 1].max() < 15.5  # the labels agree with the turns the points show
+    assert angles[(labels == 0) & (weights == 1)].min() > 25
+    assert 0.3 < labels.mean() < 0.5
+
+
+def test_runs_of_a_model_that_requires_up_are_held_upright(make_net, tmp_path, rng):
+    """The verifier's training runs of an upright model start stood up on the scan's sensed up
+    and stay upright: each run's pose takes that up onto +y (within the 2 degrees it is off)."""
+    from itnet.export.onnx_export import export_step
+    from itnet.model.data import ScanSet
+    from itnet.model.verifier import pose_runs
+    from itnet.model_card import ModelCard
+
+    card = ModelCard(name="m", category="monitor", points=128, requires_up=True)
+    export_step(make_net(), card, tmp_path / "m.onnx")
+    model = load_model(tmp_path / "m.onnx", warm_up=False)
+    truths = np.tile(np.eye(4), (3, 1, 1))
+    truths[:, :3, :3] = random_rotation(rng, 3)
+    clouds = [rng.normal(size=(300, 3)) * [1.0, 0.5, 0.2] for _ in range(3)]
+    scans = ScanSet(clouds, truths, np.ones(3), ["a", "b", "c"])
+    runs = pose_runs(model, scans, 4, 64, seed=1, up_error_deg=2.0)
+    assert runs.poses.shape == (3, 4, 4, 4)
+    true_up = truths[:, 1, :3]  # R^T e_y: the canonical up in each scan's frame
+    lifted = np.einsum("skij,sj->ski", runs.poses[..., :3, :3].astype(np.float64), true_up)
+    assert np.degrees(np.arccos(np.clip(lifted[..., 1], -1, 1))).max() < 2.5
+    free = pose_runs(model, scans, 4, 64, seed=1)
+    lifted = np.einsum("skij,sj->ski", free.poses[..., :3, :3].astype(np.float64), true_up)
+    assert np.degrees(np.arccos(np.clip(lifted[..., 1], -1, 1))).max() > 10
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory, make_net):  # type: ignore[no-untyped-def]
     """A tiny pose model of bathtubs, its verifier trained 30 steps by the command, exported."""
