@@ -29,11 +29,13 @@ def known_ups(poses: np.ndarray, error_deg: float, seed: int = 0) -> np.ndarray:
 
 def misses(rot_deg: np.ndarray, trans: np.ndarray) -> dict[str, float]:
     """Where the misses are, % of all scans: near misses in rotation (10–20°), wrong basins
-    (over 20°), and the centre over 0.1 r with the rotation right. (S,), (S,) -> shares."""
+    (over 20°; of them, turned by more than 135°: a front-back swap where up is given), and the
+    centre over 0.1 r with the rotation right. (S,), (S,) -> shares."""
     share = lambda mask: round(100.0 * float(np.mean(mask)), 1)  # noqa: E731
     return {
         "rot_10_20": share((rot_deg >= 10) & (rot_deg < 20)),
         "rot_over_20": share(rot_deg >= 20),
+        "rot_over_135": share(rot_deg > 135),
         "centre_only": share((rot_deg < 10) & (trans >= 0.1)),
     }
 
