@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.pose.catalog import Catalog
-from itnet.pose.errors import PoseError
+from itnet.pose.errors import OverloadedError
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.plan import plan
 from itnet.pose.request import PoseRequest
@@ -75,11 +75,12 @@ GOOD_ITERATIONS = 5  # a reply with fewer steps is a pose, but a poor one
 def concurrent_poses(
     catalog: Catalog, request: PoseRequest, cloud: NDArray, clients: int, duration_s: float
 ) -> dict[str, float]:
-    """``clients`` threads, each posing ``cloud`` with ``request`` (its ``model`` named) and
-    asking again as soon as its pose is back, for ``duration_s`` -> replies a
-    second, replies with at least ``GOOD_ITERATIONS`` steps a second, iterations a reply (mean),
-    requests that got no step (the budget spent before their first: the service's 503), graph
-    calls made and steps a call on average."""
+    """``clients`` threads, each posing ``cloud`` with ``request`` (its ``model`` named) by
+    ``Catalog.pose`` and asking again as soon as its pose is back (after a refusal, when its
+    ``retry_after_s`` has passed, as the service's clients honour ``Retry-After``), for
+    ``duration_s`` -> replies a second, replies with at least ``GOOD_ITERATIONS`` steps a second,
+    iterations a reply (mean), requests refused (the catalog's admission by work, or no step in
+    the budget: the service's 503), graph calls made and steps a call on average."""
     batcher = catalog.model(request.model).batcher
     calls, jobs = batcher.batches, batcher.jobs
     stop = time.perf_counter() + duration_s
@@ -92,9 +93,10 @@ def concurrent_poses(
         while time.perf_counter() < stop:
             try:
                 steps = int(catalog.pose(cloud, request)["iterations"])
-            except PoseError:
+            except OverloadedError as err:
                 with lock:
                     refused += 1
+                time.sleep(max(0.0, min(err.retry_after_s, stop - time.perf_counter())))
                 continue
             with lock:
                 iterations.append(steps)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from numpy.typing import ArrayLike
 
+from itnet.pose.admission import Admission
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import PoseError
 from itnet.pose.loop import AnytimeRun
@@ -27,7 +28,6 @@ from itnet.pose.runtime import (
     load_beside,
     pair_classifiers,
 )
-from itnet.service.admission import Admission
 from itnet.service.decode import Decoder
 from itnet.service.draining import StreamDrain
 from itnet.service.errors import ServiceError
@@ -151,6 +151,7 @@ class ServiceState:
             self._catalog = Catalog(
                 self.models, self.classifier, self.settings.default_model,
                 self.settings.limits.engine_limits(), self.settings.classify_second_looks,
+                self.admission,
             )  # fmt: skip
             self._catalog_key = key
         return self._catalog
@@ -179,13 +180,11 @@ class ServiceState:
 
     @contextmanager
     def serving(self, run: AnytimeRun) -> Iterator[None]:
-        """Hold ``run`` among the admitted while it runs (``service/admission.py``), then check
-        that it served a pose; a refusal (its work does not fit, no step fit its budget) is
-        raised as the ServiceError to answer with."""
-        with self._replying():
-            with self.admission.admit(run):
-                yield
-            run.check_served()
+        """Hold ``run`` among the admitted while it runs (``Catalog.serving``), then check that
+        it served a pose; a refusal (its work does not fit, no step fit its budget) is raised as
+        the ServiceError to answer with."""
+        with self._replying(), self.catalog.serving(run):
+            yield
 
     @contextmanager
     def _replying(self) -> Iterator[None]:

@@ -58,13 +58,8 @@ def in_process_estimator(catalog: Catalog, request: PoseRequest,
     ``itnet.pose.errors.PoseError`` for a cloud or request the pipeline refuses."""
 
     def estimate(points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
-        def serve(asked: PoseRequest) -> dict:
-            run = catalog.start(points, asked)
-            run.run_to_end()
-            run.check_served()
-            return run.result()
-
-        return _served(serve, _with_up(request, up), alternatives)
+        return _served(lambda asked: catalog.pose(points, asked), _with_up(request, up),
+                       alternatives)  # fmt: skip
 
     return estimate
 

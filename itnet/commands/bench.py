@@ -83,7 +83,7 @@ def load_table(model_dir: Path | None, clients: list[int], budget_ms: float,
     cloud = read_cloud(default_model_dir().parent / "examples" / "chair_a.ply")
     typer.echo(
         f"\n| batching | requests at once | replies/s | ≥ {GOOD_ITERATIONS} iterations/s | share of "
-        "one request's | iterations a reply | no step | graph calls | steps a call |"
+        "one request's | iterations a reply | refused | graph calls | steps a call |"
     )
     typer.echo("|---|---|---|---|---|---|---|---|---|")
     name = precision = ""

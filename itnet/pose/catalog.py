@@ -13,11 +13,14 @@ the default, or ``auto``: classified first, on the request's clock), plans the r
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from numpy.typing import ArrayLike
 
+from itnet.pose.admission import Admission
 from itnet.pose.cloud import Limits
 from itnet.pose.errors import PoseError, UnknownModelError
 from itnet.pose.loop import AnytimeRun
@@ -38,13 +41,15 @@ def shorten(text: str, limit: int = 64) -> str:
 class Catalog:
     """Pose models by name, the category classifier behind ``model: "auto"`` (None: off), the
     default model's name (None: 'chair' where loaded, else the only model), the request limits,
-    and the looks of an unsure classification's second opinion."""
+    the looks of an unsure classification's second opinion, and the admission of the runs posed
+    at once (``itnet.pose.admission``)."""
 
     models: dict[str, LoadedModel]
     classifier: LoadedClassifier | None = None
     default: str | None = None
     limits: Limits = field(default_factory=Limits)
     second_looks: int = SECOND_LOOKS
+    admission: Admission = field(default_factory=Admission)
 
     @classmethod
     def load(cls, model_dir: Path | None = None, threads: int = 2, warm_up: bool = True,
@@ -108,9 +113,20 @@ class Catalog:
         planned.model.relax_step_ms()  # a step time inflated by a past burst must not stick
         return AnytimeRun(planned, points, started, reserve_ms, recognition)
 
+    @contextmanager
+    def serving(self, run: AnytimeRun) -> Iterator[None]:
+        """Hold ``run`` among the admitted while it runs, then check that it served a pose.
+        Raises OverloadedError (the work admitted leaves it no room, or no step fit its budget)
+        or BudgetTooSmallError (one step is longer than the budget)."""
+        with self.admission.admit(run):
+            yield
+        run.check_served()
+
     def pose(self, points: ArrayLike, request: PoseRequest | None = None) -> dict:
         """The finished pose of one cloud (N, 3) as a reply's dict (``T_canonical_from_input``,
-        both quaternions, ``iterations``, ``stopped_by``, ...). Raises PoseError subclasses."""
+        both quaternions, ``iterations``, ``stopped_by``, ...), admitted beside the runs this
+        catalog poses at once; never a start without a step. Raises PoseError subclasses."""
         run = self.start(points, request or PoseRequest())
-        run.run_to_end()
+        with self.serving(run):
+            run.run_to_end()
         return run.result()

@@ -167,7 +167,7 @@ class AnytimeRun(Iterator[Estimate]):
     def needed_work_ms(self) -> float:
         """The steps this run still needs at the model's current step time: its plan's, up to
         the model's recommended iterations (a request for more takes those as the budget
-        allows). The service admits by it (``service/admission.py``)."""
+        allows). Runs are admitted by it (``itnet.pose.admission``)."""
         needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
         left = max(0, needed - self.iteration)
         return left * self.model.run_step_ms(self.plan.runs, self._size)

@@ -142,6 +142,24 @@ def test_no_pose_from_no_step(tiny_model_dir, model, cloud):
         run.check_served()
 
 
+def test_catalog_pose_admits_by_work_and_never_hands_back_a_start(model, tiny_model_dir, cloud):
+    """Catalog.pose runs under the catalog's admission: while admitted runs need more work than a
+    new run's budget leaves, it is refused (503) before a step; a start with no step is refused
+    too; alone, it poses."""
+    catalog = Catalog({"tiny": model})
+    request = PoseRequest(budget_ms=200, max_iterations=3)
+    assert catalog.pose(cloud, request)["iterations"] == 3
+    busy = catalog.start(cloud, PoseRequest(budget_ms=10_000, max_iterations=3))
+    busy.needed_work_ms = lambda: 1e6  # type: ignore[method-assign]  # work enough for minutes
+    with catalog.serving(busy), pytest.raises(OverloadedError, match="busy"):
+        catalog.pose(cloud, request)
+    assert catalog.admission.running == 0
+    assert catalog.pose(cloud, request)["iterations"] == 3  # admitted again once it is done
+    cold = load_model(tiny_model_dir / "tiny.onnx", threads=1, warm_up=False)
+    with pytest.raises(OverloadedError, match="no step"):  # its budget gone before a step
+        Catalog({"tiny": cold}).pose(cloud, PoseRequest(budget_ms=1e-3))
+
+
 def test_the_same_request_gives_the_same_pose_every_way(model, cloud):
     catalog = Catalog({"tiny": model})
     request = PoseRequest(budget_ms=10_000, model="tiny", ensemble=4)

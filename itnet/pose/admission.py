@@ -10,7 +10,9 @@ admitted runs on their plans: without it, many clients at once share the cores u
 its first step inside its budget.
 
 A run alone is always admitted: its plan was fitted to its budget on an idle machine, and the
-loop stops before it overruns (with no step at all it is refused the same way).
+loop stops before it overruns (with no step at all it is refused the same way). A ``Catalog``
+holds one: the service's requests, its alignments and every ``Catalog.pose`` of one process are
+admitted together.
 """
 
 from __future__ import annotations
