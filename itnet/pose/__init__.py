@@ -10,7 +10,8 @@ scenes, the page) runs, for embedding without a server.
 
 One job a module: ``request`` (PoseRequest: what a caller may ask), ``plan`` (a request turned
 into a PosePlan once), ``stages`` (the finishing stages), ``loop`` (the one anytime loop),
-``catalog`` (loaded models, and ``start``: request -> run), ``runtime`` (onnxruntime sessions and
+``catalog`` (loaded models, ``start``: request -> run, and ``pose``: admitted beside the runs
+posed at once, ``admission``), ``runtime`` (onnxruntime sessions and
 model cards), ``recognition`` (``model: "auto"``), ``cloud`` and ``errors`` (what is refused and
 why), ``reply`` (the JSON form). Names are imported lazily, so that ``itnet.pose.request`` stays
 light for the clients (pydantic only, no onnxruntime).
