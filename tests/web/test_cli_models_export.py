@@ -65,8 +65,9 @@ def test_models_table_shows_the_shipped_cards():
                                    str(card.recommended_ensemble)]  # fmt: skip
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
-        # the chair's learned verifier: verify for fused runs, recheck for one run
-        assert row.split()[9] == ("verify+recheck:4" if name == "chair" else "-")
+        # their learned verifiers: verify for fused runs, and the chair's recheck for one run
+        assert card.verify_fused
+        assert row.split()[9] == ("verify+recheck:4" if name == "chair" else "verify")
     # the night stand is served only with the up direction: its row says so
     night = next(r for r in rows if r.startswith("night_stand "))
     assert night.split()[5] == "needed"
