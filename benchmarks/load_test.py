@@ -42,10 +42,10 @@ from benchmarks.harness import (
     sample_cloud,
     serve,
 )
+from itnet.service.benchmark import GOOD_ITERATIONS
 from itnet.service.settings import Settings
 
 JSON = {"content-type": "application/json"}
-GOOD_ITERATIONS = 5  # a reply with fewer steps is a pose, but a poor one
 
 
 def summarise(result: dict, clients: int, budget_ms: float) -> dict:

@@ -92,10 +92,10 @@ def load_table(model_dir: Path | None, clients: list[int], budget_ms: float,
         catalog = Catalog(models, classifier)
         name = catalog.default_name() or sorted(models)[0]
         precision = models[name].card.precision
+        request = PoseRequest(model=name, budget_ms=budget_ms,
+                              up=[0.0, 1.0, 0.0] if models[name].card.requires_up else None)  # fmt: skip
         alone = None
         for count in clients:
-            request = PoseRequest(model=name, budget_ms=budget_ms,
-                                  up=[0.0, 1.0, 0.0] if models[name].card.requires_up else None)  # fmt: skip
             row = concurrent_poses(catalog, request, cloud, count, duration_s)
             alone = row["good_per_s"] if alone is None else alone
             share = f"{row['good_per_s'] / alone:.0%}" if alone else "-"
