@@ -43,7 +43,9 @@ def test_slowloris_beyond_max_connections_cannot_take_the_service(
     estimates and /healthz on fresh connections are still answered 200 (before: 503 once the
     sockets filled the limit)."""
     port = slow_server.host_port[1]
-    request = {"points": points, "budget_ms": 60, "max_iterations": 2}
+    # Two 20 ms steps within a budget that leaves room for the attackers' process on the same
+    # cores: what is under test is the connection table, not the step time under contention.
+    request = {"points": points, "budget_ms": 300, "max_iterations": 2}
     sockets = SERVER.max_connections * 3 // 2
     attackers = subprocess.Popen(
         [sys.executable, "-m", "benchmarks.slowloris", str(port), str(sockets), "2.0"],
@@ -56,7 +58,8 @@ def test_slowloris_beyond_max_connections_cannot_take_the_service(
         estimates, probes = [], []
         while time.perf_counter() < stop:
             with httpx.Client(base_url=slow_server.url, timeout=5) as http:
-                estimates.append(http.post("/v1/estimate", json=request).status_code)
+                reply = http.post("/v1/estimate", json=request)
+                estimates.append((reply.status_code, reply.text[:200]))
             with httpx.Client(base_url=slow_server.url, timeout=5) as http:
                 probes.append(http.get("/healthz").status_code)
             time.sleep(0.05)
@@ -65,7 +68,8 @@ def test_slowloris_beyond_max_connections_cannot_take_the_service(
         attackers.kill()
     assert opened > SERVER.max_connections  # the attack did fill the table
     assert probes and probes.count(200) == len(probes), probes
-    assert len(estimates) >= 5 and estimates.count(200) >= 0.95 * len(estimates), estimates
+    answered = [status for status, _ in estimates if status == 200]
+    assert len(estimates) >= 5 and len(answered) >= 0.95 * len(estimates), estimates
     assert wait_for(lambda: slow_server.state.gate.active == 0)
 
 
