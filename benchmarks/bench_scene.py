@@ -31,7 +31,7 @@ from itnet.geometry import invert_rigid
 from itnet.metrics import is_correct
 from itnet.model.categories import MODELNET10
 from itnet.model.scenes import SIZES, Scene, make_scene, split_shapes
-from itnet.scene import SceneResult, find_objects
+from itnet.scene import SceneResult, find_objects, scene_catalog
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
 from itnet.symmetry import symmetric_rotation_error_deg
@@ -118,6 +118,9 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="'posed': the scenes' eight categories only (default: any)",
     )
+    parser.add_argument(
+        "--model-dir", type=Path, default=None, help="the models to serve (default: the shipped)"
+    )
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -126,6 +129,8 @@ def main(argv: list[str] | None = None) -> None:
     budget["floor_centre"] = not args.no_floor_centre
     if args.categories == "posed":
         budget["categories"] = frozenset(SIZES)
+    if args.model_dir is not None:
+        budget["catalog"] = scene_catalog(args.model_dir)
     find_objects(np.zeros((100, 3)) + np.arange(100)[:, None] * 0.01, **budget)  # load, warm
     rng = np.random.default_rng(seed)
     rows: list[dict] = []
@@ -148,7 +153,9 @@ def main(argv: list[str] | None = None) -> None:
             returned_large += len(result.objects)
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed,
-        **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()},
+        **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
+           if k != "catalog"},
+        **({"model_dir": str(args.model_dir)} if args.model_dir is not None else {}),
         "320x240": summary(rows, returned) | timing(times),
         **({"640x480": summary(rows_large, returned_large) | timing(times_large)} if times_large else {}),
     }  # fmt: skip

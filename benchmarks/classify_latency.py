@@ -28,12 +28,12 @@ import numpy as np
 
 def test_scans(count: int, data: Path) -> list[np.ndarray]:
     """``count`` partial scans (N, 3) of the test split's shapes, a seeded shape each."""
-    from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
-    from itnet.model.scanner import scan_config, scan_of
+    from itnet.model.classify.data import class_names, load_splits, view_configs
+    from itnet.model.scanner import scan_of
 
     shapes = load_splits(data, class_names(data), 0.1, 0, Path("cache"))["test"].shapes
     rng = np.random.default_rng(5)
-    configs = [scan_config(overrides) for overrides in SCAN_MIX]
+    configs = view_configs()
     picks = rng.choice(len(shapes), count, replace=count > len(shapes))
     return [scan_of(shapes[k], rng, configs[i % len(configs)])[0] for i, k in enumerate(picks)]
 

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from itnet.metrics import paired_accuracy
-from itnet.model.classify.data import SCAN_MIX, class_names, load_splits
+from itnet.model.classify.data import class_names, load_splits, view_configs
 from itnet.model.classify.size_prior import INCH_M, source_radii
-from itnet.model.scanner import scan_config, scan_of
+from itnet.model.scanner import scan_of
 from itnet.pose.recognition import classify, mean_log_probability, turned_looks
 from itnet.pose.runtime import LoadedClassifier, load_any
 from itnet.preprocess import estimate_normalization, shuffled_subset
@@ -67,7 +67,7 @@ def main() -> None:
     classes = class_names(args.data)
     shapes = load_splits(args.data, classes, 0.1, 0, args.cache)[args.split]
     rng = np.random.default_rng(2024 if args.split == "test" else 7)
-    configs = [scan_config(overrides) for overrides in SCAN_MIX]
+    configs = view_configs()
     clouds, labels, metres, poses = [], [], [], []
     radii = source_radii(args.data, classes, args.split)  # ModelNet's units, read as inches
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):

@@ -175,7 +175,8 @@ def cached_scan_set(
 ) -> ScanSet:
     # the names and a fingerprint of the geometry (a category's turn changes the points, not names)
     fingerprint = round(float(sum(np.abs(s.points[:4] @ [1.0, 2.0, 3.0]).sum() for s in shapes)), 6)
-    key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint)
+    viewpoints = [] if config.elevation is None else [list(config.elevation)]  # not in its repr
+    key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint, *viewpoints)
     path = cache / f"scans-{key}.npz"
     if path.exists():
         return ScanSet.load(path)

@@ -23,7 +23,7 @@ Two scanners:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,7 @@ from itnet.geometry import (
 )
 from itnet.model.shapes import Shape
 from itnet.model.surface import splat_visible, surface_discs
+from itnet.upright import rotation_onto
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,10 @@ class ScanConfig:
     raycast_resolution: tuple[int, int] = (96, 160)  # image width range for mesh ray casting
     min_points: int = 64
     splat: float = 0.0  # > 0: points are discs this many local spacings wide (SURFACE_VIEWS)
+    # (min, max) degrees: the camera's elevation over the shape's horizon (canonical +y up), its
+    # azimuth and roll free, as a camera held above the floor sees furniture; None: any direction.
+    # Left out of the repr, so the caches of views from any direction keep their keys.
+    elevation: tuple[float, float] | None = field(default=None, repr=False)
 
 
 PAPER_VIEWS: dict[str, object] = {
@@ -83,10 +88,41 @@ def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
 
 
 def random_camera_pose(rng: np.random.Generator, config: ScanConfig) -> NDArray[np.float64]:
-    """T_camera_from_canonical: any rotation (direction and roll), random distance and offset."""
+    """T_camera_from_canonical: a random rotation (any, or from ``config.elevation``), random
+    distance and offset of the object from the optical axis."""
     distance = rng.uniform(*config.distance)
     offset = rng.uniform(-config.off_axis, config.off_axis, size=2) * distance
-    return rigid_from_rotation_translation(random_rotation(rng), [*offset, distance])
+    centre = np.array([*offset, distance])  # the object's centre in the camera frame
+    if config.elevation is None:
+        return rigid_from_rotation_translation(random_rotation(rng), centre)
+    looking = camera_from_canonical_looking_at(
+        np.radians(rng.uniform(*config.elevation)),
+        rng.uniform(-np.pi, np.pi),
+        rng.uniform(-np.pi, np.pi),
+    )  # the centre on the optical axis; then turned, about the camera, to where it is seen
+    seen_at = rotation_onto([0.0, 0.0, 1.0], centre / np.linalg.norm(centre))
+    return rigid_from_rotation_translation(seen_at @ looking, centre)
+
+
+def camera_from_canonical_looking_at(
+    elevation: float, azimuth: float, roll: float
+) -> NDArray[np.float64]:
+    """R_camera_from_canonical (3, 3) of a camera at ``elevation`` radians over the canonical
+    horizon (+y up) and ``azimuth`` about +y (0: on +z), looking at the origin, turned by
+    ``roll`` about its optical axis (0: its x axis horizontal, y down)."""
+    position = np.array(
+        [
+            np.cos(elevation) * np.sin(azimuth),
+            np.sin(elevation),
+            np.cos(elevation) * np.cos(azimuth),
+        ]
+    )
+    forward = -position
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)  # |elevation| < 90 degrees: forward is never vertical
+    level = np.stack([right, np.cross(forward, right), forward])  # rows: camera x, y, z
+    c, s = np.cos(roll), np.sin(roll)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ level
 
 
 def zbuffer_visible(

@@ -44,3 +44,30 @@ def test_mesh_raycast_scan_lies_on_the_mesh(rng):
     half = np.abs(vertices).max(0)
     on_face = np.isclose(np.abs(back), half, atol=1e-4).any(axis=1)
     assert len(cloud) > 500 and on_face.all() and (np.abs(back) <= half + 1e-4).all()
+
+
+def test_cameras_above_the_horizon_stay_within_their_elevation_and_see_the_object(rng):
+    """``elevation``: every camera sits 10-40 degrees over the canonical horizon (+y up), whatever
+    the object's offset from the optical axis, and the object's centre is where the pose says."""
+    config = ScanConfig(elevation=(10.0, 40.0))
+    elevations = []
+    for _ in range(300):
+        camera_from_canonical = random_camera_pose(rng, config)
+        rotation = camera_from_canonical[:3, :3]
+        assert np.allclose(rotation @ rotation.T, np.eye(3)) and np.linalg.det(rotation) > 0
+        centre = invert_rigid(camera_from_canonical)[:3, 3]  # the camera in the canonical frame
+        elevations.append(np.degrees(np.arcsin(centre[1] / np.linalg.norm(centre))))
+        assert camera_from_canonical[2, 3] > 0  # the object ahead of the camera
+    assert 10.0 - 1e-6 <= min(elevations) < 15.0 and 35.0 < max(elevations) <= 40.0 + 1e-6
+
+
+def test_a_camera_above_sees_the_upper_side(rng):
+    """A sphere seen from 20-50 degrees over its horizon shows the side that faces the camera:
+    the seen points lie above the centre, by about sin(elevation) / 2 of the radius."""
+    config = ScanConfig(elevation=(20.0, 50.0), depth_noise=(0, 0), jitter=(0, 0),
+                        outlier_fraction=(0, 0))  # fmt: skip
+    sphere = _sphere(rng)
+    for _ in range(5):
+        cloud, pose = scan_shape(sphere, rng, config)
+        heights = apply_rigid(pose, cloud)[:, 1]
+        assert 0.1 < heights.mean() < 0.45

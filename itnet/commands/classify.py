@@ -355,6 +355,16 @@ def classify_train(
         help="Upright views: each levelled by its up direction with up to DEG degrees of error "
         "(validation and test: 2); the classifier for requests that give up. Default: full SO(3).",
     ),
+    views: str = typer.Option(
+        "occluded,paper",
+        help="View rules of training, validation and test, comma-separated: occluded, paper, "
+        "surface (docs/training.md).",
+    ),
+    elevation: str | None = typer.Option(
+        None,
+        help="MIN,MAX: cameras only this many degrees over the shape's horizon (e.g. -10,55: held "
+        "above the floor, as scenes see furniture). Default: any direction.",
+    ),
     canonical_points: int | None = typer.Option(
         None,
         min=1,
@@ -414,7 +424,12 @@ def classify_train(
 ) -> None:
     """Train one classifier (resumable), e.g. the shipped one: a table row trained longer."""
     from itnet.model.classify.train import ClassifyConfig, train
+    from itnet.model.scanner import VIEW_RULES
 
+    rules = tuple(rule.strip() for rule in views.split(",") if rule.strip())
+    if not rules or any(rule not in VIEW_RULES for rule in rules):
+        raise typer.BadParameter(f"view rules among {', '.join(VIEW_RULES)}", param_hint="--views")
+    low_high = None if elevation is None else _degrees_range(elevation, "--elevation")
     config = ClassifyConfig(
         data=data,
         variant=variant,
@@ -428,6 +443,8 @@ def classify_train(
         up_weight=up_weight,
         stretch=stretch,
         upright=upright,
+        views=rules,
+        elevation=low_high,
         canonical_points=canonical_points,
         label_smoothing=label_smoothing,
         ema=ema,
@@ -453,6 +470,17 @@ def classify_train(
         else "not measured (held back, or no test shapes)"
     )
     typer.echo(f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test {measured}")
+
+
+def _degrees_range(text: str, option: str) -> tuple[float, float]:
+    """'MIN,MAX' degrees, -90 < MIN <= MAX < 90 -> (MIN, MAX); BadParameter otherwise."""
+    try:
+        low, high = (float(part) for part in text.split(","))
+    except ValueError:
+        raise typer.BadParameter("two numbers, MIN,MAX", param_hint=option) from None
+    if not -90 < low <= high < 90:
+        raise typer.BadParameter("degrees with -90 < MIN <= MAX < 90", param_hint=option)
+    return low, high
 
 
 def classify_size_prior(

@@ -45,8 +45,8 @@ def evaluate(
         min=0.0,
         metavar="ERROR_DEG",
         help="Give each run its scan's up direction, tilted ERROR_DEG degrees from the truth (a "
-        "gravity sensor's error), and hold it upright as the service does (a model that "
-        "requires up is measured so).",
+        "gravity sensor's error), and hold it upright as the service does. Default: none, or 2 "
+        "for a model whose card requires up.",
     ),
 ) -> None:
     """Accuracy at (10°, 0.1 radius) for every iteration 0..N, median errors, CDF plot."""
@@ -83,6 +83,10 @@ def evaluate(
         batch = 1 if model.card.precision == "int8" else batch
         points = model.card.points if points is None else points
         trained_on, symmetry = model.card.category, model.card.symmetry
+        if up is None and model.card.requires_up:  # served only with up: measured only so
+            from itnet.upright import UPRIGHT_EVAL_DEG
+
+            up = UPRIGHT_EVAL_DEG
     try:
         cat = model_category(category, trained_on, symmetry)
     except ValueError as err:

@@ -29,12 +29,12 @@ ROOT = Path(__file__).resolve().parents[2]
 def served_views(config, splits, split: str, views: int) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """Scans of the split's shapes as a request brings them: (V, 256, 3) normalised, in random
     order (a smaller scan padded by repeats, which do not change the max-pool), labels (V,)."""
-    from itnet.model.classify.data import SCAN_MIX
-    from itnet.model.scanner import scan_config, scan_of
+    from itnet.model.classify.data import view_configs
+    from itnet.model.scanner import scan_of
     from itnet.preprocess import estimate_normalization, resample, shuffled_subset
 
     rng = np.random.default_rng(2024 if split == "test" else 7)
-    configs = [scan_config(o) for o in SCAN_MIX]
+    configs = view_configs()
     xs, ys = [], []
     for shape, label in zip(splits[split].shapes, splits[split].labels, strict=True):
         for v in range(views):

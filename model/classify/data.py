@@ -3,7 +3,9 @@
 * Shapes: ``split_files`` per class (the dataset's train/test split, validation carved out of
   train), loaded in ModelNet's frame without orientation checks (views are in full SO(3), so the
   frame does not matter for the label).
-* Views: the project's scanner, half occluded views, half ``PAPER_VIEWS`` (as pose training).
+* Views: the project's scanner, half occluded views, half ``PAPER_VIEWS`` (as pose training), or
+  other view rules, from any direction or from a camera above the shape's horizon
+  (``view_configs``).
   Training views are fresh every step (seeded per step, so a resumed run sees the same data);
   validation and test views are fixed and cached.
 * Every view is normalised as the runtime does (``itnet.preprocess``) and resampled to a fixed
@@ -23,12 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.model.data import cached_scan_set, load_shapes, split_files
-from itnet.model.scanner import PAPER_VIEWS, ScanConfig, scan_config, scan_of
+from itnet.model.scanner import VIEW_RULES, ScanConfig, scan_config, scan_of
 from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
 from itnet.upright import levelled, sensed_ups, tilted
-
-SCAN_MIX = ({}, PAPER_VIEWS)  # ScanConfig overrides: occluded views, the paper's views
 
 
 def class_names(data: Path) -> list[str]:
@@ -119,6 +119,15 @@ def training_batch(
     return x, data.labels[index], up
 
 
+def view_configs(
+    rules: tuple[str, ...] = ("occluded", "paper"), elevation: tuple[float, float] | None = None
+) -> list[ScanConfig]:
+    """The scanner settings of named view rules (``VIEW_RULES``), each from any direction or, with
+    ``elevation`` (degrees), from a camera that high over the shape's horizon."""
+    extra = {} if elevation is None else {"elevation": tuple(elevation)}
+    return [scan_config(VIEW_RULES[rule], extra) for rule in rules]
+
+
 def fixed_views(
     data: LabelledShapes,
     views: int,
@@ -126,15 +135,18 @@ def fixed_views(
     seed: int,
     cache: Path,
     upright: float | None = None,
+    configs: list[ScanConfig] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
-    """``views`` fixed views per shape (half occluded, half the paper's; at least one each)
-    -> (points (V, points, 3), labels (V,)). The scans are cached. ``upright`` (degrees): each
-    view levelled by its up direction tilted by exactly that error, in a seeded direction."""
-    per_config = max(1, views // 2)
+    """``views`` fixed views per shape, shared among ``configs`` (default: occluded and the
+    paper's; at least one each) -> (points (V, points, 3), labels (V,)). The scans are cached.
+    ``upright`` (degrees): each view levelled by its up direction tilted by exactly that error,
+    in a seeded direction."""
+    configs = view_configs() if configs is None else configs
+    per_config = max(1, views // len(configs))
     xs, ys = [], []
     rng = np.random.default_rng(seed + 11)
-    for k, overrides in enumerate(SCAN_MIX):
-        scans = cached_scan_set(data.shapes, per_config, seed + k, scan_config(overrides), cache)
+    for k, config in enumerate(configs):
+        scans = cached_scan_set(data.shapes, per_config, seed + k, config, cache)
         clouds = [normalised_view(c, points, rng) for c in scans.clouds]
         if upright is not None:
             ups = sensed_ups(scans.poses, upright, np.random.default_rng(seed + 17 + k))

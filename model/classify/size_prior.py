@@ -22,9 +22,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.cloud_io import read_cloud
-from itnet.model.classify.data import SCAN_MIX, LabelledShapes, normalised_view, shuffled_views
+from itnet.model.classify.data import (
+    LabelledShapes,
+    normalised_view,
+    shuffled_views,
+    view_configs,
+)
 from itnet.model.data import split_files
-from itnet.model.scanner import scan_config, scan_of
+from itnet.model.scanner import scan_of
 from itnet.model.shapes import to_canonical
 from itnet.model_card import SizePrior
 from itnet.pose.runtime import LoadedClassifier
@@ -64,7 +69,7 @@ def sized_views(
     """``views`` views per shape, alternately occluded and the paper's; with ``points``, also
     each view normalised and resampled as the classifier sees it."""
     rng = np.random.default_rng(seed)
-    configs = [scan_config(overrides) for overrides in SCAN_MIX]
+    configs = view_configs()
     xs, labels, sizes = [], [], []
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
         for v in range(views):

@@ -22,13 +22,13 @@ from torch.optim.swa_utils import AveragedModel
 
 from itnet.atomic_write import written_whole
 from itnet.model.classify.data import (
-    SCAN_MIX,
     LabelledShapes,
     class_names,
     fixed_views,
     load_splits,
     shuffled_views,
     training_batch,
+    view_configs,
 )
 from itnet.model.classify.network import (
     TRANSFORMER_PREFIXES,
@@ -46,7 +46,6 @@ from itnet.model.optim import (
     set_schedule,
 )
 from itnet.model.prefetch import Prefetcher
-from itnet.model.scanner import scan_config
 from itnet.upright import UPRIGHT_EVAL_DEG
 
 
@@ -97,6 +96,11 @@ class ClassifyConfig(BaseModel):
     # degrees of error in training, exactly ``UPRIGHT_EVAL_DEG`` in validation and test; the
     # classifier for requests that give ``up``
     upright: float | None = None
+    # the view rules of training, validation and test (``model.scanner.VIEW_RULES``), and where
+    # the camera may be: (min, max) degrees over the shape's horizon (a camera above the floor,
+    # as scenes see furniture), None: any direction
+    views: tuple[str, ...] = ("occluded", "paper")
+    elevation: tuple[float, float] | None = None
     # the transformer finds its pose from this many of the points (ClassifierConfig); the
     # training and evaluation views are then fed in random order, as the service feeds them
     canonical_points: int | None = None
@@ -171,8 +175,9 @@ def run_views(
     views, seed = {"val": (config.val_views, 7), "test": (config.test_views, 13)}[split]
     upright = None if config.upright is None else UPRIGHT_EVAL_DEG
     x, y = fixed_views(
-        splits[split], views, config.points, config.seed + seed, config.cache, upright
-    )
+        splits[split], views, config.points, config.seed + seed, config.cache, upright,
+        view_configs(config.views, config.elevation),
+    )  # fmt: skip
     # each view's points in random order, as the service feeds them: a small view's repeats
     # follow its points in scan order, and a transformer that reads only the first points
     # (``canonical_points``) must get a random sample of the view
@@ -254,7 +259,7 @@ def train(config: ClassifyConfig, log_progress: bool = False) -> dict:
     config.out.mkdir(parents=True, exist_ok=True)
     (config.out / "config.json").write_text(config.model_dump_json(indent=2))
     classes, splits = run_splits(config)
-    scan_configs = [scan_config(o) for o in SCAN_MIX]
+    scan_configs = view_configs(config.views, config.elevation)
     val_x, val_y = run_views(config, splits, "val")
 
     def make_batch(step: int) -> tuple[NDArray[np.float32], NDArray[np.int64], NDArray]:

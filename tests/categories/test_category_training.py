@@ -67,6 +67,21 @@ def test_one_network_for_two_categories_with_their_symmetries(two_categories, tm
     assert result.exit_code == 0, result.output
     report = json.loads((tmp_path / "eval" / "report.json").read_text())
     assert (report["category"], report["symmetry"]) == ("bench", "none")
+    assert "up_error_deg" not in report  # measured without up
+
+    # A model served only with up is measured only with it (2 degrees off the truth).
+    import onnx
+
+    from itnet.export.onnx_export import save_with_card
+
+    save_with_card(onnx.load(str(out)), card.model_copy(update={"requires_up": True}), out)
+    result = runner.invoke(
+        app,
+        ["eval", "--onnx", str(out), *common, "--no-check-orientation", "--views", "2", "--iterations", "2",
+         "--out", str(tmp_path / "eval-up")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "eval-up" / "report.json").read_text())["up_error_deg"] == 2.0
 
 
 @pytest.mark.train

@@ -321,6 +321,37 @@ def test_fixed_upright_views_are_levelled_by_a_two_degree_off_up(tmp_path: Path)
     assert min(abs(a[1]) for a in free_axes) < 0.9  # unlevelled views lie every which way
 
 
+def test_fixed_views_from_above_are_their_own_views(tmp_path: Path) -> None:
+    """Fixed views from cameras 30-60 degrees over the horizon are scanned so (the scanner's
+    tests check the cameras) and cached apart from the views from any direction."""
+    from itnet.model.classify.data import LabelledShapes, fixed_views, view_configs
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(3)
+    plate = rng.uniform([-1.0, -0.02, -1.0], [1.0, 0.02, 1.0], size=(800, 3))
+    data = LabelledShapes([Shape("plate", plate)], np.array([0]))
+    above = view_configs(("paper",), (30.0, 60.0))
+    assert above[0].elevation == (30.0, 60.0) and view_configs()[0].elevation is None
+    seen, labels = fixed_views(data, 6, 128, 5, tmp_path, configs=above)
+    assert seen.shape == (6, 128, 3) and (labels == 0).all()
+    assert len(list(tmp_path.glob("scans-*.npz"))) == 1
+    unlevelled, _ = fixed_views(data, 6, 128, 5, tmp_path, configs=view_configs(("paper",)))
+    assert len(list(tmp_path.glob("scans-*.npz"))) == 2  # another cache entry, not the same scans
+    assert not np.allclose(seen, unlevelled)
+
+
+def test_classify_train_refuses_unknown_views_and_bad_elevations() -> None:
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+
+    runner = CliRunner()
+    for args, hint in [(["--views", "sideways"], "--views"), (["--elevation", "50,10"], "--elevation"),
+                       (["--elevation", "0,90"], "--elevation"), (["--elevation", "ten"], "--elevation")]:  # fmt: skip
+        result = runner.invoke(app, ["classify-train", *args, "--steps", "1"])
+        assert result.exit_code == 2 and hint in result.output, result.output
+
+
 def test_up_term_is_zero_standing_and_two_upside_down() -> None:
     """The up-axis term of an untrained IT-Net (identity pose): 1 - u_y, times the weight;
     absent without ``up`` or with weight 0."""

@@ -120,7 +120,7 @@ def test_export_names_the_model_after_its_category(tmp_path):
     assert (card.name, card.category) == ("mug", "mug")
 
 
-@pytest.mark.parametrize("name", ["chair", "toilet", "desk"])
+@pytest.mark.parametrize("name", ["chair", "toilet", "desk", "monitor"])
 def test_shipped_weights_are_the_shipped_model(name):
     """lab/weights/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
     serves, up to the int8 rounding of its point layers: a few degrees on clouds of noise, while another model's weights are
