@@ -298,6 +298,15 @@ def card_from_run(
         if upright
         else "full SO(3)"
     )
+    rules = config.get("views") or ["occluded", "paper"]
+    kinds = (
+        "half occluded, half the paper's z-buffer"
+        if sorted(rules) == ["occluded", "paper"]
+        else " and ".join(rules) + " views alike"
+    )
+    if config.get("elevation") is not None:
+        low, high = config["elevation"]
+        views += f"; cameras {low:g} to {high:g} deg over the object's horizon"
     if beside is not None:  # what the accuracy and the threshold are of
         views += f"; fused with {beside} on the unlevelled view, as served"
     return ClassifierCard(
@@ -309,7 +318,7 @@ def card_from_run(
         accuracy=round(test["accuracy"], 4),
         mean_class_accuracy=round(test["mean_class_accuracy"], 4),
         evaluation=(
-            f"{test['scans']} partial views (half occluded, half the paper's z-buffer; {views}, "
+            f"{test['scans']} partial views ({kinds}; {views}, "
             f"noise) of the ModelNet10 test split, {config['points']} points, measured "
             f"on this graph one view per call; standard error "
             f"{100 * test['standard_error']:.1f} points; threshold: the lowest at which "

@@ -6,7 +6,11 @@ stands on the floor, filtered by size.
    ``floor_threshold_m`` of it, or below it, are floor.
 2. The walls: up to ``max_walls`` vertical planes among the rest, each kept only where it is
    larger than furniture (wider than ``wall_min_width_m`` or reaching ``wall_min_top_m`` above
-   the floor); points within ``wall_threshold_m`` of a wall, or behind it, are wall.
+   the floor) and nothing is seen behind it (at most ``wall_max_behind`` of the points lie
+   farther than ``wall_behind_m`` beyond it: a wall hides what is behind it, while the plane of
+   a sofa's back or a bed's side has the room behind it); points within ``wall_threshold_m`` of a
+   wall, or behind it, are wall. The search goes on past a plane that is not a wall, and skips
+   what lies within ``wall_behind_m`` of a wall found (its noise, which would be found again).
 3. Clusters: what is left, in voxels of ``voxel_m``, linked where voxels lie within ``link_m``
    (3-D) or their footprints on the floor within ``footprint_m`` (so the parts of one object that
    occlusion cut apart, a chair's back above a table, stay one object): the connected components
@@ -51,6 +55,8 @@ class SegmentOptions:
     wall_min_width_m: float = 2.5
     wall_min_top_m: float = 1.6
     wall_min_share: float = 0.03  # of the points left after the floor
+    wall_behind_m: float = 0.25  # a point this far beyond a plane is seen behind it ...
+    wall_max_behind: float = 0.02  # ... and a wall has at most this share of the points so
     voxel_m: float = 0.03
     link_m: float = 0.07
     footprint_m: float = 0.04
@@ -98,13 +104,13 @@ def find_floor(
 def find_walls(
     points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator
 ) -> list[Plane]:
-    """Vertical planes larger than furniture among points (N, 3) above the floor, each normal
-    toward the camera."""
+    """Vertical planes larger than furniture with nothing seen behind them, among points (N, 3)
+    above the floor, each normal toward the camera (see the module)."""
     walls: list[Plane] = []
     left = points
     sin_vertical = math.sin(math.radians(10.0))
-    for _ in range(options.max_walls):
-        if len(left) < options.min_points:
+    for _ in range(2 * options.max_walls):  # planes that are not walls are passed over
+        if len(walls) == options.max_walls or len(left) < options.min_points:
             break
         found = ransac_plane(
             left, rng, options.wall_threshold_m, lambda n: np.abs(n @ up) < sin_vertical
@@ -119,8 +125,13 @@ def find_walls(
         top = np.percentile(floor.distance(left[inliers]), 98)
         if span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m:
             break  # the largest vertical plane left is furniture-sized: no more walls
-        walls.append(plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset))
-        left = left[~inliers]
+        facing = plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset)
+        behind = np.mean(facing.distance(points) < -options.wall_behind_m)
+        if behind <= options.wall_max_behind:
+            walls.append(facing)
+            left = left[facing.distance(left) > options.wall_behind_m]
+        else:  # a large flat side of furniture, with the room seen behind it
+            left = left[~inliers]
     return walls
 
 

@@ -1,6 +1,7 @@
 import math
 
 import numpy as np
+from scene_helpers import boxes_shape, make_test_scene
 
 from itnet.scene import from_depth
 from itnet.scene.planes import fit_plane, ransac_plane
@@ -85,3 +86,19 @@ def test_a_chair_cut_off_by_a_level_camera_still_stands(level_chair_scene):
     assert len(found.objects) == 1
     assert (labels[found.objects[0]] == 1).mean() > 0.95
     assert len(found.objects[0]) > 0.8 * (labels == 1).sum()
+
+
+def test_a_wide_flat_piece_of_furniture_is_not_a_wall():
+    """A board 2.8 m wide and 1.1 m tall (a sideboard, a headboard) is as wide as a wall, but
+    the room is seen behind it: it is an object, and the box standing behind it is found too
+    (taken for a wall, everything behind its plane would be dropped)."""
+    board = boxes_shape([((0, 0, 0), (2.8, 1.1, 0.12))], points=4096)
+    box = boxes_shape([((0, 0, 0), (0.5, 0.6, 0.4))])
+    scene = make_test_scene([(board, 1.5, -0.3, 3.0, 0.0), (box, 0.4, 1.6, 4.6, 25.0)])
+    given = from_depth(scene.depth, scene.intrinsics)
+    labels = scene.labels.ravel()[given.indices]
+    found = segment(given.points)
+    assert len(found.walls) >= 1
+    assert all(abs(wall.offset - 6.0) < 0.3 for wall in found.walls)  # only the room's wall
+    owners = sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects)
+    assert owners == [1, 2]
