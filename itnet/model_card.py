@@ -94,12 +94,19 @@ class ModelCard(BaseModel):
         description="the same fitted on runs held upright, for requests that give the up "
         "direction (and no viewpoint the card has a correction for): itnet centre-fit --up",
     )
+    centre_correction_up_viewpoint: dict | None = Field(
+        None,
+        description="the viewpoint correction fitted on runs held upright, for requests that "
+        "give both the up direction and the sensor's position (a camera's cloud with its "
+        "gravity, a scene's object): itnet centre-fit --up",
+    )
     centre_evaluation: str = Field(
         "", description="the centre correction's measured effect as served: without and with"
     )
     centre_up_evaluation: str = Field(
         "",
-        description="centre_correction_up's measured effect, as served with the up direction",
+        description="centre_correction_up's (and centre_correction_up_viewpoint's) measured "
+        "effect, as served with the up direction",
     )
     requires_up: bool = Field(
         False,

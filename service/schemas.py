@@ -118,9 +118,10 @@ class EstimateResponse(Pose):
     )
     centre_up: bool | None = Field(
         None,
-        description="where the request gave 'up' and the centre correction was on: true if the "
-        "correction fitted on runs held upright finished the centre (false: the model has none, "
-        "a viewpoint correction did it, or no step ran)",
+        description="where the request gave 'up' and the centre correction was on: true if a "
+        "correction fitted on runs held upright finished the centre (with centre_viewpoint: the "
+        "one that also goes by the sensor's direction; false: the model has none, a viewpoint "
+        "correction fitted on runs not held did it, or no step ran)",
     )
     up: list[float] | None = Field(
         None,
@@ -202,6 +203,11 @@ class ModelInfo(BaseModel):
         False,
         description="the model also has a centre correction fitted on runs held upright, for "
         "requests that give 'up'",
+    )
+    centre_up_viewpoint: bool = Field(
+        False,
+        description="the model also has a viewpoint correction fitted on runs held upright, for "
+        "requests that give both 'up' and 'viewpoint'",
     )
     centre_evaluation: str = Field("", description="the corrections' measured effect, one run")
     centre_up_evaluation: str = Field(

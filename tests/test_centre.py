@@ -249,3 +249,51 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     export_model(wrong, tmp_path / "wrong.onnx")
     with pytest.raises(ModelLoadError, match="centre_correction_up"):
         load_model(tmp_path / "wrong.onnx", threads=1)
+
+
+def test_a_request_with_up_and_a_viewpoint_is_finished_by_the_upright_viewpoint_correction(
+    tmp_path: Path, export_model, viewpoint_model
+) -> None:  # type: ignore[no-untyped-def]
+    """centre_correction_up_viewpoint: used where a request gives both up and a viewpoint (the
+    reply says centre_viewpoint and centre_up); a request with one of them gets its own; a
+    correction without the sensor's direction in that field fails the load."""
+    from itnet.centre import FEATURES_VIEWPOINT
+    from itnet.pose.runtime import ModelLoadError
+
+    weights = np.zeros((FEATURE_COUNT + 4, 3))
+    weights[-1] = [0.0, 0.3, 0.0]  # a constant offset, unlike the fixture's two corrections
+    held = CentreCorrection(
+        np.zeros(FEATURE_COUNT + 3), np.ones(FEATURE_COUNT + 3), weights, FEATURES_VIEWPOINT
+    )
+    card = viewpoint_model.card.model_copy(
+        update={
+            "centre_correction_up": intercept_only([-0.1, 0.0, 0.2]).to_dict(),
+            "centre_correction_up_viewpoint": held.to_dict(),
+        }
+    )
+    export_model(card, tmp_path / "held.onnx")
+    model = load_model(tmp_path / "held.onnx", threads=1)
+    assert model.centre_up_viewpoint is not None and model.centre_up_viewpoint.uses_viewpoint
+
+    def finished(**kw):  # type: ignore[no-untyped-def]
+        on = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), **kw)
+        off = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False, **kw)
+        on.run_to_end(), off.run_to_end()
+        moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
+        return on.result(), moved / on.normalization.scale
+
+    up, viewpoint = [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]
+    both, moved = finished(up=up, viewpoint=viewpoint)
+    assert both["centre_viewpoint"] is True and both["centre_up"] is True
+    assert np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-5)
+    alone, moved = finished(viewpoint=viewpoint)  # the viewpoint correction of unheld runs
+    assert alone["centre_viewpoint"] is True and not np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-3)
+    upright, moved = finished(up=up)
+    assert upright["centre_up"] is True and np.allclose(moved, [0.1, 0.0, -0.2], atol=1e-5)
+
+    wrong = card.model_copy(
+        update={"centre_correction_up_viewpoint": intercept_only([0.0, 0.1, 0.0]).to_dict()}
+    )
+    export_model(wrong, tmp_path / "wrong.onnx")
+    with pytest.raises(ModelLoadError, match="centre_correction_up_viewpoint"):
+        load_model(tmp_path / "wrong.onnx", threads=1)

@@ -74,8 +74,9 @@ def test_a_model_that_poses_nothing_right_is_refused(setup) -> None:  # type: ig
 
 def test_up_fits_the_correction_held_upright_into_its_own_field(setup) -> None:  # type: ignore[no-untyped-def]
     """--up: the runs are held upright by each scan's (tilted) up, as the service holds a
-    request that gives up, and the correction goes into centre_correction_up, leaving the
-    card's other corrections as they were; no viewpoint correction is fitted."""
+    request that gives up; the correction goes into centre_correction_up and its viewpoint
+    variant into centre_correction_up_viewpoint, leaving the card's other corrections as they
+    were, and both are measured beside the card's corrections on the same upright runs."""
     root, data = setup
     plain, out, report = root / "plain.onnx", root / "upright.onnx", root / "up.json"
     assert _fit(root, data, "--max-rotation", "181", "--write", "--out", str(plain)).exit_code == 0
@@ -85,16 +86,21 @@ def test_up_fits_the_correction_held_upright_into_its_own_field(setup) -> None: 
     done = runner.invoke(app, args)
     assert done.exit_code == 0, done.output
     measured = json.loads(report.read_text())
-    assert measured["up_error_deg"] == 2.0 and measured["viewpoint_results"] == {}
+    assert measured["up_error_deg"] == 2.0
+    assert set(measured["viewpoint_results"]) == {"occluded", "paper"}
+    assert set(measured["served_viewpoint_results"]) == {"occluded", "paper"}
     assert "held upright by an up 2 deg off" in measured["evaluation"]
     # the card's plain correction, measured on the same upright runs: what up requests had
     assert set(measured["plain_results"]) == {"occluded", "paper"}
     assert "the plain correction (fitted on runs not held)" in measured["evaluation"]
     fitted, before = load_model(out, threads=1), load_model(plain, threads=1)
-    assert fitted.centre_up is not None
+    assert fitted.centre_up is not None and not fitted.centre_up.uses_viewpoint
+    assert fitted.centre_up_viewpoint is not None and fitted.centre_up_viewpoint.uses_viewpoint
     assert fitted.card.centre_up_evaluation == measured["evaluation"]
+    assert "the viewpoint correction fitted held upright" in measured["evaluation"]
     # the others are left as they were
     assert fitted.card.centre_correction == before.card.centre_correction is not None
+    assert fitted.card.centre_correction_viewpoint == before.card.centre_correction_viewpoint
     assert fitted.card.centre_evaluation == before.card.centre_evaluation != ""
     # the upright runs differ from the unheld ones: another fit
     assert fitted.card.centre_correction_up != before.card.centre_correction

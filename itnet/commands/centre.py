@@ -43,7 +43,8 @@ def centre_fit(
         metavar="ERROR_DEG",
         help="Fit and measure the correction for requests that give the up direction: every "
         "scan's runs held upright by its up, tilted ERROR_DEG degrees from the truth (a gravity "
-        "sensor's error); with --write it becomes the card's centre_correction_up.",
+        "sensor's error); with --write it becomes the card's centre_correction_up, and its "
+        "viewpoint variant centre_correction_up_viewpoint (requests that give both).",
     ),
 ) -> None:
     """Fit a model's object-centre correction on its category's training shapes and measure it.
@@ -51,8 +52,8 @@ def centre_fit(
     The scans are posed as served; one run without and with the correction is measured on the
     validation views. ``--write`` stores it in the card, and the service applies it after the
     last step. A second correction that also takes the direction toward the sensor serves
-    requests that give ``viewpoint``; with ``--up`` the runs are held upright and the correction
-    serves requests that give ``up``."""
+    requests that give ``viewpoint``; with ``--up`` the runs are held upright and the two serve
+    requests that give ``up`` (the second, those that give both)."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
@@ -87,15 +88,15 @@ def centre_fit(
         typer.echo(f"{kind}: {len(scans.clouds)} training scans posed", err=True)
     try:
         correction = fitting.fit(served, ridge, max_rotation)
-        # the viewpoint correction is fitted on unheld runs only (requests with up and a
-        # viewpoint get the plain viewpoint correction, as measured)
-        with_viewpoint = None if up is not None else fitting.fit(served, ridge, max_rotation, True)
+        # with up: the viewpoint correction of runs held upright (requests with both)
+        with_viewpoint = fitting.fit(served, ridge, max_rotation, True)
     except ValueError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     results: dict[str, dict] = {}
     viewpoint_results: dict[str, dict] = {}
     plain_results: dict[str, dict] = {}
+    served_viewpoint: dict[str, dict] = {}  # held runs: what requests with both get today
     for i, (kind, scan) in enumerate(kinds.items()):
         scans = validation_scans(data, cat, val_views, scan=scan, cache=cache)
         posed = fitting.served_centres(
@@ -106,9 +107,13 @@ def centre_fit(
         if up is not None and loaded.centre is not None:  # what up requests get without it
             plain_results[kind] = fitting.measure(posed, loaded.centre)
             typer.echo(f"{kind}, the card's plain correction: {json.dumps(plain_results[kind])}")
-        if with_viewpoint is not None:
-            viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
-            typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
+        if up is not None and loaded.centre_viewpoint is not None:  # ... and with a viewpoint
+            served_viewpoint[kind] = fitting.measure(posed, loaded.centre_viewpoint)
+            typer.echo(
+                f"{kind}, the card's viewpoint correction: {json.dumps(served_viewpoint[kind])}"
+            )
+        viewpoint_results[kind] = fitting.measure(posed, with_viewpoint)
+        typer.echo(f"{kind}, with the viewpoint: {json.dumps(viewpoint_results[kind])}")
     runs = "one run" if ensemble == 1 else f"{ensemble} runs fused"
     if up is not None:
         runs += f", held upright by an up {up:g} deg off"
@@ -116,6 +121,16 @@ def centre_fit(
         if plain_results:
             evaluation += ". " + fitting.describe(
                 plain_results, "the plain correction (fitted on runs not held)", runs
+            )
+        evaluation += ". " + fitting.describe(
+            viewpoint_results,
+            "the viewpoint correction fitted held upright (requests that give up and the "
+            "sensor's position)",
+            runs,
+        )
+        if served_viewpoint:
+            evaluation += ". " + fitting.describe(
+                served_viewpoint, "the viewpoint correction fitted on runs not held", runs
             )
     else:
         evaluation = (
@@ -131,15 +146,16 @@ def centre_fit(
         report.write_text(json.dumps({"model": str(model), "up_error_deg": up, "results": results,
                                       "viewpoint_results": viewpoint_results,
                                       "plain_results": plain_results,
+                                      "served_viewpoint_results": served_viewpoint,
                                       "evaluation": evaluation}, indent=1))  # fmt: skip
     if write:
         if up is not None:  # the upright correction; the others are left as they are
             update = {
                 "centre_correction_up": correction.to_dict(),
+                "centre_correction_up_viewpoint": with_viewpoint.to_dict(),
                 "centre_up_evaluation": evaluation,
             }
         else:
-            assert with_viewpoint is not None  # fitted wherever up is not given
             update = {
                 "centre_correction": correction.to_dict(),
                 "centre_correction_viewpoint": with_viewpoint.to_dict(),

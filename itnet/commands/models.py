@@ -50,7 +50,9 @@ def models(
                 info.category,
                 info.symmetry,
                 ",".join(info.mirror_planes) or "-",
-                _centre(info.centre, info.centre_viewpoint, info.centre_up),
+                _centre(
+                    info.centre, info.centre_viewpoint, info.centre_up, info.centre_up_viewpoint
+                ),
                 "needed" if info.requires_up else "-",
                 info.precision,
                 str(info.points),
@@ -79,7 +81,8 @@ def models(
         "many as the budget holds; mirror: the planes (x: left-right, z: front-back) a single "
         "run's final pose is finished by, fused runs' too where --json says mirror_fused; centre: "
         "the final pose's object centre is finished by the card's correction (+vp: another for "
-        "requests that give the sensor's position, +up for those that give up); up: 'needed' "
+        "requests that give the sensor's position, +up for those that give up, +upvp for those "
+        "that give both); up: 'needed' "
         "where a request must say which way is up in its cloud (--up); verifier: where the "
         "category has a learned verifier, what it does by default (verify: fused runs anchored "
         "on the likeliest; recheck:N, a doubted single run rechecked by N runs); "
@@ -101,9 +104,13 @@ def _accuracy(accuracy: dict[str, float], iterations: int) -> str:
     return "-" if value is None else f"{100 * value:.1f}% at {iterations} it."
 
 
-def _centre(plain: bool, viewpoint: bool, up: bool = False) -> str:
+def _centre(plain: bool, viewpoint: bool, up: bool = False, up_viewpoint: bool = False) -> str:
     """'yes', 'yes+vp', 'vp' (only for requests that give the sensor's position), each with
-    '+up' where another is fitted for requests that give up ('up' alone: only for those), or
-    '-'."""
-    kinds = (["yes"] if plain else []) + (["vp"] if viewpoint else []) + (["up"] if up else [])
+    '+up' where another is fitted for requests that give up ('up' alone: only for those) and
+    '+upvp' for those that give both, or '-'."""
+    kinds = [
+        kind
+        for kind, has in (("yes", plain), ("vp", viewpoint), ("up", up), ("upvp", up_viewpoint))
+        if has
+    ]
     return "+".join(kinds) or "-"

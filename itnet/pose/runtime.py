@@ -91,6 +91,9 @@ class LoadedModel:
             "centre_correction_viewpoint", viewpoint=True
         )
         self.centre_up = self._centre_correction("centre_correction_up", viewpoint=False)
+        self.centre_up_viewpoint = self._centre_correction(
+            "centre_correction_up_viewpoint", viewpoint=True
+        )
         self._recent: deque[tuple[float, float]] = deque(maxlen=64)  # (perf_counter, ms)
         self._high: tuple[float, float, float] | None = None  # (quantile ms, when, quantile)
 

@@ -221,10 +221,10 @@ class Mirror:
 
 
 class Centre:
-    """The object centre finished by the model's correction (``itnet.centre``): the one that
-    goes by the sensor's direction where the request gives a viewpoint and the card has it,
-    else the one fitted on runs held upright where the request gives up and the card has it,
-    else the plain one."""
+    """The object centre finished by the model's correction (``itnet.centre``), the first the
+    request and the card have of: the one that goes by the sensor's direction fitted on runs
+    held upright (a request with up and a viewpoint), the one that goes by the sensor's
+    direction (a viewpoint), the one fitted on runs held upright (up), the plain one."""
 
     name: ClassVar[str] = "centre"
 
@@ -248,6 +248,11 @@ class Centre:
             model.centre is not None
             or (request.viewpoint is not None and model.centre_viewpoint is not None)
             or (request.up is not None and model.centre_up is not None)
+            or (
+                request.up is not None
+                and request.viewpoint is not None
+                and model.centre_up_viewpoint is not None
+            )
         )
 
     def predicted_ms(self, run: AnytimeRun) -> float:
@@ -257,13 +262,16 @@ class Centre:
         model, plan, norm = run.model, run.plan, run.normalization
         pose, points = run.last.pose_normalized.astype(np.float64), run.points[0]
         finished, by_viewpoint, by_up = None, False, False
-        if plan.viewpoint is not None and model.centre_viewpoint is not None:
+        if plan.viewpoint is not None:
             viewpoint = (plan.viewpoint - norm.center) / norm.scale
-            try:
-                finished = centre_finished(points, pose, model.centre_viewpoint, viewpoint)
-                by_viewpoint = True
-            except ValueError:  # the viewpoint on the estimated centre: no direction to go by
-                pass
+            held = plan.up is not None and model.centre_up_viewpoint is not None
+            correction = model.centre_up_viewpoint if held else model.centre_viewpoint
+            if correction is not None:
+                try:
+                    finished = centre_finished(points, pose, correction, viewpoint)
+                    by_viewpoint, by_up = True, held
+                except ValueError:  # the viewpoint on the estimated centre: no direction
+                    pass
         if finished is None and plan.up is not None and model.centre_up is not None:
             finished, by_up = centre_finished(points, pose, model.centre_up), True
         if finished is None and model.centre is not None:

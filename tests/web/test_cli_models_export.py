@@ -41,7 +41,8 @@ def centre_column(card) -> str:  # type: ignore[no-untyped-def]
         kind
         for kind, field in (("yes", card.centre_correction),
                             ("vp", card.centre_correction_viewpoint),
-                            ("up", card.centre_correction_up))
+                            ("up", card.centre_correction_up),
+                            ("upvp", card.centre_correction_up_viewpoint))
         if field
     ]  # fmt: skip
     return "+".join(kinds) or "-"

@@ -33,6 +33,7 @@ def model_info(name: str, model: LoadedModel, default: bool) -> ModelInfo:
         centre=model.centre is not None,
         centre_viewpoint=model.centre_viewpoint is not None,
         centre_up=model.centre_up is not None,
+        centre_up_viewpoint=model.centre_up_viewpoint is not None,
         step_ms=round(model.step_ms, 3),
         default=default,
     )
