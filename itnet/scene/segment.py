@@ -25,7 +25,9 @@ stands on the floor, filtered by size.
    cut off (a table's top behind a chair, a chair's leg below its seat): it joins the nearest
    object within ``attach_m``, or is dropped. A cluster nearer the camera than any floor it
    sees stands all the same (a level camera at head height sees the floor from a few metres on:
-   what is nearer shows no base).
+   what is nearer shows no base). A standing cluster with at most ``sliver_share`` of the points
+   of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
+   cut off) is a piece of that object too.
 """
 
 from __future__ import annotations
@@ -64,6 +66,8 @@ class SegmentOptions:
     max_base_m: float = 0.15  # a cluster whose lowest point is higher floats: a piece ...
     min_object_m: float = 0.35  # ... as is one whose top is lower (a leg seen below a seat) ...
     attach_m: float = 0.3  # ... of the object within this, else no object
+    sliver_m: float = 0.10  # a standing cluster this near an object ...
+    sliver_share: float = 0.3  # ... with at most this share of its points is a piece of it
     min_points: int = 80
     min_height_m: float = 0.2
     max_size_m: float = 3.0
@@ -213,7 +217,7 @@ def attach_pieces(
             nearest_floor
         )
 
-    based = [g for g in groups if whole(g)]
+    based = slivers_joined(points, [g for g in groups if whole(g)], options)
     if not based:
         return []
     trees = [cKDTree(points[g]) for g in based]
@@ -225,6 +229,34 @@ def attach_pieces(
         if gaps[nearest] <= options.attach_m:
             joined[nearest].append(piece)
     return [np.sort(np.concatenate(parts)) for parts in joined]
+
+
+def slivers_joined(
+    points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions
+) -> list[NDArray[np.int64]]:
+    """Standing clusters (indices into points (N, 3)) -> the same, each small one that lies
+    within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points joined
+    to the nearest such (smallest first, so a chain of pieces ends in its object)."""
+    parts: list[list[NDArray[np.int64]] | None] = [[g] for g in groups]
+    sizes = [len(g) for g in groups]
+    trees: dict[int, cKDTree] = {}
+    for i in sorted(range(len(groups)), key=lambda k: sizes[k]):
+        larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]]
+        if not larger:
+            continue
+        sample = points[groups[i][:: max(1, sizes[i] // 200)]]
+        gaps = []
+        for j in larger:
+            if j not in trees:
+                trees[j] = cKDTree(points[groups[j]])
+            gaps.append(float(trees[j].query(sample, k=1)[0].min()))
+        nearest = int(np.argmin(gaps))
+        if gaps[nearest] <= options.sliver_m:
+            owner, mine = parts[larger[nearest]], parts[i]
+            assert owner is not None and mine is not None  # larger ones are merged later
+            owner.extend(mine)
+            parts[i] = None
+    return [np.sort(np.concatenate(p)) for p in parts if p is not None]
 
 
 def _footprint(points: NDArray, up: NDArray) -> NDArray[np.float64]:

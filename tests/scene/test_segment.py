@@ -102,3 +102,35 @@ def test_a_wide_flat_piece_of_furniture_is_not_a_wall():
     assert all(abs(wall.offset - 6.0) < 0.3 for wall in found.walls)  # only the room's wall
     owners = sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects)
     assert owners == [1, 2]
+
+
+def test_a_panel_a_gap_away_from_its_body_is_one_object():
+    """A cabinet whose side panel stands a few centimetres off its body (a gap the clusters do
+    not bridge) is one object: the panel, a fifth of its points, joins it. Without the rule
+    (``sliver_m=0``) it is a second, false object."""
+    from itnet.scene.segment import SegmentOptions
+
+    cabinet = boxes_shape(
+        [((0, 0, 0), (0.6, 0.9, 0.5)), ((0.435, 0, 0), (0.03, 0.9, 0.5))], points=3000
+    )
+    for yaw in (0.0, -30.0):
+        scene = make_test_scene([(cabinet, 1.0, 0.0, 2.8, yaw)])
+        given = from_depth(scene.depth, scene.intrinsics)
+        whole = segment(given.points).objects
+        assert len(whole) == 1 and len(whole[0]) > 0.9 * (scene.labels == 1).sum()
+        apart = segment(given.points, SegmentOptions(sliver_m=0.0)).objects
+        assert len(apart) == 2 and min(map(len, apart)) < 0.3 * max(map(len, apart))
+
+
+def test_a_small_object_beside_a_large_one_stays_its_own():
+    """A small box 0.12 m beside a large one (a fifth of its points) is not a piece of it."""
+    big = boxes_shape([((0, 0, 0), (1.0, 0.8, 0.6))], points=3000)
+    small = boxes_shape([((0, 0, 0), (0.3, 0.35, 0.3))])
+    scene = make_test_scene([(big, 0.9, -0.3, 3.0, 0.0), (small, 0.4, 0.75, 3.0, 0.0)])
+    given = from_depth(scene.depth, scene.intrinsics)
+    labels = scene.labels.ravel()[given.indices]
+    found = segment(given.points)
+    owners = sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects)
+    assert owners == [1, 2]
+    sizes = sorted(len(rows) for rows in found.objects)
+    assert sizes[0] < 0.3 * sizes[1]  # small enough to be a sliver, and far enough not to be
