@@ -204,6 +204,16 @@ def test_a_card_with_a_correction_of_the_wrong_kind_or_shape_fails_to_load(
             load_model(tmp_path / f"{name}.onnx", threads=1)
 
 
+def centre_moved(model, **request):  # type: ignore[no-untyped-def]
+    """The reply of a run with the centre finish, and how far the finish moved the pose's
+    translation (normalised units) against the same run without it."""
+    on = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), **request)
+    off = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False, **request)
+    on.run_to_end(), off.run_to_end()
+    moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
+    return on.result(), moved / on.normalization.scale
+
+
 def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     tmp_path: Path, export_model, viewpoint_model
 ) -> None:  # type: ignore[no-untyped-def]
@@ -221,19 +231,14 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     assert model.centre_up is not None
     up = [0.0, 1.0, 0.0]
 
-    def finished(**kw):  # type: ignore[no-untyped-def]
-        on = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), **kw)
-        off = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False, **kw)
-        on.run_to_end(), off.run_to_end()
-        moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
-        return on.result(), moved / on.normalization.scale
-
-    given, moved = finished(up=up)
+    given, moved = centre_moved(model, up=up)
     assert given["centre"] is True and given["centre_up"] is True
     assert np.allclose(moved, -np.array(up_offset), atol=1e-5)
-    plain, moved = finished()
+    plain, moved = centre_moved(model)
     assert "centre_up" not in plain and np.allclose(moved, -np.array([0.05, -0.02, 0.1]), atol=1e-5)
-    both, _ = finished(up=up, viewpoint=[0, 0, 0])  # the viewpoint's correction comes first
+    both, _ = centre_moved(
+        model, up=up, viewpoint=[0, 0, 0]
+    )  # the viewpoint's correction comes first
     assert both["centre_viewpoint"] is True and both["centre_up"] is False
 
     only = card.model_copy(
@@ -275,20 +280,15 @@ def test_a_request_with_up_and_a_viewpoint_is_finished_by_the_upright_viewpoint_
     model = load_model(tmp_path / "held.onnx", threads=1)
     assert model.centre_up_viewpoint is not None and model.centre_up_viewpoint.uses_viewpoint
 
-    def finished(**kw):  # type: ignore[no-untyped-def]
-        on = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), **kw)
-        off = run_with(model, cloud(), budget_ms=10_000, converge=(0, 0), centre=False, **kw)
-        on.run_to_end(), off.run_to_end()
-        moved = np.asarray(on.result()["translation"]) - np.asarray(off.result()["translation"])
-        return on.result(), moved / on.normalization.scale
-
     up, viewpoint = [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]
-    both, moved = finished(up=up, viewpoint=viewpoint)
+    both, moved = centre_moved(model, up=up, viewpoint=viewpoint)
     assert both["centre_viewpoint"] is True and both["centre_up"] is True
     assert np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-5)
-    alone, moved = finished(viewpoint=viewpoint)  # the viewpoint correction of unheld runs
+    alone, moved = centre_moved(
+        model, viewpoint=viewpoint
+    )  # the viewpoint correction of unheld runs
     assert alone["centre_viewpoint"] is True and not np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-3)
-    upright, moved = finished(up=up)
+    upright, moved = centre_moved(model, up=up)
     assert upright["centre_up"] is True and np.allclose(moved, [0.1, 0.0, -0.2], atol=1e-5)
 
     wrong = card.model_copy(
