@@ -132,7 +132,10 @@ def test_no_request_body_makes_a_500(
 ) -> None:
     request = {"points": points, "budget_ms": budget, "model": model}
     reply = client.post("/v1/estimate", content=json.dumps(request), headers=JSON)
-    assert reply.status_code in (200, 400, 404, 422), reply.text
+    # a budget too small for one step at that moment (1 ms on a busy machine) is refused as
+    # overloaded, with a reason: a 503 the caller may retry, not a server error
+    overloaded = reply.status_code == 503 and reply.json()["kind"] == "overloaded"
+    assert reply.status_code in (200, 400, 404, 422) or overloaded, reply.text
     if reply.status_code != 200:
         assert reply.json()["detail"]
 
