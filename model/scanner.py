@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from itnet.geometry import (
     apply_rigid,
+    axis_angle_to_matrix,
     invert_rigid,
     random_rotation,
     rigid_from_rotation_translation,
@@ -121,8 +122,7 @@ def camera_from_canonical_looking_at(
     right = np.cross(forward, [0.0, 1.0, 0.0])
     right /= np.linalg.norm(right)  # |elevation| < 90 degrees: forward is never vertical
     level = np.stack([right, np.cross(forward, right), forward])  # rows: camera x, y, z
-    c, s = np.cos(roll), np.sin(roll)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ level
+    return axis_angle_to_matrix([0.0, 0.0, 1.0], roll) @ level
 
 
 def zbuffer_visible(

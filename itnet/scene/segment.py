@@ -223,8 +223,7 @@ def attach_pieces(
     trees = [cKDTree(points[g]) for g in based]
     joined = [[g] for g in based]
     for piece in (g for g in groups if not whole(g)):
-        sample = points[piece[:: max(1, len(piece) // 200)]]
-        gaps = [float(tree.query(sample, k=1)[0].min()) for tree in trees]
+        gaps = [_gap(points, piece, tree) for tree in trees]
         nearest = int(np.argmin(gaps))
         if gaps[nearest] <= options.attach_m:
             joined[nearest].append(piece)
@@ -244,12 +243,11 @@ def slivers_joined(
         larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]]
         if not larger:
             continue
-        sample = points[groups[i][:: max(1, sizes[i] // 200)]]
         gaps = []
         for j in larger:
             if j not in trees:
                 trees[j] = cKDTree(points[groups[j]])
-            gaps.append(float(trees[j].query(sample, k=1)[0].min()))
+            gaps.append(_gap(points, groups[i], trees[j]))
         nearest = int(np.argmin(gaps))
         if gaps[nearest] <= options.sliver_m:
             owner, mine = parts[larger[nearest]], parts[i]
@@ -257,6 +255,13 @@ def slivers_joined(
             owner.extend(mine)
             parts[i] = None
     return [np.sort(np.concatenate(p)) for p in parts if p is not None]
+
+
+def _gap(points: NDArray, piece: NDArray[np.int64], tree: cKDTree) -> float:
+    """How near a cluster (indices into points (N, 3)) comes to the points of ``tree``, from
+    about 200 of its points."""
+    sample = points[piece[:: max(1, len(piece) // 200)]]
+    return float(tree.query(sample, k=1)[0].min())
 
 
 def _footprint(points: NDArray, up: NDArray) -> NDArray[np.float64]:

@@ -59,13 +59,17 @@ def test_one_network_for_two_categories_with_their_symmetries(two_categories, tm
     card = load_model(out, warm_up=False).card
     assert (card.name, card.category, card.symmetry) == ("bench", "bench", "none")
     assert card.training["categories"] == "seat,bench"
-    result = runner.invoke(
-        app,
-        ["eval", "--onnx", str(out), *common, "--no-check-orientation", "--views", "2", "--iterations", "2",
-         "--out", str(tmp_path / "eval")],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
-    report = json.loads((tmp_path / "eval" / "report.json").read_text())
+
+    def evaluated(folder: str) -> dict:
+        result = runner.invoke(
+            app,
+            ["eval", "--onnx", str(out), *common, "--no-check-orientation", "--views", "2",
+             "--iterations", "2", "--out", str(tmp_path / folder)],
+        )  # fmt: skip
+        assert result.exit_code == 0, result.output
+        return json.loads((tmp_path / folder / "report.json").read_text())  # type: ignore[no-any-return]
+
+    report = evaluated("eval")
     assert (report["category"], report["symmetry"]) == ("bench", "none")
     assert "up_error_deg" not in report  # measured without up
 
@@ -75,13 +79,7 @@ def test_one_network_for_two_categories_with_their_symmetries(two_categories, tm
     from itnet.export.onnx_export import save_with_card
 
     save_with_card(onnx.load(str(out)), card.model_copy(update={"requires_up": True}), out)
-    result = runner.invoke(
-        app,
-        ["eval", "--onnx", str(out), *common, "--no-check-orientation", "--views", "2", "--iterations", "2",
-         "--out", str(tmp_path / "eval-up")],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
-    assert json.loads((tmp_path / "eval-up" / "report.json").read_text())["up_error_deg"] == 2.0
+    assert evaluated("eval-up")["up_error_deg"] == 2.0
 
 
 @pytest.mark.train
