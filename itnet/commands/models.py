@@ -57,7 +57,9 @@ def models(
                 info.precision,
                 str(info.points),
                 str(info.recommended_ensemble),
-                _verifier(info.verifier, info.verify_fused, info.recheck_runs),
+                _verifier(
+                    info.verifier, info.verify_fused, info.recheck_runs, info.recommended_ensemble
+                ),
                 _accuracy(info.accuracy, info.recommended_iterations),
                 f"{info.step_ms:.2f} ms",
                 "default" if info.default else "",
@@ -85,16 +87,19 @@ def models(
         "that give both); up: 'needed' "
         "where a request must say which way is up in its cloud (--up); verifier: where the "
         "category has a learned verifier, what it does by default (verify: fused runs anchored "
-        "on the likeliest; recheck:N, a doubted single run rechecked by N runs); "
+        "on the likeliest, verify-if-fused where the default is one run; recheck:N, a doubted single run rechecked by N runs); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 
 
-def _verifier(name: str | None, verify: bool, recheck_runs: int) -> str:
-    """The verifier column: '-' without one, else what the card has it do by default."""
+def _verifier(name: str | None, verify: bool, recheck_runs: int, runs: int) -> str:
+    """The verifier column: '-' without one, else what the card has it do by default: 'verify'
+    where the default fuses runs, 'verify-if-fused' where it is one run (a request for several
+    gets it), 'recheck:N' for a doubted single run."""
     if name is None:
         return "-"
-    uses = (["verify"] if verify else []) + ([f"recheck:{recheck_runs}"] if recheck_runs else [])
+    verifies = ["verify" if runs > 1 else "verify-if-fused"] if verify else []
+    uses = verifies + ([f"recheck:{recheck_runs}"] if recheck_runs else [])
     return "+".join(uses) or "loaded"
 
 

@@ -78,6 +78,8 @@ def test_models_table_shows_the_shipped_cards():
     row = next(r for r in rows if r.startswith("dresser "))
     assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up", "needed", "int8",
                                "256", "1"]  # fmt: skip
+    # one run by default: its verifier anchors only the runs a request asks to fuse
+    assert dresser.card.verify_fused and row.split()[9] == "verify-if-fused"
     assert dresser.card.requires_up and dresser.centre_up is not None and dresser.centre is None
     assert "held upright" in dresser.card.centre_up_evaluation
     bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
