@@ -76,7 +76,7 @@ def test_models_table_shows_the_shipped_cards():
     # the dresser too, its centre finished by the correction fitted held upright
     dresser = load_model(SHIPPED / "dresser.onnx", warm_up=False)
     row = next(r for r in rows if r.startswith("dresser "))
-    assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up", "needed", "int8",
+    assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up+upvp", "needed", "int8",
                                "256", "1"]  # fmt: skip
     # one run by default: its verifier anchors only the runs a request asks to fuse
     assert dresser.card.verify_fused and row.split()[9] == "verify-if-fused"
@@ -123,7 +123,7 @@ def test_export_names_the_model_after_its_category(tmp_path):
     assert (card.name, card.category) == ("mug", "mug")
 
 
-@pytest.mark.parametrize("name", ["chair", "toilet", "desk", "monitor"])
+@pytest.mark.parametrize("name", ["chair", "toilet", "sofa", "dresser", "desk", "monitor"])
 def test_shipped_weights_are_the_shipped_model(name):
     """lab/weights/NAME.pt (the weights to fine-tune from) computes the step that NAME.onnx
     serves, up to the int8 rounding of its point layers: a few degrees on clouds of noise, while another model's weights are
