@@ -73,8 +73,9 @@ def find_objects(
         left_ms = budget_ms - (time.perf_counter() - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         try:
+            height = None if found.floor is None else top_height(points, found.floor)
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
-                               categories=categories)  # fmt: skip
+                               categories=categories, height_m=height)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         if floor_centre and seen.pose is not None and seen.result is not None:
@@ -104,13 +105,19 @@ def shipped_catalog() -> Catalog:
     return _SHIPPED
 
 
+def top_height(points: NDArray, floor: Plane) -> float:
+    """How high an object's top stands above ``floor``: the 98th percentile of its points' (K,
+    3) heights (against noise), in the points' unit."""
+    return float(np.percentile(floor.distance(points), 98))
+
+
 def floor_centred(pose: NDArray, points: NDArray, floor: Plane) -> NDArray[np.float64]:
     """T_canonical_from_input (4, 4) of an object standing on ``floor``, its points (K, 3) ->
     the same pose with the object's centre moved along the floor's normal to half the height
-    of its top (the 98th percentile of its points' heights, against noise)."""
+    of its top (``top_height``)."""
     rotation = pose[:3, :3]
     centre = -rotation.T @ pose[:3, 3]
-    top = float(np.percentile(floor.distance(points), 98))
+    top = top_height(points, floor)
     centre = centre + (top / 2 - float(floor.distance(centre[None])[0])) * floor.normal
     out = np.array(pose, dtype=np.float64)
     out[:3, 3] = -rotation @ centre

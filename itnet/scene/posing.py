@@ -28,6 +28,7 @@ from itnet.pose.runtime import (
     ModelLoadError,
     default_model_dir,
 )
+from itnet.scene.height_prior import with_height
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 
@@ -71,13 +72,15 @@ def pose_object(
     started: float | None = None,
     min_run_ms: float = 2.0,
     categories: frozenset[str] | None = None,
+    height_m: float | None = None,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
     ObjectPose, the classification and the run within ``budget_ms`` from ``started``
     (``time.perf_counter()``; default now). ``categories``: the ones the object may be (the
-    classifier's probabilities renormalised over them; default: any). No run where less than
-    ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
-    degenerate)."""
+    classifier's probabilities renormalised over them; default: any). ``height_m``: the
+    object's top above the floor, weighed into the classification (``height_prior``). No run
+    where less than ``min_run_ms`` is left after the classification. Raises BadCloudError (too
+    few points, degenerate)."""
     started = time.perf_counter() if started is None else started
     if catalog.classifier is None:
         raise NoClassifierError("scenes need the category classifier, and none is loaded")
@@ -90,14 +93,17 @@ def pose_object(
     ]
     if not candidates:
         raise BadCloudError(f"none of the categories {sorted(categories or ())} is known")
-    total = sum(c.probability for c in candidates)
+    names = [c.category for c in candidates]
+    probabilities = np.array([c.probability for c in candidates], dtype=np.float64)
+    probabilities /= probabilities.sum()
+    if height_m is not None:
+        probabilities = with_height(names, probabilities, height_m)
+    order = np.argsort(-probabilities, kind="stable")
     top = [
-        {"category": c.category, "probability": round(c.probability / total, 6)}
-        for c in candidates[:3]
+        {"category": names[i], "probability": round(float(probabilities[i]), 6)} for i in order[:3]
     ]
-    best = candidates[0]
-    probability = round(best.probability / total, 6)
-    seen = ObjectPose(best.category, probability, top, probability < recognition.threshold)
+    probability = round(float(probabilities[order[0]]), 6)
+    seen = ObjectPose(names[order[0]], probability, top, probability < recognition.threshold)
     model = pose_model_for(seen.category, catalog.models)
     if model is None:
         seen.no_pose = "no_pose_model"
