@@ -96,8 +96,10 @@ def test_requests_fit_the_limits_and_the_measured_memory() -> None:
     resources = container()["resources"]
     for what in ("cpu", "memory"):
         assert quantity(resources["requests"][what]) <= quantity(resources["limits"][what])
-    # Measured (docs/scale.md): 126 MiB under load, 239 MiB peak with 100,000-point clouds.
-    assert quantity(resources["requests"]["memory"]) >= 240 * 2**20
+    # Measured (docs/scale.md): the server with the shipped models peaks at 594 MiB, and the
+    # JSON parse worker adds up to ~250 MiB under the largest bodies.
+    assert quantity(resources["requests"]["memory"]) >= 600 * 2**20
+    assert quantity(resources["limits"]["memory"]) >= (600 + 250) * 2**20
     securityContext = documents()["Deployment"]["spec"]["template"]["spec"]["securityContext"]
     user = re.search(r"^USER (\d+)", (ROOT / "Dockerfile").read_text(), re.M)
     assert user and securityContext["runAsUser"] == int(user.group(1))
