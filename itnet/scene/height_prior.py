@@ -12,14 +12,12 @@ renormalised over the categories.
 
 The table is measured on ModelNet10's training shapes, their units read as inches (as the
 classifier's size prior reads them), the height their extent along ModelNet's up (+z):
-``python -m itnet.scene.height_prior --data ../shared/data/modelnet10`` prints it again.
+``python -m itnet.model.heights --data ../shared/data/modelnet10`` measures it again.
 """
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,7 +38,6 @@ HEIGHTS_M: dict[str, tuple[float, float]] = {
 
 DF = 3.0  # Student-t degrees of freedom: heavy tails
 WEIGHT = 1.0  # the height's log-likelihood is added times this (chosen on validation scenes)
-INCH_M = 0.0254
 
 
 def height_log_likelihood(categories: Sequence[str], height_m: float) -> NDArray[np.float64]:
@@ -66,26 +63,3 @@ def with_height(
     logits -= logits.max()
     q = np.exp(logits)
     return q / q.sum()
-
-
-def measure(data: Path) -> dict[str, tuple[float, float]]:
-    """The table from a ModelNet-style root (DATA/CATEGORY/train/*): each training shape's
-    extent along +z, read as inches."""
-    from itnet.cloud_io import read_cloud
-    from itnet.model.shapes import list_shape_files
-
-    table = {}
-    for folder in sorted(p for p in data.iterdir() if (p / "train").is_dir()):
-        heights = [np.ptp(read_cloud(f)[:, 2]) * INCH_M for f in list_shape_files(folder / "train")]
-        log_h = np.log(np.maximum(heights, 1e-6))
-        median = float(np.median(log_h))
-        spread = 1.4826 * float(np.median(np.abs(log_h - median)))
-        table[folder.name] = (round(float(np.exp(median)), 2), round(spread, 2))
-    return table
-
-
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description="Measure the height table.")
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    for name, (median, spread) in measure(parser.parse_args().data).items():
-        print(f'    "{name}": ({median}, {spread}),')

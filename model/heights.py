@@ -1,0 +1,38 @@
+"""The height table of ``itnet.scene.height_prior``, measured: each category's training shapes'
+extent along ModelNet's up (+z), their units read as inches (as the classifier's size prior reads
+them).
+
+    python -m itnet.model.heights --data ../shared/data/modelnet10
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from itnet.cloud_io import read_cloud
+from itnet.model.shapes import list_shape_files
+
+INCH_M = 0.0254
+
+
+def measure(data: Path) -> dict[str, tuple[float, float]]:
+    """Per category of a ModelNet-style root (DATA/CATEGORY/train/*): (median height in metres,
+    robust spread of its log: 1.4826 x MAD)."""
+    table = {}
+    for folder in sorted(p for p in data.iterdir() if (p / "train").is_dir()):
+        heights = [np.ptp(read_cloud(f)[:, 2]) * INCH_M for f in list_shape_files(folder / "train")]
+        log_h = np.log(np.maximum(heights, 1e-6))
+        median = float(np.median(log_h))
+        spread = 1.4826 * float(np.median(np.abs(log_h - median)))
+        table[folder.name] = (round(float(np.exp(median)), 2), round(spread, 2))
+    return table
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description="Measure the scenes' height table.")
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    for name, (median, spread) in measure(parser.parse_args().data).items():
+        print(f'    "{name}": ({median}, {spread}),')
