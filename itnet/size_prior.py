@@ -32,12 +32,30 @@ def metres_per_unit(unit: str) -> float:
         raise ValueError(f"unknown unit {unit!r}; one of {', '.join(METRES_PER_UNIT)}") from None
 
 
+def log_student_t(
+    log_x: float, log_median: ArrayLike, log_scale: ArrayLike, df: float
+) -> NDArray[np.float64]:
+    """log p(log x | class) (C,) under each class's Student-t over log x (median and scale (C,)),
+    up to a constant shared by the classes: heavy-tailed, so one odd size weighs little."""
+    median, scale = np.asarray(log_median, np.float64), np.asarray(log_scale, np.float64)
+    z = (log_x - median) / scale
+    return -(df + 1) / 2 * np.log1p(z**2 / df) - np.log(scale)
+
+
+def log_median_and_spread(log_values: ArrayLike) -> tuple[float, float]:
+    """Logs of sizes (V,) -> their median and a robust spread (1.4826 x the median absolute
+    deviation), robust to the share of a dataset's models drawn at another scale."""
+    log_v = np.asarray(log_values, np.float64)
+    median = float(np.median(log_v))
+    return median, 1.4826 * float(np.median(np.abs(log_v - median)))
+
+
 def size_log_likelihood(prior: SizePrior, rms_radius_m: float) -> NDArray[np.float64]:
     """log p(log r | class) (C,) of a cloud whose RMS radius about its centroid is ``rms_radius_m``
     metres, up to a constant shared by the classes."""
-    median, scale = np.asarray(prior.log_median), np.asarray(prior.log_scale)
-    z = (np.log(max(rms_radius_m, 1e-9)) - median) / scale
-    return -(prior.df + 1) / 2 * np.log1p(z**2 / prior.df) - np.log(scale)
+    return log_student_t(
+        float(np.log(max(rms_radius_m, 1e-9))), prior.log_median, prior.log_scale, prior.df
+    )
 
 
 def with_size(log_probs: ArrayLike, prior: SizePrior, rms_radius_m: float) -> NDArray[np.float64]:
@@ -66,7 +84,7 @@ def fit_size_prior(
         own = log_r[y == k]
         if not len(own):
             raise ValueError(f"class {k} has no views to fit its size")
-        median = float(np.median(own))
+        median, spread = log_median_and_spread(own)
         medians.append(round(median, 5))
-        scales.append(round(max(min_scale, 1.4826 * float(np.median(np.abs(own - median)))), 5))
+        scales.append(round(max(min_scale, spread), 5))
     return SizePrior(log_median=medians, log_scale=scales, df=df, weight=weight, **text)

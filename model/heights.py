@@ -14,6 +14,7 @@ import numpy as np
 
 from itnet.cloud_io import read_cloud
 from itnet.model.shapes import list_shape_files
+from itnet.size_prior import log_median_and_spread
 
 INCH_M = 0.0254
 
@@ -24,9 +25,7 @@ def measure(data: Path) -> dict[str, tuple[float, float]]:
     table = {}
     for folder in sorted(p for p in data.iterdir() if (p / "train").is_dir()):
         heights = [np.ptp(read_cloud(f)[:, 2]) * INCH_M for f in list_shape_files(folder / "train")]
-        log_h = np.log(np.maximum(heights, 1e-6))
-        median = float(np.median(log_h))
-        spread = 1.4826 * float(np.median(np.abs(log_h - median)))
+        median, spread = log_median_and_spread(np.log(np.maximum(heights, 1e-6)))
         table[folder.name] = (round(float(np.exp(median)), 2), round(spread, 2))
     return table
 

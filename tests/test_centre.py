@@ -236,9 +236,8 @@ def test_a_request_that_gives_up_is_finished_by_the_upright_correction(
     assert np.allclose(moved, -np.array(up_offset), atol=1e-5)
     plain, moved = centre_moved(model)
     assert "centre_up" not in plain and np.allclose(moved, -np.array([0.05, -0.02, 0.1]), atol=1e-5)
-    both, _ = centre_moved(
-        model, up=up, viewpoint=[0, 0, 0]
-    )  # the viewpoint's correction comes first
+    # the viewpoint's correction comes first
+    both, _ = centre_moved(model, up=up, viewpoint=[0, 0, 0])
     assert both["centre_viewpoint"] is True and both["centre_up"] is False
 
     only = card.model_copy(
@@ -284,9 +283,8 @@ def test_a_request_with_up_and_a_viewpoint_is_finished_by_the_upright_viewpoint_
     both, moved = centre_moved(model, up=up, viewpoint=viewpoint)
     assert both["centre_viewpoint"] is True and both["centre_up"] is True
     assert np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-5)
-    alone, moved = centre_moved(
-        model, viewpoint=viewpoint
-    )  # the viewpoint correction of unheld runs
+    # the viewpoint correction of unheld runs
+    alone, moved = centre_moved(model, viewpoint=viewpoint)
     assert alone["centre_viewpoint"] is True and not np.allclose(moved, [0.0, -0.3, 0.0], atol=1e-3)
     upright, moved = centre_moved(model, up=up)
     assert upright["centre_up"] is True and np.allclose(moved, [0.1, 0.0, -0.2], atol=1e-5)

@@ -87,7 +87,8 @@ def models(
         "that give both); up: 'needed' "
         "where a request must say which way is up in its cloud (--up); verifier: where the "
         "category has a learned verifier, what it does by default (verify: fused runs anchored "
-        "on the likeliest, verify-if-fused where the default is one run; recheck:N, a doubted single run rechecked by N runs); "
+        "on the likeliest, verify-if-fused where the default is one run; recheck:N, a doubted "
+        "single run rechecked by N runs); "
         "accuracy: one run's, at (10 deg, 0.1 radius), before the mirror, see --json)"
     )
 

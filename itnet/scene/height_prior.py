@@ -22,6 +22,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.size_prior import log_student_t
+
 HEIGHTS_M: dict[str, tuple[float, float]] = {
     "bathtub": (0.63, 0.34),
     "bed": (1.0, 0.39),
@@ -44,13 +46,11 @@ def height_log_likelihood(categories: Sequence[str], height_m: float) -> NDArray
     """log p(log h | c) (C,) for each of ``categories`` of an object whose top stands
     ``height_m`` metres above the floor, up to a constant they share; 0 for a category the
     table does not know (no evidence either way)."""
-    log_h = np.log(max(height_m, 1e-3))
+    known = [i for i, name in enumerate(categories) if name in HEIGHTS_M]
     out = np.zeros(len(categories))
-    for i, name in enumerate(categories):
-        if name in HEIGHTS_M:
-            median, scale = HEIGHTS_M[name]
-            z = (log_h - np.log(median)) / scale
-            out[i] = -(DF + 1) / 2 * np.log1p(z**2 / DF) - np.log(scale)
+    if known:
+        medians, scales = zip(*(HEIGHTS_M[categories[i]] for i in known), strict=True)
+        out[known] = log_student_t(float(np.log(max(height_m, 1e-3))), np.log(medians), scales, DF)
     return out
 
 

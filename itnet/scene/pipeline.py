@@ -72,15 +72,15 @@ def find_objects(
         points = given.points[rows]
         left_ms = budget_ms - (time.perf_counter() - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
+        height = None if found.floor is None else top_height(points, found.floor)
         try:
-            height = None if found.floor is None else top_height(points, found.floor)
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
                                categories=categories, height_m=height)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         if floor_centre and seen.pose is not None and seen.result is not None:
-            assert found.floor is not None  # objects are found only on a floor
-            seen.pose = floor_centred(seen.pose, points, found.floor)
+            assert found.floor is not None and height is not None  # objects stand on a floor
+            seen.pose = floor_centred(seen.pose, height, found.floor)
             seen.result = with_pose(seen.result, seen.pose) | {"centre_floor": True}
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
@@ -111,13 +111,12 @@ def top_height(points: NDArray, floor: Plane) -> float:
     return float(np.percentile(floor.distance(points), 98))
 
 
-def floor_centred(pose: NDArray, points: NDArray, floor: Plane) -> NDArray[np.float64]:
-    """T_canonical_from_input (4, 4) of an object standing on ``floor``, its points (K, 3) ->
-    the same pose with the object's centre moved along the floor's normal to half the height
-    of its top (``top_height``)."""
+def floor_centred(pose: NDArray, top: float, floor: Plane) -> NDArray[np.float64]:
+    """T_canonical_from_input (4, 4) of an object standing on ``floor`` whose top stands ``top``
+    above it (``top_height``) -> the same pose with the object's centre moved along the floor's
+    normal to half that height."""
     rotation = pose[:3, :3]
     centre = -rotation.T @ pose[:3, 3]
-    top = top_height(points, floor)
     centre = centre + (top / 2 - float(floor.distance(centre[None])[0])) * floor.normal
     out = np.array(pose, dtype=np.float64)
     out[:3, 3] = -rotation @ centre
