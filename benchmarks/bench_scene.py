@@ -30,7 +30,14 @@ import numpy as np
 from itnet.geometry import invert_rigid
 from itnet.metrics import is_correct
 from itnet.model.categories import MODELNET10
-from itnet.model.scenes import SIZES, Scene, make_scene, split_shapes
+from itnet.model.scenes import (
+    SIZES,
+    Scene,
+    SceneObjectTruth,
+    make_scene,
+    matched_objects,
+    split_shapes,
+)
 from itnet.scene import SceneResult, find_objects, scene_catalog
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
@@ -39,19 +46,10 @@ from itnet.symmetry import symmetric_rotation_error_deg
 
 def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
     """One row per scene object and per unmatched returned object: matched, right, errors."""
-    labels = scene.labels.ravel()
-    sizes = np.bincount(labels, minlength=len(scene.objects) + 1)
-    pairs = []
-    for i, obj in enumerate(result.objects):
-        counts = np.bincount(labels[obj.indices], minlength=len(scene.objects) + 1)
-        for k in range(1, len(scene.objects) + 1):
-            iou = counts[k] / (len(obj.indices) + sizes[k] - counts[k])
-            if iou >= 0.5:
-                pairs.append((iou, i, k))
+    sizes = np.bincount(scene.labels.ravel(), minlength=len(scene.objects) + 1)
+    pairs = matched_objects([o.indices for o in result.objects], scene.labels, len(scene.objects))
     taken_obj, taken_truth, rows = set(), set(), []
-    for _, i, k in sorted(pairs, reverse=True):
-        if i in taken_obj or k in taken_truth:
-            continue
+    for i, k in pairs:
         taken_obj.add(i)
         taken_truth.add(k)
         truth, obj = scene.objects[k - 1], result.objects[i]
@@ -62,9 +60,8 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
             rot = float(
                 symmetric_rotation_error_deg(obj.pose[:3, :3], truth.pose[:3, :3], symmetry)
             )
-            centre = np.linalg.norm(invert_rigid(obj.pose)[:3, 3] - invert_rigid(truth.pose)[:3, 3])
-            row.update(rotation_deg=rot, centre_r=float(centre / truth.radius))
-            row["right"] = bool(is_correct(rot, centre / truth.radius))
+            row.update(rotation_deg=rot, **centre_errors(obj.pose, truth))
+            row["right"] = bool(is_correct(rot, row["centre_r"]))
         else:
             row["right"] = False
         rows.append(row)
@@ -75,6 +72,20 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
     rows += [{"kind": "false", "predicted": result.objects[i].category}
              for i in range(len(result.objects)) if i not in taken_obj]  # fmt: skip
     return rows
+
+
+def centre_errors(pose: np.ndarray, truth: SceneObjectTruth) -> dict[str, float]:
+    """An estimated pose T_canonical_from_input (4, 4) against the truth's -> the centre's error
+    in radii: its length (``centre_r``), along the truth's canonical axes (``centre_x``, ``_y``,
+    ``_z``: right, up, back), and along the camera's horizontal ray to the object
+    (``centre_far``: positive beyond the truth, negative nearer the camera)."""
+    truth_centre = invert_rigid(truth.pose)[:3, 3]
+    error = (invert_rigid(pose)[:3, 3] - truth_centre) / truth.radius
+    x, y, z = truth.pose[:3, :3] @ error
+    up = invert_rigid(truth.pose)[:3, 1]  # the truth's canonical up in the camera frame
+    ray = truth_centre - up * float(truth_centre @ up)  # from the camera, along the floor
+    return {"centre_r": float(np.linalg.norm(error)), "centre_x": float(x), "centre_y": float(y),
+            "centre_z": float(z), "centre_far": float(error @ ray / np.linalg.norm(ray))}  # fmt: skip
 
 
 def summary(rows: list[dict], returned: int) -> dict:
@@ -114,6 +125,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-large", action="store_true", help="skip the 640x480 frames")
     parser.add_argument("--no-floor-centre", action="store_true", help="the network's centres")
     parser.add_argument(
+        "--no-along-floor", action="store_true", help="no scene correction along the floor"
+    )
+    parser.add_argument(
         "--categories",
         default=None,
         help="'posed': the scenes' eight categories only (default: any)",
@@ -127,6 +141,7 @@ def main(argv: list[str] | None = None) -> None:
     shapes = split_shapes(args.data, args.split, args.cache)
     budget: dict = {} if args.budget_ms is None else {"budget_ms": args.budget_ms}
     budget["floor_centre"] = not args.no_floor_centre
+    budget["along_floor"] = not args.no_along_floor
     if args.categories == "posed":
         budget["categories"] = frozenset(SIZES)
     if args.model_dir is not None:

@@ -48,6 +48,7 @@ SIZES: dict[str, tuple[str, tuple[float, float]]] = {
 }
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")
+FIT_SPLIT = "train"
 
 
 @dataclass
@@ -69,20 +70,52 @@ class Scene:
     objects: list[SceneObjectTruth]
 
 
-def split_shapes(data: Path, split: str, cache: Path, seed: int = 0) -> dict[str, list[Shape]]:
-    """The ``split`` half ('validation' or 'test') of each category's test shapes, canonical
-    and orientation-checked."""
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+def split_shapes(
+    data: Path, split: str, cache: Path, seed: int = 0, limit: int | None = None
+) -> dict[str, list[Shape]]:
+    """The ``split`` half ('validation' or 'test') of each category's test shapes, or ('train')
+    the pose models' training shapes (for fitting what scenes need, never for measuring),
+    canonical and orientation-checked; ``limit``: at most that many a category (a seeded
+    draw)."""
+    if split not in (*SPLITS, FIT_SPLIT):
+        raise ValueError(f"split must be one of {(*SPLITS, FIT_SPLIT)}, got {split!r}")
     out = {}
     for name in SIZES:
-        files = split_files(data, name, 0.1, 0)["test"]
+        files = split_files(data, name, 0.1, 0)["train" if split == FIT_SPLIT else "test"]
         order = np.random.default_rng(seed + 17).permutation(len(files))
-        half = order[: len(files) // 2] if split == "validation" else order[len(files) // 2 :]
+        if split == FIT_SPLIT:
+            half = order
+        else:
+            half = order[: len(files) // 2] if split == "validation" else order[len(files) // 2 :]
+        half = half[:limit]
         cat = MODELNET10[name]
         shapes, _ = load_shapes([files[i] for i in sorted(half)], "modelnet", cache, True,
                                 cat.quarter_turns, cat.symmetry)  # fmt: skip
         out[name] = shapes
+    return out
+
+
+def matched_objects(
+    returned: list[NDArray[np.int64]], labels: NDArray[np.int64], count: int, min_iou: float = 0.5
+) -> list[tuple[int, int]]:
+    """Returned objects' pixel indices (each (K,), flat) against a scene's ``labels`` (H, W) of
+    ``count`` objects -> pairs (returned index, scene object's label 1..count) whose intersection
+    over union is at least ``min_iou``, best first, each matched once."""
+    flat = labels.ravel()
+    sizes = np.bincount(flat, minlength=count + 1)
+    pairs = []
+    for i, indices in enumerate(returned):
+        counts = np.bincount(flat[indices], minlength=count + 1)
+        for k in range(1, count + 1):
+            iou = counts[k] / (len(indices) + sizes[k] - counts[k])
+            if iou >= min_iou:
+                pairs.append((iou, i, k))
+    taken_returned, taken_truth, out = set(), set(), []
+    for _, i, k in sorted(pairs, reverse=True):
+        if i not in taken_returned and k not in taken_truth:
+            taken_returned.add(i)
+            taken_truth.add(k)
+            out.append((i, k))
     return out
 
 

@@ -14,6 +14,8 @@ Then the object stands on the floor (``floor_centred``): its canonical origin is
 its bounding box, whose bottom is the floor, so the centre's height is half the object's top.
 The top is what the camera sees best (it looks down on furniture); the network places the
 centre of a partial view too near the surface it sees, and the floor says how high it is.
+Before that, where the pose model has a scene correction (``centre_along_floor``), the centre
+moves along the floor to where it predicts.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from numpy.typing import NDArray
 
 from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics
+from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.planes import Plane
 from itnet.scene.posing import BadCloudError, pose_object, scene_catalog, with_pose
@@ -47,14 +50,18 @@ def find_objects(
     limits: SceneLimits = SceneLimits(),
     started: float | None = None,
     floor_centre: bool = True,
+    along_floor: bool = True,
+    centre_table: CentreTable | None = None,
     categories: frozenset[str] | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
     the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
-    Raises SceneInputError for a
-    scene that cannot be used, ValueError for a budget that is not positive."""
+    ``floor_centre``: the centre's height from the floor (``floor_centred``); ``along_floor``:
+    its place along the floor from the pose model's scene correction in ``centre_table``
+    (default: the shipped table), where it has one (both need the floor). Raises SceneInputError for a scene that cannot be used, ValueError for a
+    budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
         raise ValueError(f"budget_ms must be positive, got {budget_ms}")
@@ -80,8 +87,20 @@ def find_objects(
             continue
         if floor_centre and seen.pose is not None and seen.result is not None:
             assert found.floor is not None and height is not None  # objects stand on a floor
+            model = catalog.models[seen.result["model"]]
+            table = load_table() if centre_table is None else centre_table
+            correction = table.for_model(model.card.name, model.path) if along_floor else None
+            if correction is not None:
+                try:
+                    seen.pose = centred_along_floor(points, seen.pose, correction, VIEWPOINT,
+                                                    found.up)  # fmt: skip
+                except ValueError:  # the pose puts the camera on the object's centre
+                    correction = None
             seen.pose = floor_centred(seen.pose, height, found.floor)
-            seen.result = with_pose(seen.result, seen.pose) | {"centre_floor": True}
+            seen.result = with_pose(seen.result, seen.pose) | {
+                "centre_floor": True,
+                "centre_along_floor": correction is not None,
+            }
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,

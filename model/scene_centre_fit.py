@@ -1,0 +1,131 @@
+"""Fit each pose model's scene correction (``itnet.scene.centre_along_floor``) on scenes of
+training shapes.
+
+Development scenes (``itnet.model.scenes``) are made of the pose models' *training* shapes
+(never the test shapes the scene benchmark measures), rendered at 320x240, and found by
+``find_objects`` as served but without the correction. Every object matched to a scene object,
+named right and with its rotation within 20 degrees (the others are in a wrong basin, where no
+centre helps) gives the features of its moved points and where its true centre lies in that
+frame; a ridge regression per pose model is its correction::
+
+    python -m itnet.model.scene_centre_fit --scenes 800          # writes the shipped table
+    python -m itnet.model.scene_centre_fit --model-dir DIR --out DIR/centre_along_floor.json
+
+The table names each model's graph by its SHA-256, so it applies only to the graphs it was
+fitted for. Choosing it and measuring it: ``benchmarks/bench_scene.py`` (``--no-along-floor``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.centre import fit_centre_correction
+from itnet.model.categories import MODELNET10
+from itnet.model.scenes import FIT_SPLIT, make_scene, matched_objects, split_shapes
+from itnet.scene import find_objects, scene_catalog
+from itnet.scene.centre_along_floor import (
+    TABLE,
+    CentreTable,
+    graph_digest,
+    moved_object,
+    true_offset,
+)
+from itnet.scene.pipeline import VIEWPOINT, shipped_catalog
+from itnet.symmetry import symmetric_rotation_error_deg
+
+FIT_MAX_ROTATION_DEG = 20.0
+MIN_OBJECTS = 20  # a model with fewer usable objects gets no correction
+
+
+def scene_samples(
+    shapes: dict, scenes: int, seed: int, catalog, budget_ms: float
+) -> dict[str, tuple[list[NDArray], list[NDArray]]]:
+    """``scenes`` scenes of ``shapes`` -> per pose model, the features (F,) and true offsets (3,)
+    of its objects found, named right and turned within FIT_MAX_ROTATION_DEG."""
+    from itnet.scene.inputs import from_depth
+
+    rng = np.random.default_rng(seed)
+    samples: dict[str, tuple[list, list]] = defaultdict(lambda: ([], []))
+    for _ in range(scenes):
+        scene = make_scene(shapes, rng)
+        given = from_depth(scene.depth, scene.intrinsics)
+        result = find_objects(given, budget_ms=budget_ms, catalog=catalog, along_floor=False)
+        pairs = matched_objects([o.indices for o in result.objects], scene.labels,
+                                len(scene.objects))  # fmt: skip
+        for i, k in pairs:
+            obj, truth = result.objects[i], scene.objects[k - 1]
+            if obj.pose is None or obj.category != truth.category or obj.run is None:
+                continue
+            symmetry = MODELNET10[truth.category].symmetry
+            turn = float(symmetric_rotation_error_deg(obj.pose[:3, :3], truth.pose[:3, :3],
+                                                      symmetry))  # fmt: skip
+            if turn > FIT_MAX_ROTATION_DEG:
+                continue
+            points = given.points[np.searchsorted(given.indices, obj.indices)]
+            seen = moved_object(points, obj.pose, VIEWPOINT)
+            features, offsets = samples[obj.run["model"]]
+            features.append(seen.features)
+            offsets.append(true_offset(seen, truth.pose))
+    return dict(samples)
+
+
+def fit_table(samples: dict, catalog, ridge: float) -> tuple[CentreTable, dict]:
+    """Per model with at least MIN_OBJECTS samples, its correction and a line of statistics."""
+    corrections, stats = {}, {}
+    for name, (features, offsets) in sorted(samples.items()):
+        x, y = np.array(features), np.array(offsets)
+        stats[name] = {"objects": len(x)}
+        if len(x) < MIN_OBJECTS:
+            continue
+        correction = fit_centre_correction(x, y, ridge)
+        left = np.linalg.norm(y - correction.predict(x), axis=1)
+        stats[name].update(
+            mean_offset=[round(float(v), 4) for v in y.mean(0)],
+            before_rms=round(float(np.sqrt((np.linalg.norm(y, axis=1) ** 2).mean())), 4),
+            after_rms=round(float(np.sqrt((left**2).mean())), 4),
+        )
+        corrections[name] = (graph_digest(catalog.models[name].path), correction)
+    return CentreTable(corrections), stats
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=800)
+    parser.add_argument("--seed", type=int, default=11)
+    parser.add_argument("--shapes", type=int, default=150, help="training shapes a category")
+    parser.add_argument("--ridge", type=float, default=10.0)
+    parser.add_argument("--budget-ms", type=float, default=1000.0,
+                        help="each scene's (generous: the fit wants the served pose's finish)")  # fmt: skip
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    parser.add_argument("--model-dir", type=Path, default=None)
+    parser.add_argument("--samples", type=Path, default=None,
+                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=TABLE)
+    args = parser.parse_args(argv)
+    catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
+    if args.samples is not None and args.samples.exists():
+        with np.load(args.samples) as saved:
+            names = {key.rsplit("/", 1)[0] for key in saved.files}
+            samples = {n: (list(saved[f"{n}/x"]), list(saved[f"{n}/y"])) for n in names}
+    else:
+        shapes = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.shapes)
+        samples = scene_samples(shapes, args.scenes, args.seed, catalog, args.budget_ms)
+        if args.samples is not None:
+            arrays = {f"{n}/{k}": np.array(v) for n, (x, y) in samples.items()
+                      for k, v in (("x", x), ("y", y))}  # fmt: skip
+            np.savez(args.samples, **arrays)
+    table, stats = fit_table(samples, catalog, args.ridge)
+    args.out.write_text(json.dumps(table.to_dict(), indent=1) + "\n")
+    print(json.dumps(stats, indent=1))
+    print(f"wrote {args.out}: {len(table.corrections)} model(s)")
+
+
+if __name__ == "__main__":
+    main()
