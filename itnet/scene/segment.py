@@ -27,7 +27,8 @@ stands on the floor, filtered by size.
    sees stands all the same (a level camera at head height sees the floor from a few metres on:
    what is nearer shows no base). A standing cluster with at most ``sliver_share`` of the points
    of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
-   cut off) is a piece of that object too.
+   cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m``, is a piece of
+   that object too.
 """
 
 from __future__ import annotations
@@ -68,6 +69,8 @@ class SegmentOptions:
     attach_m: float = 0.3  # ... of the object within this, else no object
     sliver_m: float = 0.10  # a standing cluster this near an object ...
     sliver_share: float = 0.3  # ... with at most this share of its points is a piece of it
+    far_sliver_m: float = 0.20  # so is one this near an object ...
+    far_sliver_share: float = 0.2  # ... with at most this share of its points
     min_points: int = 80
     min_height_m: float = 0.2
     max_size_m: float = 3.0
@@ -234,8 +237,9 @@ def slivers_joined(
     points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions
 ) -> list[NDArray[np.int64]]:
     """Standing clusters (indices into points (N, 3)) -> the same, each small one that lies
-    within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points joined
-    to the nearest such (smallest first, so a chain of pieces ends in its object)."""
+    within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points, or
+    within ``far_sliver_m`` of one with at least 1 / ``far_sliver_share`` times, joined to the
+    nearest such (smallest first, so a chain of pieces ends in its object)."""
     parts: list[list[NDArray[np.int64]] | None] = [[g] for g in groups]
     sizes = [len(g) for g in groups]
     trees: dict[int, cKDTree] = {}
@@ -247,9 +251,13 @@ def slivers_joined(
         for j in larger:
             if j not in trees:
                 trees[j] = cKDTree(points[groups[j]])
-            gaps.append(_gap(points, groups[i], trees[j]))
+            gap = _gap(points, groups[i], trees[j])
+            near = gap <= options.sliver_m or (
+                gap <= options.far_sliver_m and sizes[i] <= options.far_sliver_share * sizes[j]
+            )
+            gaps.append(gap if near else np.inf)
         nearest = int(np.argmin(gaps))
-        if gaps[nearest] <= options.sliver_m:
+        if np.isfinite(gaps[nearest]):
             owner, mine = parts[larger[nearest]], parts[i]
             assert owner is not None and mine is not None  # larger ones are merged later
             owner.extend(mine)

@@ -118,8 +118,26 @@ def test_a_panel_a_gap_away_from_its_body_is_one_object():
         given = from_depth(scene.depth, scene.intrinsics)
         whole = segment(given.points).objects
         assert len(whole) == 1 and len(whole[0]) > 0.9 * (scene.labels == 1).sum()
-        apart = segment(given.points, SegmentOptions(sliver_m=0.0)).objects
+        apart = segment(given.points, SegmentOptions(sliver_m=0.0, far_sliver_m=0.0)).objects
         assert len(apart) == 2 and min(map(len, apart)) < 0.3 * max(map(len, apart))
+
+
+def test_a_thin_panel_farther_off_joins_only_when_small_enough():
+    """A cabinet's side panel 15 cm off its body (beyond ``sliver_m``, within ``far_sliver_m``)
+    with a tenth of its points joins it; where the far rule asks for a smaller share than the
+    panel has, it stays a second, false object."""
+    from itnet.scene.segment import SegmentOptions
+
+    cabinet = boxes_shape(
+        [((0, 0, 0), (0.6, 0.9, 0.5)), ((0.465, 0, 0), (0.03, 0.9, 0.5))], points=3000
+    )
+    scene = make_test_scene([(cabinet, 1.0, 0.0, 2.8, -30.0)])
+    given = from_depth(scene.depth, scene.intrinsics)
+    whole = segment(given.points).objects
+    assert len(whole) == 1 and len(whole[0]) > 0.9 * (scene.labels == 1).sum()
+    for options in (SegmentOptions(far_sliver_m=0.0), SegmentOptions(far_sliver_share=0.01)):
+        apart = segment(given.points, options).objects
+        assert len(apart) == 2 and min(map(len, apart)) < 0.2 * max(map(len, apart))
 
 
 def test_a_small_object_beside_a_large_one_stays_its_own():
