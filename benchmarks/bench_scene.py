@@ -135,6 +135,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--model-dir", type=Path, default=None, help="the models to serve (default: the shipped)"
     )
+    parser.add_argument(
+        "--touching", action="store_true", help="objects standing against each other (2-3)"
+    )
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -151,7 +154,7 @@ def main(argv: list[str] | None = None) -> None:
     rows: list[dict] = []
     returned, times, times_large, rows_large, returned_large = 0, [], [], [], 0
     for s in range(args.scenes):
-        scene = make_scene(shapes, rng)
+        scene = make_scene(shapes, rng, touching=args.touching)
         png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
         start = time.perf_counter()
         result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
@@ -159,7 +162,7 @@ def main(argv: list[str] | None = None) -> None:
         rows += match(result, scene, args.min_pixels)
         returned += len(result.objects)
         if not args.no_large:
-            big = large_scene(shapes, seed, s)
+            big = large_scene(shapes, seed, s, args.touching)
             png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
             start = time.perf_counter()
             result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
@@ -167,7 +170,7 @@ def main(argv: list[str] | None = None) -> None:
             rows_large += match(result, big, 4 * args.min_pixels)
             returned_large += len(result.objects)
     report = {
-        "split": args.split, "scenes": args.scenes, "seed": seed,
+        "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k != "catalog"},
         **({"model_dir": str(args.model_dir)} if args.model_dir is not None else {}),
@@ -180,9 +183,10 @@ def main(argv: list[str] | None = None) -> None:
         args.out.write_text(json.dumps({**report, "rows": rows}, indent=1))
 
 
-def large_scene(shapes: dict, seed: int, index: int) -> Scene:
+def large_scene(shapes: dict, seed: int, index: int, touching: bool = False) -> Scene:
     """A scene of the same kind at 640x480, drawn from its own generator (seed, index)."""
-    return make_scene(shapes, np.random.default_rng([seed, index, 640]), 640, 480)
+    rng = np.random.default_rng([seed, index, 640])
+    return make_scene(shapes, rng, 640, 480, touching=touching)
 
 
 def timing(ms: list[float]) -> dict:

@@ -95,6 +95,39 @@ def split_shapes(
     return out
 
 
+def _floor_points(shape: Shape, scale: float, turn: NDArray, where: NDArray) -> NDArray:
+    """A placed shape's points on the floor (K, 2): world x and z."""
+    return ((shape.points * scale) @ turn.T + where)[:, [0, 2]]
+
+
+def _against(
+    shape: Shape, scale: float, turn: NDArray, floor_y: float,
+    placed: list[tuple[Shape, float, NDArray, str, float]], rng: np.random.Generator,
+) -> NDArray | None:  # fmt: skip
+    """Where (3,) a shape stands against one of the ``placed`` (drawn at random), coming in
+    from a random direction until its footprint's points lie 1-5 cm from that one's; None where
+    it would then come within 1 cm of another."""
+    from scipy.spatial import cKDTree
+
+    anchor = placed[int(rng.integers(len(placed)))]
+    direction = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))[:, 0]
+    gap = rng.uniform(0.01, 0.05)
+    centre = anchor[2][:3, 3]
+    others = [cKDTree(_floor_points(p[0], p[1], p[2][:3, :3], p[2][:3, 3])) for p in placed]
+    mine = _floor_points(shape, scale, turn, np.zeros(3))
+    reach = anchor[4] + scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
+    for step in np.arange(reach + 0.1, 0.0, -0.01):
+        where = centre + direction * step
+        where[1] = floor_y
+        nearest = [float(t.query(mine + where[[0, 2]])[0].min()) for t in others]
+        if min(nearest) <= gap:
+            anchor_index = next(i for i, p in enumerate(placed) if p is anchor)
+            if nearest[anchor_index] > gap or min(nearest) < 0.01:
+                return None
+            return where
+    return None
+
+
 def matched_objects(
     returned: list[NDArray[np.int64]], labels: NDArray[np.int64], count: int, min_iou: float = 0.5
 ) -> list[tuple[int, int]]:
@@ -232,14 +265,16 @@ def render(
 
 def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
-    height: int = HEIGHT, fov_deg: float = FOV_DEG,
+    height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
 ) -> Scene:  # fmt: skip
-    """One random scene (see the module) from the given shapes of each category."""
+    """One random scene (see the module) from the given shapes of each category.
+    ``touching``: two or three objects, each after the first standing against one placed
+    before it (its footprint's points 1-5 cm from that one's), as chairs stand at a table."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(0.0, 25.0), rng.uniform(-3, 3))
     camera_from_world = invert_rigid(camera)
     placed: list[tuple[Shape, float, NDArray, str, float]] = []
-    wanted = int(rng.integers(1, 4))
+    wanted = int(rng.integers(2, 4)) if touching else int(rng.integers(1, 4))
     for _ in range(60):
         if len(placed) == wanted:
             break
@@ -252,7 +287,13 @@ def make_scene(
         floor_y = -float(shape.points[:, 1].min()) * scale  # the bottom on the floor
         where = np.array([reach * math.sin(bearing), floor_y, reach * math.cos(bearing)])
         footprint = scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
-        if any(np.hypot(*(where - p[2][:3, 3])[[0, 2]]) < footprint + p[4] + 0.15 for p in placed):
+        if touching and placed:
+            against = _against(shape, scale, turn, floor_y, placed, rng)
+            if against is None:
+                continue
+            where = against
+        elif any(np.hypot(*(where - p[2][:3, 3])[[0, 2]]) < footprint + p[4] + 0.15
+                 for p in placed):  # fmt: skip
             continue
         world = np.eye(4)
         world[:3, :3], world[:3, 3] = turn, where

@@ -152,3 +152,30 @@ def test_a_small_object_beside_a_large_one_stays_its_own():
     assert owners == [1, 2]
     sizes = sorted(len(rows) for rows in found.objects)
     assert sizes[0] < 0.3 * sizes[1]  # small enough to be a sliver, and far enough not to be
+
+
+def test_touching_scenes_stand_each_object_against_another():
+    """``make_scene(touching=True)``: two or three objects, each within 1-5 cm of another on the
+    floor (their points' footprints), none nearer than 1 cm to any."""
+    from itnet.geometry import invert_rigid
+    from itnet.model.scenes import SIZES, make_scene
+
+    shapes = {name: [boxes_shape([((0, 0, 0), (0.6, 0.8, 0.5))], seed=k)]
+              for k, name in enumerate(SIZES)}  # fmt: skip
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        scene = make_scene(shapes, rng, touching=True)
+        assert 2 <= len(scene.objects) <= 3
+        up = invert_rigid(scene.objects[0].pose)[:3, 1]  # canonical +y: the floor's normal
+        feet = []
+        for truth in scene.objects:
+            points = shapes[truth.category][0].points * truth.radius
+            camera = points @ invert_rigid(truth.pose)[:3, :3].T + invert_rigid(truth.pose)[:3, 3]
+            feet.append(camera - np.outer(camera @ up, up))
+        for i, mine in enumerate(feet):
+            gaps = [
+                float(np.linalg.norm(mine[:, None] - other[None], axis=2).min())
+                for j, other in enumerate(feet)
+                if j != i
+            ]
+            assert min(gaps) >= 0.0099 and min(gaps) <= 0.0501
