@@ -136,6 +136,9 @@ def main(argv: list[str] | None = None) -> None:
         "--model-dir", type=Path, default=None, help="the models to serve (default: the shipped)"
     )
     parser.add_argument(
+        "--no-recheck", action="store_true", help="no category recheck by the verifiers"
+    )
+    parser.add_argument(
         "--touching", action="store_true", help="objects standing against each other (2-3)"
     )
     parser.add_argument("--out", type=Path, default=None)
@@ -145,6 +148,7 @@ def main(argv: list[str] | None = None) -> None:
     budget: dict = {} if args.budget_ms is None else {"budget_ms": args.budget_ms}
     budget["floor_centre"] = not args.no_floor_centre
     budget["along_floor"] = not args.no_along_floor
+    budget["recheck"] = not args.no_recheck
     if args.categories == "posed":
         budget["categories"] = frozenset(SIZES)
     if args.model_dir is not None:

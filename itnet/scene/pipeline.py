@@ -21,6 +21,7 @@ moves along the floor to where it predicts.
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,12 +29,13 @@ from numpy.typing import NDArray
 
 from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics
+from itnet.scene.category_recheck import rechecked
 from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.planes import Plane
-from itnet.scene.posing import BadCloudError, pose_object, scene_catalog, with_pose
+from itnet.scene.posing import BadCloudError, ObjectPose, pose_object, scene_catalog, with_pose
 from itnet.scene.result import Box, SceneObject, SceneResult
-from itnet.scene.segment import CAMERA_UP, SegmentOptions, segment
+from itnet.scene.segment import CAMERA_UP, Segmentation, SegmentOptions, segment
 
 DEFAULT_BUDGET_MS = 140.0
 VIEWPOINT = np.zeros(3)  # the camera, in its own frame
@@ -52,6 +54,7 @@ def find_objects(
     floor_centre: bool = True,
     along_floor: bool = True,
     centre_table: CentreTable | None = None,
+    recheck: bool = True,
     categories: frozenset[str] | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
@@ -60,7 +63,9 @@ def find_objects(
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
     ``floor_centre``: the centre's height from the floor (``floor_centred``); ``along_floor``:
     its place along the floor from the pose model's scene correction in ``centre_table``
-    (default: the shipped table), where it has one (both need the floor). Raises SceneInputError for a scene that cannot be used, ValueError for a
+    (default: the shipped table), where it has one (both need the floor). ``recheck``: a pose
+    the category's verifier doubts is weighed against one as the second category
+    (``category_recheck``). Raises SceneInputError for a scene that cannot be used, ValueError for a
     budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
@@ -75,9 +80,13 @@ def find_objects(
     found = segment(given.points, options, expected_up)
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
+    table = load_table() if centre_table is None else centre_table
+    if not along_floor:
+        table = CentreTable({})
     for k, rows in enumerate(found.objects):
         points = given.points[rows]
-        left_ms = budget_ms - (time.perf_counter() - started) * 1e3
+        now = time.perf_counter()
+        left_ms = budget_ms - (now - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         height = None if found.floor is None else top_height(points, found.floor)
         try:
@@ -85,22 +94,11 @@ def find_objects(
                                categories=categories, height_m=height)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
-        if floor_centre and seen.pose is not None and seen.result is not None:
-            assert found.floor is not None and height is not None  # objects stand on a floor
-            model = catalog.models[seen.result["model"]]
-            table = load_table() if centre_table is None else centre_table
-            correction = table.for_model(model.card.name, model.path) if along_floor else None
-            if correction is not None:
-                try:
-                    seen.pose = centred_along_floor(points, seen.pose, correction, VIEWPOINT,
-                                                    found.up)  # fmt: skip
-                except ValueError:  # the pose puts the camera on the object's centre
-                    correction = None
-            seen.pose = floor_centred(seen.pose, height, found.floor)
-            seen.result = with_pose(seen.result, seen.pose) | {
-                "centre_floor": True,
-                "centre_along_floor": correction is not None,
-            }
+        finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
+                         found=found, table=table, floor_centre=floor_centre)  # fmt: skip
+        seen = finish(seen)
+        if recheck:
+            seen = rechecked(catalog, seen, points, found.up, VIEWPOINT, now + share / 1e3, finish)
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
@@ -122,6 +120,32 @@ def shipped_catalog() -> Catalog:
     if _SHIPPED is None:
         _SHIPPED = scene_catalog()
     return _SHIPPED
+
+
+def stood_on_floor(
+    seen: ObjectPose, catalog: Catalog, points: NDArray, height: float | None, found: Segmentation,
+    table: CentreTable, floor_centre: bool = True,
+) -> ObjectPose:  # fmt: skip
+    """A posed object (its cluster (K, 3), its top ``height`` above the floor) stood on the
+    floor: its place along the floor by its pose model's scene correction in ``table`` where it
+    has one, its height from the floor (``floor_centred``); unchanged without a pose, or with
+    ``floor_centre`` off."""
+    if not floor_centre or seen.pose is None or seen.result is None:
+        return seen
+    assert found.floor is not None and height is not None  # objects stand on a floor
+    model = catalog.models[seen.result["model"]]
+    correction = table.for_model(model.card.name, model.path)
+    if correction is not None:
+        try:
+            seen.pose = centred_along_floor(points, seen.pose, correction, VIEWPOINT, found.up)
+        except ValueError:  # the pose puts the camera on the object's centre
+            correction = None
+    seen.pose = floor_centred(seen.pose, height, found.floor)
+    seen.result = with_pose(seen.result, seen.pose) | {
+        "centre_floor": True,
+        "centre_along_floor": correction is not None,
+    }
+    return seen
 
 
 def top_height(points: NDArray, floor: Plane) -> float:

@@ -104,6 +104,22 @@ def pose_object(
     ]
     probability = round(float(probabilities[order[0]]), 6)
     seen = ObjectPose(names[order[0]], probability, top, probability < recognition.threshold)
+    return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms)
+
+
+def posed_as(
+    catalog: Catalog,
+    seen: ObjectPose,
+    points: NDArray,
+    up: NDArray,
+    viewpoint: NDArray,
+    budget_ms: float,
+    started: float,
+    min_run_ms: float = 2.0,
+) -> ObjectPose:
+    """``seen`` (its category) with its pose: the category's anytime pipeline run on the cluster
+    (K, 3) with up and the viewpoint, within ``budget_ms`` from ``started``; ``no_pose`` says
+    why not where it has none (no model for the category, or the budget)."""
     model = pose_model_for(seen.category, catalog.models)
     if model is None:
         seen.no_pose = "no_pose_model"

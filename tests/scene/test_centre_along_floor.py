@@ -123,14 +123,14 @@ def test_the_fit_writes_a_table_for_the_models_it_has_enough_objects_of(tmp_path
 
 def test_find_objects_moves_each_posed_object_along_the_floor(chair_scene: Scene) -> None:
     plain = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
-                         along_floor=False)  # fmt: skip
+                         along_floor=False, recheck=False)  # fmt: skip
     (obj,) = plain.objects
     assert obj.pose is not None and obj.run is not None
     assert obj.run["centre_along_floor"] is False
     model = shipped_catalog().models[obj.run["model"]]
     table = CentreTable({model.card.name: (graph_digest(model.path), constant((0.0, 0.0, 0.5)))})
     moved = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
-                         centre_table=table)  # fmt: skip
+                         centre_table=table, recheck=False)  # fmt: skip
     (again,) = moved.objects
     assert again.run is not None and again.run["centre_along_floor"] is True
     assert np.allclose(again.pose[:3, :3], obj.pose[:3, :3], atol=1e-4)  # the same run

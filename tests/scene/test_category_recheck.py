@@ -1,0 +1,67 @@
+"""A scene object's category rechecked by the verifiers: the logit, and find_objects keeping the
+first category, changing to the second, or saying the budget held no second pose."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from itnet.cloud_io import read_cloud
+from itnet.geometry import axis_angle_to_matrix
+from itnet.model.scenes import Scene
+from itnet.pose.request import PoseRequest
+from itnet.scene import category_recheck, find_objects
+from itnet.scene.category_recheck import pose_logit
+from itnet.scene.pipeline import shipped_catalog
+
+CHAIR = Path(__file__).resolve().parents[2] / "itnet" / "examples" / "chair_a.ply"
+
+
+def test_the_verifier_finds_a_served_pose_likelier_than_a_turned_one() -> None:
+    catalog = shipped_catalog()
+    chair = catalog.models["chair"]
+    cloud = read_cloud(CHAIR)
+    reply = catalog.pose(cloud, PoseRequest(model="chair", budget_ms=1000))
+    pose = np.asarray(reply["T_canonical_from_input"])
+    turned = pose.copy()
+    turned[:3, :3] = axis_angle_to_matrix([0.0, 1.0, 0.0], np.pi / 2) @ pose[:3, :3]
+    right, wrong = pose_logit(chair, cloud, pose), pose_logit(chair, cloud, turned)
+    assert right is not None and wrong is not None and right > wrong + 3
+    assert pose_logit(chair, cloud, pose) == right  # a fixed draw of the points
+    bare = type(chair)(chair.card, chair.path, chair.session)  # no verifier attached
+    assert pose_logit(bare, cloud, pose) is None
+
+
+@pytest.mark.parametrize(
+    ("below", "margin", "budget_ms", "outcome"),
+    [
+        (np.inf, -np.inf, 1000.0, "changed"),  # always doubted, the second always likelier
+        (np.inf, np.inf, 1000.0, "kept"),  # always doubted, the second never likelier
+        (-np.inf, 0.0, 1000.0, None),  # never doubted
+    ],
+)
+def test_find_objects_keeps_or_changes_a_doubted_category(
+    monkeypatch: pytest.MonkeyPatch, chair_scene: Scene, below: float, margin: float,
+    budget_ms: float, outcome: str | None,
+) -> None:  # fmt: skip
+    first = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=budget_ms,
+                         recheck=False).objects[0]  # fmt: skip
+    monkeypatch.setattr(category_recheck, "RECHECK_BELOW", below)
+    monkeypatch.setattr(category_recheck, "RECHECK_MARGIN", margin)
+    (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=budget_ms).objects
+    assert obj.run is not None and obj.run.get("category_recheck") == outcome
+    second = first.candidates[1]["category"]
+    assert obj.category == (second if outcome == "changed" else first.category)
+    assert obj.run["model"] == obj.category and obj.run["centre_floor"] is True  # finished alike
+    assert obj.candidates == first.candidates
+
+
+def test_a_doubted_object_without_time_left_says_so(
+    monkeypatch: pytest.MonkeyPatch, chair_scene: Scene
+) -> None:
+    monkeypatch.setattr(category_recheck, "RECHECK_BELOW", np.inf)
+    monkeypatch.setattr(category_recheck, "MIN_RECHECK_MS", 1e6)
+    (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000).objects
+    assert obj.run is not None and obj.run["category_recheck"] == "budget"
