@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ from itnet.model.scenes import (
     matched_objects,
     split_shapes,
 )
-from itnet.scene import SceneResult, find_objects, scene_catalog
+from itnet.scene import SceneFinishing, SceneResult, find_objects, scene_catalog
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
 from itnet.symmetry import symmetric_rotation_error_deg
@@ -146,9 +147,9 @@ def main(argv: list[str] | None = None) -> None:
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
     shapes = split_shapes(args.data, args.split, args.cache)
     budget: dict = {} if args.budget_ms is None else {"budget_ms": args.budget_ms}
-    budget["floor_centre"] = not args.no_floor_centre
-    budget["along_floor"] = not args.no_along_floor
-    budget["recheck"] = not args.no_recheck
+    budget["finishing"] = SceneFinishing(
+        not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
+    )
     if args.categories == "posed":
         budget["categories"] = frozenset(SIZES)
     if args.model_dir is not None:
@@ -176,7 +177,8 @@ def main(argv: list[str] | None = None) -> None:
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
-           if k != "catalog"},
+           if k not in ("catalog", "finishing")},
+        **asdict(budget["finishing"]),
         **({"model_dir": str(args.model_dir)} if args.model_dir is not None else {}),
         "320x240": summary(rows, returned) | timing(times),
         **({"640x480": summary(rows_large, returned_large) | timing(times_large)} if times_large else {}),

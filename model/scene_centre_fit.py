@@ -36,7 +36,7 @@ from itnet.scene.centre_along_floor import (
     moved_object,
     true_offset,
 )
-from itnet.scene.pipeline import VIEWPOINT, shipped_catalog
+from itnet.scene.pipeline import VIEWPOINT, SceneFinishing, shipped_catalog
 from itnet.symmetry import symmetric_rotation_error_deg
 
 FIT_MAX_ROTATION_DEG = 20.0
@@ -55,7 +55,8 @@ def scene_samples(
     for _ in range(scenes):
         scene = make_scene(shapes, rng)
         given = from_depth(scene.depth, scene.intrinsics)
-        result = find_objects(given, budget_ms=budget_ms, catalog=catalog, along_floor=False)
+        finishing = SceneFinishing(along_floor=False, recheck=False)  # each model's own poses
+        result = find_objects(given, budget_ms=budget_ms, catalog=catalog, finishing=finishing)
         pairs = matched_objects([o.indices for o in result.objects], scene.labels,
                                 len(scene.objects))  # fmt: skip
         for i, k in pairs:

@@ -32,6 +32,19 @@ def scene(
         True, "--indices/--no-indices", help="With --json: each object's point indices."
     ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per file, per line."),
+    floor_centre: bool = typer.Option(
+        True, "--floor-centre/--no-floor-centre", help="Each object's height from the floor."
+    ),
+    along_floor: bool = typer.Option(
+        True,
+        "--along-floor/--no-along-floor",
+        help="Each object's place along the floor by its pose model's scene correction.",
+    ),
+    recheck: bool = typer.Option(
+        True,
+        "--recheck/--no-recheck",
+        help="A pose its category's verifier doubts weighed against the second category's.",
+    ),
 ) -> None:
     """Find the objects standing on the floor of each scene (camera frame: x right, y down, z
     ahead, metres): category, probability, T_canonical_from_input, box, points. Bad files are
@@ -39,7 +52,7 @@ def scene(
     import numpy as np
 
     from itnet.geometry import rotation_angle_deg
-    from itnet.scene import SceneInputError, find_objects, parse_intrinsics
+    from itnet.scene import SceneFinishing, SceneInputError, find_objects, parse_intrinsics
     from itnet.scene.posing import ModelLoadError, scene_catalog
 
     if not 0 < budget_ms <= 60_000:
@@ -53,11 +66,12 @@ def scene(
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
+    finishing = SceneFinishing(floor_centre, along_floor, recheck)
     failed = False
     for path in files:
         try:
             result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
-                                  depth_scale=depth_scale)  # fmt: skip
+                                  depth_scale=depth_scale, finishing=finishing)  # fmt: skip
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)
             failed = True

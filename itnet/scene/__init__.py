@@ -22,7 +22,7 @@ from itnet.scene.inputs import (
     from_file,
     from_png,
 )
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS, find_objects
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, find_objects
 from itnet.scene.posing import scene_catalog
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.segment import SegmentOptions
@@ -31,6 +31,7 @@ __all__ = [
     "DEFAULT_BUDGET_MS",
     "Box",
     "Intrinsics",
+    "SceneFinishing",
     "SceneInput",
     "SceneInputError",
     "SceneLimits",

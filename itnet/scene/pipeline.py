@@ -21,6 +21,7 @@ moves along the floor to where it predicts.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -38,6 +39,18 @@ from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.segment import CAMERA_UP, Segmentation, SegmentOptions, segment
 
 DEFAULT_BUDGET_MS = 140.0
+
+
+@dataclass(frozen=True)
+class SceneFinishing:
+    """What each posed object of a scene gets after its pose pipeline, in order; each step a
+    switch, all on by default (docs/scenes.md)."""
+
+    floor_centre: bool = True  # stood on the floor: its height from the floor (floor_centred)
+    along_floor: bool = True  # its place along the floor by its pose model's scene correction
+    recheck: bool = True  # a pose its verifier doubts weighed against the second category's
+
+
 VIEWPOINT = np.zeros(3)  # the camera, in its own frame
 
 
@@ -51,21 +64,16 @@ def find_objects(
     expected_up: NDArray | tuple[float, float, float] = CAMERA_UP,
     limits: SceneLimits = SceneLimits(),
     started: float | None = None,
-    floor_centre: bool = True,
-    along_floor: bool = True,
+    finishing: SceneFinishing = SceneFinishing(),
     centre_table: CentreTable | None = None,
-    recheck: bool = True,
     categories: frozenset[str] | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
     the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
-    ``floor_centre``: the centre's height from the floor (``floor_centred``); ``along_floor``:
-    its place along the floor from the pose model's scene correction in ``centre_table``
-    (default: the shipped table), where it has one (both need the floor). ``recheck``: a pose
-    the category's verifier doubts is weighed against one as the second category
-    (``category_recheck``). Raises SceneInputError for a scene that cannot be used, ValueError for a
+    ``finishing``: the steps each posed object gets after its pose pipeline; ``centre_table``:
+    the pose models' scene corrections (default: the shipped table). Raises SceneInputError for a scene that cannot be used, ValueError for a
     budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
@@ -81,7 +89,7 @@ def find_objects(
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
     table = load_table() if centre_table is None else centre_table
-    if not along_floor:
+    if not finishing.along_floor:
         table = CentreTable({})
     for k, rows in enumerate(found.objects):
         points = given.points[rows]
@@ -95,9 +103,9 @@ def find_objects(
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
-                         found=found, table=table, floor_centre=floor_centre)  # fmt: skip
+                         found=found, table=table, floor_centre=finishing.floor_centre)  # fmt: skip
         seen = finish(seen)
-        if recheck:
+        if finishing.recheck:
             seen = rechecked(catalog, seen, points, found.up, VIEWPOINT, now + share / 1e3, finish)
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
@@ -187,4 +195,10 @@ def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray 
     return Box(rotation @ ((lo + hi) / 2), hi - lo, rotation)
 
 
-__all__ = ["DEFAULT_BUDGET_MS", "find_objects", "object_box", "shipped_catalog"]
+__all__ = [
+    "DEFAULT_BUDGET_MS",
+    "SceneFinishing",
+    "find_objects",
+    "object_box",
+    "shipped_catalog",
+]

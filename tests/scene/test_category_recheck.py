@@ -12,7 +12,7 @@ from itnet.cloud_io import read_cloud
 from itnet.geometry import axis_angle_to_matrix
 from itnet.model.scenes import Scene
 from itnet.pose.request import PoseRequest
-from itnet.scene import category_recheck, find_objects
+from itnet.scene import SceneFinishing, category_recheck, find_objects
 from itnet.scene.category_recheck import pose_logit
 from itnet.scene.pipeline import shipped_catalog
 
@@ -47,7 +47,7 @@ def test_find_objects_keeps_or_changes_a_doubted_category(
     budget_ms: float, outcome: str | None,
 ) -> None:  # fmt: skip
     first = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=budget_ms,
-                         recheck=False).objects[0]  # fmt: skip
+                         finishing=SceneFinishing(recheck=False)).objects[0]  # fmt: skip
     monkeypatch.setattr(category_recheck, "RECHECK_BELOW", below)
     monkeypatch.setattr(category_recheck, "RECHECK_MARGIN", margin)
     (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=budget_ms).objects

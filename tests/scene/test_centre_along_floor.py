@@ -13,7 +13,7 @@ from itnet.centre import FEATURE_COUNTS, FEATURES, FEATURES_VIEWPOINT, CentreCor
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model import scene_centre_fit
 from itnet.model.scenes import Scene, matched_objects
-from itnet.scene import find_objects
+from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.centre_along_floor import (
     CentreTable,
     centred_along_floor,
@@ -123,14 +123,14 @@ def test_the_fit_writes_a_table_for_the_models_it_has_enough_objects_of(tmp_path
 
 def test_find_objects_moves_each_posed_object_along_the_floor(chair_scene: Scene) -> None:
     plain = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
-                         along_floor=False, recheck=False)  # fmt: skip
+                         finishing=SceneFinishing(along_floor=False, recheck=False))  # fmt: skip
     (obj,) = plain.objects
     assert obj.pose is not None and obj.run is not None
     assert obj.run["centre_along_floor"] is False
     model = shipped_catalog().models[obj.run["model"]]
     table = CentreTable({model.card.name: (graph_digest(model.path), constant((0.0, 0.0, 0.5)))})
     moved = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
-                         centre_table=table, recheck=False)  # fmt: skip
+                         centre_table=table, finishing=SceneFinishing(recheck=False))  # fmt: skip
     (again,) = moved.objects
     assert again.run is not None and again.run["centre_along_floor"] is True
     assert np.allclose(again.pose[:3, :3], obj.pose[:3, :3], atol=1e-4)  # the same run

@@ -136,3 +136,26 @@ def test_http_bad_scenes_get_their_4xx_and_the_service_keeps_serving(
     ok = client.post("/v1/scene", content=cloud.astype("<f4").tobytes(),
                      headers={"content-type": "application/octet-stream"})  # fmt: skip
     assert ok.status_code == 200 and ok.json()["objects"] == []  # no floor: no objects
+
+
+def test_the_finishing_steps_switch_off_on_the_cli_and_http(
+    client: TestClient, files: Path, chair_scene: Scene
+) -> None:
+    """``--no-floor-centre`` / ``floor_centre=false`` and the others reach find_objects: an
+    object without them has the network's own centre and no finishing fields."""
+    args = ["scene", str(files / "chair.png"), "--intrinsics", camera_arg(chair_scene), "--json",
+            "--budget-ms", "300"]  # fmt: skip
+    off = ["--no-floor-centre", "--no-along-floor", "--no-recheck"]
+    on, bare = (json.loads(runner.invoke(app, args + extra).output) for extra in ([], off))
+    (finished,), (plain,) = on["objects"], bare["objects"]
+    assert finished["T_canonical_from_input"] is not None  # every category has a pose model
+    assert finished["centre_floor"] is True and "centre_floor" not in plain
+    assert "category_recheck" not in plain
+    i = chair_scene.intrinsics
+    query = (f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300"
+             "&floor_centre=false&along_floor=false&recheck=false")  # fmt: skip
+    png = (files / "chair.png").read_bytes()
+    reply = client.post(f"/v1/scene?{query}", content=png, headers={"content-type": "image/png"})
+    assert reply.status_code == 200, reply.text
+    (obj,) = reply.json()["objects"]
+    assert "centre_floor" not in obj and "category_recheck" not in obj

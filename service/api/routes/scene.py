@@ -33,7 +33,7 @@ from itnet.scene import (
 )
 from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing
 from itnet.scene.posing import NoClassifierError
 from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, malformed_json
@@ -114,6 +114,13 @@ async def scene(
             "drawn at random, with the object each belongs to (for drawing; -1: none)",
         ),
     ] = 0,
+    floor_centre: Annotated[bool, Query(description="each object's height from the floor")] = True,
+    along_floor: Annotated[
+        bool, Query(description="each object's place along the floor (scene correction)")
+    ] = True,
+    recheck: Annotated[
+        bool, Query(description="a doubted pose weighed against the second category's")
+    ] = True,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
@@ -129,8 +136,9 @@ async def scene(
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
-            _find, state, body, kind, camera, depth_scale, budget_ms, indices, points
-        )
+            _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
+            SceneFinishing(floor_centre, along_floor, recheck),
+        )  # fmt: skip
 
 
 def _decode(
@@ -162,13 +170,15 @@ def _decode(
 def _find(
     state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None,
     depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
+    finishing: SceneFinishing = SceneFinishing(),
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
         raise ServiceError(503, "not_ready", f"no model is loaded: {state.load_error}")
     try:
         given = _decode(body, kind, camera, depth_scale)
-        result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog)
+        result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
+                              finishing=finishing)  # fmt: skip
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
