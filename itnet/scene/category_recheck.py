@@ -28,7 +28,8 @@ from itnet.scene.posing import ObjectPose, posed_as
 
 RECHECK_BELOW = 2.0  # a pose whose verifier logit is lower is doubted ...
 RECHECK_MARGIN = 3.0  # ... and the second category kept where its logit is higher by this
-MIN_RECHECK_MS = 4.0  # the least time left for the second pose
+MIN_RECHECK_MS = 4.0  # the least time left for the second pose ...
+FINISH_MS = 3.0  # ... after this is kept for its finishing and its verifier's call
 
 
 def pose_logit(model: LoadedModel, points: NDArray, pose: NDArray) -> float | None:
@@ -58,7 +59,8 @@ def rechecked(
     """A posed and finished object (``finish``: what the scene does to every pose, such as
     standing it on the floor) -> the same, or, where its verifier doubts it and the second
     category's verifier finds its own finished pose likelier by RECHECK_MARGIN, that one; the
-    second pose must end by ``deadline`` (``time.perf_counter()``)."""
+    second pose, its finishing and its verifier's call must end by ``deadline``
+    (``time.perf_counter()``)."""
     model = None if seen.result is None else catalog.models[seen.result["model"]]
     logit = None if model is None or seen.pose is None else pose_logit(model, points, seen.pose)
     if logit is None or logit >= RECHECK_BELOW or len(seen.candidates) < 2:
@@ -68,7 +70,7 @@ def rechecked(
     if other_model is None or other_model.verifier is None:
         return seen
     now = time.perf_counter()
-    left_ms = (deadline - now) * 1e3
+    left_ms = (deadline - now) * 1e3 - FINISH_MS
     if left_ms < MIN_RECHECK_MS:
         return _noted(seen, "budget")
     other = ObjectPose(second["category"], second["probability"], seen.candidates, seen.unsure)
