@@ -2,7 +2,8 @@
 
 ``ItnetClient`` (blocking) and ``AsyncItnetClient`` (asyncio) call ``POST /v1/estimate`` (JSON or
 a binary float32 body) and ``WS /v1/estimate/stream`` (an iterator of per-iteration estimates,
-cancellable). What to ask is a ``PoseRequest`` (the service's own declaration of a request), or
+cancellable), and ``POST /v1/scene`` (every object of a depth image or a scene cloud). What to
+ask is a ``PoseRequest`` (the service's own declaration of a request), or
 its fields by name. Poses are T_canonical_from_input, 4x4, in the cloud's own units.
 """
 

@@ -15,6 +15,7 @@ import asyncio
 import contextlib
 import json
 from collections.abc import AsyncIterator
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -26,6 +27,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 from itnet.clients.wire import (
     BINARY,
     ESTIMATE_PATH,
+    SCENE_PATH,
     Estimate,
     EstimateResult,
     ItnetClientError,
@@ -36,6 +38,7 @@ from itnet.clients.wire import (
     pose_request,
     reply_json,
     request_fields,
+    scene_request,
     websocket_url,
 )
 from itnet.pose.request import PoseRequest
@@ -148,6 +151,28 @@ class AsyncItnetClient:
             raise ItnetConnectionError(f"{self.base_url}: cannot open the stream ({err})") from None
         await connection.send(json.dumps(request))
         return AsyncEstimateStream(connection, self.timeout)
+
+    async def scene(
+        self,
+        scene: ArrayLike | bytes | str | Path,
+        intrinsics: tuple[float, float, float, float] | None = None,
+        budget_ms: float | None = None,
+        depth_scale: float | None = None,
+        indices: bool = True,
+        floor_centre: bool = True,
+        along_floor: bool = True,
+        recheck: bool = True,
+    ) -> Any:
+        """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
+        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck}
+        sent = scene_request(scene, intrinsics, budget_ms, depth_scale, indices, switches)
+        try:
+            reply = await self._http.post(
+                SCENE_PATH, content=sent[0], params=sent[1], headers=sent[2]
+            )
+        except httpx.TransportError as err:
+            raise ItnetConnectionError(f"{self.base_url}: {err}") from None
+        return _json(reply)
 
     async def models(self) -> Any:
         """``GET /v1/models``: what the service has loaded."""

@@ -1,4 +1,5 @@
-"""Blocking client of the itnet service: ``POST /v1/estimate`` and ``WS /v1/estimate/stream``.
+"""Blocking client of the itnet service: ``POST /v1/estimate``, ``WS /v1/estimate/stream`` and
+``POST /v1/scene``.
 
 with ItnetClient("http://127.0.0.1:8000") as client:
     result = client.estimate(points, budget_ms=50)          # EstimateResult
@@ -7,6 +8,7 @@ with ItnetClient("http://127.0.0.1:8000") as client:
             if estimate.update_rotation_deg < 0.1:
                 stream.cancel()                             # the server answers with the result
     stream.result                                           # EstimateResult
+    reply = client.scene("frame.png", intrinsics=(525, 525, 319.5, 239.5))  # every object
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Iterator
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -25,6 +28,7 @@ from websockets.sync.client import ClientConnection, connect
 from itnet.clients.wire import (
     BINARY,
     ESTIMATE_PATH,
+    SCENE_PATH,
     Estimate,
     EstimateResult,
     ItnetClientError,
@@ -35,6 +39,7 @@ from itnet.clients.wire import (
     pose_request,
     reply_json,
     request_fields,
+    scene_request,
     websocket_url,
 )
 from itnet.pose.request import PoseRequest
@@ -152,6 +157,32 @@ class ItnetClient:
             raise ItnetConnectionError(f"{self.base_url}: cannot open the stream ({err})") from None
         connection.send(json.dumps(request))
         return EstimateStream(connection, self.timeout)
+
+    def scene(
+        self,
+        scene: ArrayLike | bytes | str | Path,
+        intrinsics: tuple[float, float, float, float] | None = None,
+        budget_ms: float | None = None,
+        depth_scale: float | None = None,
+        indices: bool = True,
+        floor_centre: bool = True,
+        along_floor: bool = True,
+        recheck: bool = True,
+    ) -> Any:
+        """``POST /v1/scene``: every object of a depth image or a scene cloud -> the reply (a
+        dict: ``objects``, each with ``category``, ``T_canonical_from_input``, ``box``, ...;
+        ``up``, ``floor``, ``walls``; docs/scenes.md). ``scene``: a ``.png`` (16-bit, depth
+        units) or ``.npy`` file, PNG bytes, a depth image (H, W) (float: metres) or a cloud
+        (N, 3) in the camera's frame (metres); ``intrinsics`` (fx, fy, cx, cy) for an image.
+        ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default).
+        Raises ItnetRequestError (refused), ItnetConnectionError."""
+        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck}
+        sent = scene_request(scene, intrinsics, budget_ms, depth_scale, indices, switches)
+        try:
+            reply = self._http.post(SCENE_PATH, content=sent[0], params=sent[1], headers=sent[2])
+        except httpx.TransportError as err:
+            raise ItnetConnectionError(f"{self.base_url}: {err}") from None
+        return _json(reply)
 
     def models(self) -> Any:
         """``GET /v1/models``: what the service has loaded."""

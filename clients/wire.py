@@ -6,7 +6,9 @@ Requests (SPEC.md):
 
 * JSON: ``{"points": [[x, y, z], ...], "budget_ms": ..., "max_iterations": ..., "model": ...}``;
 * binary: the body is little-endian float32 N x 3 (``Content-Type: application/octet-stream``)
-  and the other fields are query parameters.
+  and the other fields are query parameters;
+* a scene (``POST /v1/scene``): a 16-bit PNG depth image, a ``.npy`` depth image or a float32
+  cloud as the body, the intrinsics and the rest in the query.
 
 Replies: every pose is T_canonical_from_input (4x4, the cloud's units), with ``quat_wxyz`` and
 ``quat_xyzw`` (the same rotation, scalar first / last) and ``translation``.
@@ -14,8 +16,10 @@ Replies: every pose is T_canonical_from_input (4x4, the cloud's units), with ``q
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
@@ -25,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from itnet.pose.request import PoseRequest
 
 ESTIMATE_PATH = "/v1/estimate"
+SCENE_PATH = "/v1/scene"
 STREAM_PATH = "/v1/estimate/stream"
 BINARY = {"Content-Type": "application/octet-stream"}
 
@@ -161,6 +166,52 @@ def json_request(points: ArrayLike, fields: dict[str, Any]) -> dict[str, Any]:
 def binary_body(points: ArrayLike) -> bytes:
     """(N, 3) -> little-endian float32 bytes, row after row (12 bytes a point)."""
     return np.ascontiguousarray(as_cloud(points), dtype="<f4").tobytes()
+
+
+def scene_body(scene: ArrayLike | bytes | str | Path) -> tuple[bytes, str]:
+    """A scene -> the body and its content type: a ``.png`` or ``.npy`` file's bytes, PNG bytes,
+    a cloud (N, 3) as float32 (metres, the camera's frame), or a depth image (H, W) as ``.npy``
+    (float: metres; integers: depth units)."""
+    if isinstance(scene, (str, Path)):
+        kinds = {".png": "image/png", ".npy": "application/x-npy"}
+        kind = kinds.get(Path(scene).suffix.lower())
+        if kind is None:
+            raise ValueError(f"{scene}: send a .png or .npy file, or the cloud's points")
+        return Path(scene).read_bytes(), kind
+    if isinstance(scene, bytes):
+        return scene, "image/png"
+    array = np.asarray(scene)
+    if array.ndim == 2 and array.shape[1] == 3:
+        return binary_body(array), BINARY["Content-Type"]
+    if array.ndim != 2:
+        raise ValueError(f"a depth image is (H, W) and a cloud (N, 3), got {array.shape}")
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    return buffer.getvalue(), "application/x-npy"
+
+
+def scene_request(
+    scene: ArrayLike | bytes | str | Path,
+    intrinsics: tuple[float, float, float, float] | None,
+    budget_ms: float | None,
+    depth_scale: float | None,
+    indices: bool,
+    switches: dict[str, bool],
+) -> tuple[bytes, dict[str, str], dict[str, str]]:
+    """``POST /v1/scene``'s body (``scene_body``), query and headers: the intrinsics (fx, fy,
+    cx, cy), the budget and depth scale where given (else the service's), ``indices`` and the
+    finishing steps' switches in the query."""
+    body, kind = scene_body(scene)
+    query: dict[str, str] = {"indices": str(indices).lower()}
+    if intrinsics is not None:
+        fx, fy, cx, cy = (float(v) for v in intrinsics)
+        query.update(fx=repr(fx), fy=repr(fy), cx=repr(cx), cy=repr(cy))
+    if budget_ms is not None:
+        query["budget_ms"] = repr(float(budget_ms))
+    if depth_scale is not None:
+        query["depth_scale"] = repr(float(depth_scale))
+    query.update({name: str(bool(on)).lower() for name, on in switches.items()})
+    return body, query, {"Content-Type": kind}
 
 
 def error_detail(text: str) -> tuple[object, str | None]:

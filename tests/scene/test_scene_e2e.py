@@ -159,3 +159,45 @@ def test_the_finishing_steps_switch_off_on_the_cli_and_http(
     assert reply.status_code == 200, reply.text
     (obj,) = reply.json()["objects"]
     assert "centre_floor" not in obj and "category_recheck" not in obj
+
+
+def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
+    client: TestClient, files: Path, chair_scene: Scene
+) -> None:
+    """``ItnetClient.scene`` and ``AsyncItnetClient.scene``: a PNG file, PNG bytes and a float
+    depth image find the same one object, and so does the scene as a cloud (no intrinsics)."""
+    import asyncio
+
+    import httpx
+
+    from itnet.clients import AsyncItnetClient, ItnetClient
+    from itnet.scene.inputs import from_depth
+
+    i = chair_scene.intrinsics
+    camera = (i.fx, i.fy, i.cx, i.cy)
+    sync = ItnetClient("http://testserver")
+    sync._http = client  # the app in-process: TestClient is an httpx.Client
+    png = files / "chair.png"
+    replies = [
+        sync.scene(png, intrinsics=camera, budget_ms=300),
+        sync.scene(png.read_bytes(), intrinsics=camera, budget_ms=300, indices=False),
+        sync.scene(chair_scene.depth.astype(np.float32), intrinsics=camera, budget_ms=300),
+        sync.scene(from_depth(chair_scene.depth, chair_scene.intrinsics).points, budget_ms=300),
+    ]
+    for reply in replies:
+        assert len(reply["objects"]) == 1 and reply["up"][1] < -0.9
+    check_the_chair(replies[0]["objects"], chair_scene)
+    assert "indices" not in replies[1]["objects"][0]
+    assert replies[3]["image_shape"] is None  # a cloud has no image
+
+    async def from_async() -> dict:
+        remote = AsyncItnetClient("http://testserver")
+        remote._http = httpx.AsyncClient(transport=httpx.ASGITransport(app=client.app),
+                                         base_url="http://testserver")  # fmt: skip
+        async with remote:
+            return await remote.scene(png, intrinsics=camera, budget_ms=300, recheck=False)
+
+    (obj,) = asyncio.run(from_async())["objects"]
+    assert obj["category"] and "category_recheck" not in obj
+    with pytest.raises(ValueError, match=".png or .npy"):
+        sync.scene(files / "chair.ply")
