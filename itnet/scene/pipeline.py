@@ -15,7 +15,9 @@ its bounding box, whose bottom is the floor, so the centre's height is half the 
 The top is what the camera sees best (it looks down on furniture); the network places the
 centre of a partial view too near the surface it sees, and the floor says how high it is.
 Before that, where the pose model has a scene correction (``centre_along_floor``), the centre
-moves along the floor to where it predicts.
+moves along the floor to where it predicts. Last, a pose the category's verifier doubts is
+weighed against a pose as the classifier's second category (``category_recheck``). Each of
+these steps is a switch of ``SceneFinishing``.
 """
 
 from __future__ import annotations
@@ -73,8 +75,8 @@ def find_objects(
     the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
     ``finishing``: the steps each posed object gets after its pose pipeline; ``centre_table``:
-    the pose models' scene corrections (default: the shipped table). Raises SceneInputError for a scene that cannot be used, ValueError for a
-    budget that is not positive."""
+    the pose models' scene corrections (default: the shipped table). Raises SceneInputError for
+    a scene that cannot be used, ValueError for a budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
         raise ValueError(f"budget_ms must be positive, got {budget_ms}")
