@@ -32,7 +32,8 @@ from itnet.geometry import invert_rigid
 from itnet.metrics import is_correct
 from itnet.model.categories import MODELNET10
 from itnet.model.scenes import (
-    SIZES,
+    DEVELOPMENT,
+    WITH_DESKS,
     Scene,
     SceneObjectTruth,
     make_scene,
@@ -131,13 +132,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--categories",
         default=None,
-        help="'posed': the scenes' eight categories only (default: any)",
+        help="'posed': the scenes' categories only (default: any)",
     )
     parser.add_argument(
         "--model-dir", type=Path, default=None, help="the models to serve (default: the shipped)"
     )
     parser.add_argument(
         "--no-recheck", action="store_true", help="no category recheck by the verifiers"
+    )
+    parser.add_argument(
+        "--with-desks", action="store_true", help="desks among the scenes' objects too"
     )
     parser.add_argument(
         "--touching", action="store_true", help="objects standing against each other (2-3)"
@@ -150,8 +154,9 @@ def main(argv: list[str] | None = None) -> None:
     budget["finishing"] = SceneFinishing(
         not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
     )
+    drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
     if args.categories == "posed":
-        budget["categories"] = frozenset(SIZES)
+        budget["categories"] = frozenset(drawn)
     if args.model_dir is not None:
         budget["catalog"] = scene_catalog(args.model_dir)
     find_objects(np.zeros((100, 3)) + np.arange(100)[:, None] * 0.01, **budget)  # load, warm
@@ -159,7 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     rows: list[dict] = []
     returned, times, times_large, rows_large, returned_large = 0, [], [], [], 0
     for s in range(args.scenes):
-        scene = make_scene(shapes, rng, touching=args.touching)
+        scene = make_scene(shapes, rng, touching=args.touching, categories=drawn)
         png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
         start = time.perf_counter()
         result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
@@ -167,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
         rows += match(result, scene, args.min_pixels)
         returned += len(result.objects)
         if not args.no_large:
-            big = large_scene(shapes, seed, s, args.touching)
+            big = large_scene(shapes, seed, s, args.touching, drawn)
             png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
             start = time.perf_counter()
             result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
@@ -176,6 +181,7 @@ def main(argv: list[str] | None = None) -> None:
             returned_large += len(result.objects)
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
+        "with_desks": args.with_desks,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing")},
         **asdict(budget["finishing"]),
@@ -189,10 +195,13 @@ def main(argv: list[str] | None = None) -> None:
         args.out.write_text(json.dumps({**report, "rows": rows}, indent=1))
 
 
-def large_scene(shapes: dict, seed: int, index: int, touching: bool = False) -> Scene:
+def large_scene(
+    shapes: dict, seed: int, index: int, touching: bool = False,
+    categories: tuple[str, ...] = DEVELOPMENT,
+) -> Scene:  # fmt: skip
     """A scene of the same kind at 640x480, drawn from its own generator (seed, index)."""
     rng = np.random.default_rng([seed, index, 640])
-    return make_scene(shapes, rng, 640, 480, touching=touching)
+    return make_scene(shapes, rng, 640, 480, touching=touching, categories=categories)
 
 
 def timing(ms: list[float]) -> dict:

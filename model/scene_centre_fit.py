@@ -1,8 +1,8 @@
 """Fit each pose model's scene correction (``itnet.scene.centre_along_floor``) on scenes of
 training shapes.
 
-Development scenes (``itnet.model.scenes``) are made of the pose models' *training* shapes
-(never the test shapes the scene benchmark measures), rendered at 320x240, and found by
+Development scenes (``itnet.model.scenes``, desks among them) are made of the pose models'
+*training* shapes (never the test shapes the scene benchmark measures), rendered at 320x240, and found by
 ``find_objects`` as served but without the correction. Every object matched to a scene object,
 named right and with its rotation within 20 degrees (the others are in a wrong basin, where no
 centre helps) gives the features of its moved points and where its true centre lies in that
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from itnet.centre import fit_centre_correction
 from itnet.model.categories import MODELNET10
-from itnet.model.scenes import FIT_SPLIT, make_scene, matched_objects, split_shapes
+from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, matched_objects, split_shapes
 from itnet.scene import find_objects, scene_catalog
 from itnet.scene.centre_along_floor import (
     TABLE,
@@ -53,7 +53,7 @@ def scene_samples(
     rng = np.random.default_rng(seed)
     samples: dict[str, tuple[list, list]] = defaultdict(lambda: ([], []))
     for _ in range(scenes):
-        scene = make_scene(shapes, rng)
+        scene = make_scene(shapes, rng, categories=WITH_DESKS)
         given = from_depth(scene.depth, scene.intrinsics)
         finishing = SceneFinishing(along_floor=False, recheck=False)  # each model's own poses
         result = find_objects(given, budget_ms=budget_ms, catalog=catalog, finishing=finishing)

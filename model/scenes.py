@@ -3,8 +3,8 @@ depth camera, with each object's ground-truth pose.
 
 Never the training shapes: the test split's shapes of each category are cut in two by a seeded
 permutation, a validation half (for choosing the segmentation's settings) and a test half
-(measured once). A scene holds one to three objects of the categories that have pose models,
-at real sizes (a chair 0.8-1.0 m tall, a bed 1.9-2.1 m long, ...), each turned by any yaw and
+(measured once). A scene holds one to three objects of eight categories (``DEVELOPMENT``; the
+desk joins where asked, ``WITH_DESKS``), at real sizes (a chair 0.8-1.0 m tall, a bed 1.9-2.1 m long, ...), each turned by any yaw and
 standing on the floor, apart from the others, inside the view; a wall stands behind them.
 
 The camera: 1.1-1.7 m above the floor, pitched down 0-25 degrees (0: level), rolled up to
@@ -34,7 +34,7 @@ from itnet.model.data import load_shapes, split_files
 from itnet.model.shapes import Shape
 from itnet.scene.camera import Intrinsics
 
-# The categories with pose models; (which extent, its range in metres): 'height' or 'length'
+# Each category a scene may hold: (which extent, its range in metres): 'height' or 'length'
 # (the longest horizontal extent).
 SIZES: dict[str, tuple[str, tuple[float, float]]] = {
     "chair": ("height", (0.8, 1.0)),
@@ -45,7 +45,12 @@ SIZES: dict[str, tuple[str, tuple[float, float]]] = {
     "sofa": ("length", (1.7, 2.2)),
     "night_stand": ("height", (0.5, 0.65)),
     "dresser": ("height", (0.8, 1.2)),
+    "desk": ("length", (1.0, 1.6)),
 }
+# The development scenes' categories (the default), in the order they are drawn: the desk joins
+# where asked (make_scene's ``categories``); the monitor stands on a desk, not on the floor.
+DEVELOPMENT = ("chair", "table", "toilet", "bed", "bathtub", "sofa", "night_stand", "dresser")
+WITH_DESKS = (*DEVELOPMENT, "desk")
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")
 FIT_SPLIT = "train"
@@ -266,8 +271,9 @@ def render(
 def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
+    categories: tuple[str, ...] = DEVELOPMENT,
 ) -> Scene:  # fmt: skip
-    """One random scene (see the module) from the given shapes of each category.
+    """One random scene (see the module) of ``categories`` from the given shapes of each.
     ``touching``: two or three objects, each after the first standing against one placed
     before it (its footprint's points 1-5 cm from that one's), as chairs stand at a table."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
@@ -278,7 +284,7 @@ def make_scene(
     for _ in range(60):
         if len(placed) == wanted:
             break
-        category = list(SIZES)[int(rng.integers(len(SIZES)))]
+        category = categories[int(rng.integers(len(categories)))]
         shape = shapes[category][int(rng.integers(len(shapes[category])))]
         scale = _size_scale(shape, category, rng)
         turn = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))

@@ -179,3 +179,22 @@ def test_touching_scenes_stand_each_object_against_another():
                 if j != i
             ]
             assert min(gaps) >= 0.0099 and min(gaps) <= 0.0501
+
+
+def test_scenes_hold_only_the_categories_asked_for():
+    """``make_scene``'s objects come from ``categories``: the eight by default, desks too with
+    ``WITH_DESKS``."""
+    from itnet.model.scenes import DEVELOPMENT, SIZES, WITH_DESKS, make_scene
+
+    shapes = {name: [boxes_shape([((0, 0, 0), (0.6, 0.8, 0.5))], seed=k)]
+              for k, name in enumerate(SIZES)}  # fmt: skip
+    rng = np.random.default_rng(2)
+    drawn = {o.category for _ in range(12) for o in make_scene(shapes, rng).objects}
+    assert drawn <= set(DEVELOPMENT) and "desk" not in drawn
+    with_desks = {o.category for _ in range(12)
+                  for o in make_scene(shapes, rng, categories=WITH_DESKS).objects}  # fmt: skip
+    assert with_desks <= set(WITH_DESKS)
+    only = {
+        o.category for _ in range(4) for o in make_scene(shapes, rng, categories=("desk",)).objects
+    }
+    assert only == {"desk"}
