@@ -7,8 +7,9 @@ pose puts it, and a cluster posed as a category it is not tends to look wrong th
 where the named category's verifier doubts the object's pose (logit below ``RECHECK_BELOW``),
 the object is posed as the classifier's second category as well (the same pipeline and
 finishing), and that category is kept where its own verifier finds its pose likelier by more
-than ``RECHECK_MARGIN``. The second pose shares the object's part of the scene's budget; the
-reply says ``category_recheck``: ``changed``, ``kept`` or ``budget`` (doubted, no time left).
+than ``RECHECK_MARGIN`` (and reported ``unsure``: the classifier ranked it second). The second
+pose shares the object's part of the scene's budget; the reply says ``category_recheck``:
+``changed``, ``kept`` or ``budget`` (doubted, no time left).
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ def rechecked(
     left_ms = (deadline - now) * 1e3 - FINISH_MS
     if left_ms < MIN_RECHECK_MS:
         return _noted(seen, "budget")
-    other = ObjectPose(second["category"], second["probability"], seen.candidates, seen.unsure)
+    # the classifier ranked it second: an object whose category changes is reported unsure
+    other = ObjectPose(second["category"], second["probability"], seen.candidates, True)
     other = posed_as(catalog, other, points, up, viewpoint, left_ms, now)
     if other.pose is None:
         return _noted(seen, "budget")

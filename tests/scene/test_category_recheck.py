@@ -54,6 +54,7 @@ def test_find_objects_keeps_or_changes_a_doubted_category(
     assert obj.run is not None and obj.run.get("category_recheck") == outcome
     second = first.candidates[1]["category"]
     assert obj.category == (second if outcome == "changed" else first.category)
+    assert obj.unsure == (True if outcome == "changed" else first.unsure)
     assert obj.run["model"] == obj.category and obj.run["centre_floor"] is True  # finished alike
     assert obj.candidates == first.candidates
 
