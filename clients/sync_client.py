@@ -177,9 +177,11 @@ class ItnetClient:
         ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default).
         Raises ItnetRequestError (refused), ItnetConnectionError."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck}
-        sent = scene_request(scene, intrinsics, budget_ms, depth_scale, indices, switches)
+        body, query, headers = scene_request(
+            scene, intrinsics, budget_ms, depth_scale, indices, switches
+        )
         try:
-            reply = self._http.post(SCENE_PATH, content=sent[0], params=sent[1], headers=sent[2])
+            reply = self._http.post(SCENE_PATH, content=body, params=query, headers=headers)
         except httpx.TransportError as err:
             raise ItnetConnectionError(f"{self.base_url}: {err}") from None
         return _json(reply)

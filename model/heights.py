@@ -13,10 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from itnet.cloud_io import read_cloud
+from itnet.model.classify.size_prior import INCH_M
 from itnet.model.shapes import list_shape_files
 from itnet.size_prior import log_median_and_spread
-
-INCH_M = 0.0254
 
 
 def measure(data: Path) -> dict[str, tuple[float, float]]:

@@ -114,7 +114,8 @@ def _against(
     it would then come within 1 cm of another."""
     from scipy.spatial import cKDTree
 
-    anchor = placed[int(rng.integers(len(placed)))]
+    anchor_index = int(rng.integers(len(placed)))
+    anchor = placed[anchor_index]
     direction = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))[:, 0]
     gap = rng.uniform(0.01, 0.05)
     centre = anchor[2][:3, 3]
@@ -126,7 +127,6 @@ def _against(
         where[1] = floor_y
         nearest = [float(t.query(mine + where[[0, 2]])[0].min()) for t in others]
         if min(nearest) <= gap:
-            anchor_index = next(i for i, p in enumerate(placed) if p is anchor)
             if nearest[anchor_index] > gap or min(nearest) < 0.01:
                 return None
             return where

@@ -24,7 +24,7 @@ from itnet.basin import canonical_points
 from itnet.pose.catalog import Catalog
 from itnet.pose.recognition import pose_model_for
 from itnet.pose.runtime import LoadedModel
-from itnet.preprocess import estimate_normalization, pose_to_normalized
+from itnet.preprocess import cap_points, estimate_normalization, pose_to_normalized
 from itnet.scene.posing import ObjectPose, posed_as
 
 RECHECK_BELOW = 2.0  # a pose whose verifier logit is lower is doubted ...
@@ -40,9 +40,8 @@ def pose_logit(model: LoadedModel, points: NDArray, pose: NDArray) -> float | No
     verifier = model.verifier
     if verifier is None:
         return None
-    p = np.asarray(points, dtype=np.float64)
-    if len(p) > verifier.card.points:
-        p = p[np.random.default_rng(0).choice(len(p), verifier.card.points, replace=False)]
+    p = cap_points(np.asarray(points, dtype=np.float64), verifier.card.points,
+                   np.random.default_rng(0))  # fmt: skip
     norm = estimate_normalization(p)
     pose_n = pose_to_normalized(pose, norm).astype(np.float32)
     return float(verifier.scores(canonical_points(norm.apply(p)[None], pose_n[None]))[0])

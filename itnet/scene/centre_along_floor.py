@@ -29,6 +29,7 @@ from itnet.centre import FEATURES_VIEWPOINT, CentreCorrection, centre_features, 
 from itnet.geometry import apply_rigid
 from itnet.preprocess import (
     Normalization,
+    cap_points,
     estimate_normalization,
     pose_from_normalized,
     pose_to_normalized,
@@ -54,9 +55,7 @@ def moved_object(points: NDArray, pose: NDArray, viewpoint: NDArray) -> MovedObj
     """An object's points (K, 3) and pose T_canonical_from_input (4, 4), in the camera's frame,
     and the camera's position (3,) -> the object moved where its pose puts it (normalised) and
     its features (``itnet.centre.centre_features`` with the direction toward the camera)."""
-    p = np.asarray(points, dtype=np.float64)
-    if len(p) > MAX_POINTS:
-        p = p[np.random.default_rng(0).choice(len(p), MAX_POINTS, replace=False)]
+    p = cap_points(np.asarray(points, dtype=np.float64), MAX_POINTS, np.random.default_rng(0))
     norm = estimate_normalization(p)
     pose_n = pose_to_normalized(pose, norm)
     moved = apply_rigid(pose_n, norm.apply(p).astype(np.float64))

@@ -10,7 +10,8 @@ import pytest
 from scene_helpers import boxes_shape
 
 import itnet.scene.posing as posing
-from itnet.model.heights import INCH_M, measure
+from itnet.model.classify.size_prior import INCH_M
+from itnet.model.heights import measure
 from itnet.scene.height_prior import HEIGHTS_M, height_log_likelihood, with_height
 from itnet.scene.pipeline import shipped_catalog
 
