@@ -141,6 +141,11 @@ def main(argv: list[str] | None = None) -> None:
         "--no-recheck", action="store_true", help="no category recheck by the verifiers"
     )
     parser.add_argument(
+        "--no-scene-classifier",
+        action="store_true",
+        help="name the objects by the classifier and their height alone",
+    )
+    parser.add_argument(
         "--with-desks", action="store_true", help="desks among the scenes' objects too"
     )
     parser.add_argument(
@@ -154,6 +159,7 @@ def main(argv: list[str] | None = None) -> None:
     budget["finishing"] = SceneFinishing(
         not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
     )
+    budget["scene_classifier"] = not args.no_scene_classifier
     drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
     if args.categories == "posed":
         budget["categories"] = frozenset(drawn)

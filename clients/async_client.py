@@ -162,9 +162,11 @@ class AsyncItnetClient:
         floor_centre: bool = True,
         along_floor: bool = True,
         recheck: bool = True,
+        scene_classifier: bool = True,
     ) -> Any:
         """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
-        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck}
+        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
+                    "scene_classifier": scene_classifier}  # fmt: skip
         body, query, headers = scene_request(
             scene, intrinsics, budget_ms, depth_scale, indices, switches
         )

@@ -54,6 +54,7 @@ WITH_DESKS = (*DEVELOPMENT, "desk")
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")
 FIT_SPLIT = "train"
+HELD_OUT_SPLIT = "held-out"  # the classifiers' validation carve-out of the training split
 
 
 @dataclass
@@ -79,16 +80,19 @@ def split_shapes(
     data: Path, split: str, cache: Path, seed: int = 0, limit: int | None = None
 ) -> dict[str, list[Shape]]:
     """The ``split`` half ('validation' or 'test') of each category's test shapes, or ('train')
-    the pose models' training shapes (for fitting what scenes need, never for measuring),
-    canonical and orientation-checked; ``limit``: at most that many a category (a seeded
-    draw)."""
-    if split not in (*SPLITS, FIT_SPLIT):
-        raise ValueError(f"split must be one of {(*SPLITS, FIT_SPLIT)}, got {split!r}")
+    the pose models' training shapes, or ('held-out') the training split's shapes that the
+    classifiers left out of their training (their validation carve-out: 10%, seed 0), both for
+    fitting what scenes need, never for measuring; canonical and orientation-checked;
+    ``limit``: at most that many a category (a seeded draw)."""
+    splits = (*SPLITS, FIT_SPLIT, HELD_OUT_SPLIT)
+    if split not in splits:
+        raise ValueError(f"split must be one of {splits}, got {split!r}")
     out = {}
     for name in SIZES:
-        files = split_files(data, name, 0.1, 0)["train" if split == FIT_SPLIT else "test"]
+        part = {FIT_SPLIT: "train", HELD_OUT_SPLIT: "val"}.get(split, "test")
+        files = split_files(data, name, 0.1, 0)[part]
         order = np.random.default_rng(seed + 17).permutation(len(files))
-        if split == FIT_SPLIT:
+        if split in (FIT_SPLIT, HELD_OUT_SPLIT):
             half = order
         else:
             half = order[: len(files) // 2] if split == "validation" else order[len(files) // 2 :]

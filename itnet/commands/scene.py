@@ -45,6 +45,11 @@ def scene(
         "--recheck/--no-recheck",
         help="A pose its category's verifier doubts weighed against the second category's.",
     ),
+    scene_classifier: bool = typer.Option(
+        True,
+        "--scene-classifier/--no-scene-classifier",
+        help="Name each object by its shape on the floor too (else the classifier and height).",
+    ),
 ) -> None:
     """Find the objects standing on the floor of each scene (camera frame: x right, y down, z
     ahead, metres): category, probability, T_canonical_from_input, box, points. Bad files are
@@ -71,7 +76,8 @@ def scene(
     for path in files:
         try:
             result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
-                                  depth_scale=depth_scale, finishing=finishing)  # fmt: skip
+                                  depth_scale=depth_scale, finishing=finishing,
+                                  scene_classifier=scene_classifier)  # fmt: skip
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)
             failed = True

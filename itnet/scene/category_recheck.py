@@ -74,7 +74,8 @@ def rechecked(
     if left_ms < MIN_RECHECK_MS:
         return _noted(seen, "budget")
     # the classifier ranked it second: an object whose category changes is reported unsure
-    other = ObjectPose(second["category"], second["probability"], seen.candidates, True)
+    other = ObjectPose(second["category"], second["probability"], seen.candidates, True,
+                       named_by=seen.named_by)  # fmt: skip
     other = posed_as(catalog, other, points, up, viewpoint, left_ms, now)
     if other.pose is None:
         return _noted(seen, "budget")

@@ -36,8 +36,16 @@ from itnet.scene.category_recheck import rechecked
 from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.planes import Plane
-from itnet.scene.posing import BadCloudError, ObjectPose, pose_object, scene_catalog, with_pose
+from itnet.scene.posing import (
+    BadCloudError,
+    ObjectPose,
+    pose_object,
+    scene_catalog,
+    top_height,
+    with_pose,
+)
 from itnet.scene.result import Box, SceneObject, SceneResult
+from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import CAMERA_UP, Segmentation, SegmentOptions, segment
 
 DEFAULT_BUDGET_MS = 140.0
@@ -69,13 +77,16 @@ def find_objects(
     finishing: SceneFinishing = SceneFinishing(),
     centre_table: CentreTable | None = None,
     categories: frozenset[str] | None = None,
+    scene_classifier: SceneClassifier | bool = True,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
     the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
     ``finishing``: the steps each posed object gets after its pose pipeline; ``centre_table``:
-    the pose models' scene corrections (default: the shipped table). Raises SceneInputError for
+    the pose models' scene corrections (default: the shipped table). ``scene_classifier``: what
+    names the objects (``itnet.scene.scene_classifier``): True, the shipped one where it was
+    fitted for the catalog's classifier; False, the classifier with the height alone. Raises SceneInputError for
     a scene that cannot be used, ValueError for a budget that is not positive."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
@@ -93,6 +104,7 @@ def find_objects(
     table = load_table() if centre_table is None else centre_table
     if not finishing.along_floor:
         table = CentreTable({})
+    namer = serving_scene_classifier(catalog, scene_classifier)
     for k, rows in enumerate(found.objects):
         points = given.points[rows]
         now = time.perf_counter()
@@ -101,7 +113,8 @@ def find_objects(
         height = None if found.floor is None else top_height(points, found.floor)
         try:
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
-                               categories=categories, height_m=height)  # fmt: skip
+                               categories=categories, floor=found.floor,
+                               scene_classifier=namer)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
@@ -112,7 +125,7 @@ def find_objects(
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
-            box, seen.pose, seen.result, seen.no_pose,
+            box, seen.pose, seen.result, seen.no_pose, seen.named_by,
         ))  # fmt: skip
     return SceneResult(
         objects, found.up if found.floor is not None else None, found.floor, found.walls,
@@ -130,6 +143,17 @@ def shipped_catalog() -> Catalog:
     if _SHIPPED is None:
         _SHIPPED = scene_catalog()
     return _SHIPPED
+
+
+def serving_scene_classifier(
+    catalog: Catalog, choice: SceneClassifier | bool = True
+) -> SceneClassifier | None:
+    """The scene classifier that names a scene's objects: ``choice`` itself, or (True) the
+    shipped one, where it was fitted for the catalog's classifier; None (False, or none fits)."""
+    if choice is False or catalog.classifier is None:
+        return None
+    chosen = load_scene_classifier() if choice is True else choice
+    return chosen if chosen is not None and chosen.serves(catalog.classifier) else None
 
 
 def stood_on_floor(
@@ -156,12 +180,6 @@ def stood_on_floor(
         "centre_along_floor": correction is not None,
     }
     return seen
-
-
-def top_height(points: NDArray, floor: Plane) -> float:
-    """How high an object's top stands above ``floor``: the 98th percentile of its points' (K,
-    3) heights (against noise), in the points' unit."""
-    return float(np.percentile(floor.distance(points), 98))
 
 
 def floor_centred(pose: NDArray, top: float, floor: Plane) -> NDArray[np.float64]:
@@ -202,5 +220,6 @@ __all__ = [
     "SceneFinishing",
     "find_objects",
     "object_box",
+    "serving_scene_classifier",
     "shipped_catalog",
 ]

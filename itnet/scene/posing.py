@@ -29,6 +29,8 @@ from itnet.pose.runtime import (
     default_model_dir,
 )
 from itnet.scene.height_prior import with_height
+from itnet.scene.planes import Plane
+from itnet.scene.scene_classifier import SceneClassifier, cluster_features
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 
@@ -57,6 +59,7 @@ class ObjectPose:
     pose: NDArray[np.float64] | None = None
     result: dict[str, Any] | None = None
     no_pose: str | None = None  # why there is no pose: 'no_pose_model' or 'budget'
+    named_by: str = "classifier"  # or 'scene_classifier': what named the category
 
 
 class NoClassifierError(RuntimeError):
@@ -72,39 +75,90 @@ def pose_object(
     started: float | None = None,
     min_run_ms: float = 2.0,
     categories: frozenset[str] | None = None,
-    height_m: float | None = None,
+    floor: Plane | None = None,
+    scene_classifier: SceneClassifier | None = None,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
-    ObjectPose, the classification and the run within ``budget_ms`` from ``started``
-    (``time.perf_counter()``; default now). ``categories``: the ones the object may be (the
-    classifier's probabilities renormalised over them; default: any). ``height_m``: the
-    object's top above the floor, weighed into the classification (``height_prior``). No run
-    where less than ``min_run_ms`` is left after the classification. Raises BadCloudError (too
-    few points, degenerate)."""
+    ObjectPose, the classification (``scene_category``) and the run within ``budget_ms`` from
+    ``started`` (``time.perf_counter()``; default now). ``categories``: the ones the object may
+    be (default: any); ``floor``: the plane it stands on, whose height it is measured from;
+    ``scene_classifier``: the one to name it by (see ``scene_category``). No run where less
+    than ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
+    degenerate)."""
     started = time.perf_counter() if started is None else started
-    if catalog.classifier is None:
-        raise NoClassifierError("scenes need the category classifier, and none is loaded")
-    recognition = classify(
-        catalog.classifier, points, top=len(catalog.classifier.card.classes), limits=catalog.limits,
-        units=SCENE_UNITS, up=up, deadline=started + budget_ms / 2e3,
-    )  # fmt: skip
-    candidates = [
-        c for c in recognition.candidates if categories is None or c.category in categories
-    ]
-    if not candidates:
+    seen = scene_category(catalog, points, up, viewpoint, started + budget_ms / 2e3, categories,
+                          floor, scene_classifier)  # fmt: skip
+    return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms)
+
+
+def scene_category(
+    catalog: Catalog,
+    points: NDArray,
+    up: NDArray,
+    viewpoint: NDArray,
+    deadline: float | None = None,
+    categories: frozenset[str] | None = None,
+    floor: Plane | None = None,
+    scene_classifier: SceneClassifier | None = None,
+) -> ObjectPose:
+    """A cluster (K, 3) in metres, its up (3,) and the sensor's position (3,) -> its category,
+    probability, top-3 candidates and whether it is unsure (an ObjectPose without a pose).
+
+    The classifier's probabilities (``model: "auto"`` with up and metres; a second opinion
+    where unsure that ends by ``deadline``, ``time.perf_counter()`` seconds), then, on a
+    ``floor``: by ``scene_classifier`` (its own threshold) where one is given and names some of
+    ``categories``, else weighed by the object's height (``height_prior``). Restricted to
+    ``categories`` (renormalised; default: any). Raises BadCloudError."""
+    names, probabilities, threshold = classifier_probabilities(catalog, points, up, deadline)
+    named_by = "classifier"
+    if (
+        floor is not None
+        and scene_classifier is not None
+        and (categories is None or categories & set(scene_classifier.classes))
+    ):
+        features = cluster_features(points, np.log(np.maximum(probabilities, 1e-12)), floor,
+                                    viewpoint)  # fmt: skip
+        names = list(scene_classifier.classes)
+        probabilities = scene_classifier.probabilities(features)
+        threshold = scene_classifier.threshold
+        named_by = "scene_classifier"
+    elif floor is not None:
+        probabilities = with_height(names, probabilities, top_height(points, floor))
+    kept = [i for i, name in enumerate(names) if categories is None or name in categories]
+    if not kept:
         raise BadCloudError(f"none of the categories {sorted(categories or ())} is known")
-    names = [c.category for c in candidates]
-    probabilities = np.array([c.probability for c in candidates], dtype=np.float64)
-    probabilities /= probabilities.sum()
-    if height_m is not None:
-        probabilities = with_height(names, probabilities, height_m)
+    names = [names[i] for i in kept]
+    probabilities = probabilities[kept] / max(float(probabilities[kept].sum()), 1e-300)
     order = np.argsort(-probabilities, kind="stable")
     top = [
         {"category": names[i], "probability": round(float(probabilities[i]), 6)} for i in order[:3]
     ]
     probability = round(float(probabilities[order[0]]), 6)
-    seen = ObjectPose(names[order[0]], probability, top, probability < recognition.threshold)
-    return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms)
+    return ObjectPose(names[order[0]], probability, top, probability < threshold,
+                      named_by=named_by)  # fmt: skip
+
+
+def classifier_probabilities(
+    catalog: Catalog, points: NDArray, up: NDArray, deadline: float | None = None
+) -> tuple[list[str], NDArray[np.float64], float]:
+    """A cluster (K, 3) in metres and its up (3,) -> the classifier's classes, its
+    probabilities (C,) of each (``model: "auto"`` with up and the unit: the upright classifier
+    and the size prior join; a second opinion where unsure that ends by ``deadline``) and its
+    threshold. Raises NoClassifierError, BadCloudError."""
+    if catalog.classifier is None:
+        raise NoClassifierError("scenes need the category classifier, and none is loaded")
+    classes = list(catalog.classifier.card.classes)
+    recognition = classify(catalog.classifier, points, top=len(classes), limits=catalog.limits,
+                           units=SCENE_UNITS, up=up, deadline=deadline)  # fmt: skip
+    given = {c.category: c.probability for c in recognition.candidates}
+    probabilities = np.array([given.get(c, 0.0) for c in classes], dtype=np.float64)
+    return classes, probabilities, recognition.threshold
+
+
+def top_height(points: NDArray, floor: Plane) -> float:
+    """How high an object's top stands above ``floor``: the 98th percentile of its points' (K,
+    3) heights (against noise), in the points' unit."""
+    return float(np.percentile(floor.distance(points), 98))
 
 
 def posed_as(
@@ -155,7 +209,10 @@ __all__ = [
     "ModelLoadError",
     "NoClassifierError",
     "ObjectPose",
+    "classifier_probabilities",
     "pose_object",
     "scene_catalog",
+    "scene_category",
+    "top_height",
     "with_pose",
 ]

@@ -49,10 +49,11 @@ class SceneObject:
     pose: NDArray[np.float64] | None = None
     run: dict[str, Any] | None = None  # the anytime run's reply (iterations, stopped_by, ...)
     no_pose: str | None = None
+    named_by: str = "classifier"  # or 'scene_classifier' (itnet.scene.scene_classifier)
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
         """The JSON form: ``category``, ``category_probability``, ``candidates``, ``unsure``,
-        the run's fields (``T_canonical_from_input``, ``quat_wxyz``, ``quat_xyzw``,
+        ``named_by``, the run's fields (``T_canonical_from_input``, ``quat_wxyz``, ``quat_xyzw``,
         ``translation``, ``iterations``, ``stopped_by``, ``model``, ...; null pose where none,
         with ``no_pose``), ``box``, ``points`` (how many) and ``indices``."""
         out: dict[str, Any] = {
@@ -60,6 +61,7 @@ class SceneObject:
             "category_probability": round(self.probability, 6),
             "candidates": self.candidates,
             "unsure": self.unsure,
+            "named_by": self.named_by,
         }
         if self.run is not None:
             out.update(self.run)

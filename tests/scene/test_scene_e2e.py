@@ -145,20 +145,22 @@ def test_the_finishing_steps_switch_off_on_the_cli_and_http(
     object without them has the network's own centre and no finishing fields."""
     args = ["scene", str(files / "chair.png"), "--intrinsics", camera_arg(chair_scene), "--json",
             "--budget-ms", "300"]  # fmt: skip
-    off = ["--no-floor-centre", "--no-along-floor", "--no-recheck"]
+    off = ["--no-floor-centre", "--no-along-floor", "--no-recheck", "--no-scene-classifier"]
     on, bare = (json.loads(runner.invoke(app, args + extra).output) for extra in ([], off))
     (finished,), (plain,) = on["objects"], bare["objects"]
     assert finished["T_canonical_from_input"] is not None  # every category has a pose model
     assert finished["centre_floor"] is True and "centre_floor" not in plain
     assert "category_recheck" not in plain
+    assert finished["named_by"] == "scene_classifier" and plain["named_by"] == "classifier"
     i = chair_scene.intrinsics
     query = (f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300"
-             "&floor_centre=false&along_floor=false&recheck=false")  # fmt: skip
+             "&floor_centre=false&along_floor=false&recheck=false&scene_classifier=false")  # fmt: skip
     png = (files / "chair.png").read_bytes()
     reply = client.post(f"/v1/scene?{query}", content=png, headers={"content-type": "image/png"})
     assert reply.status_code == 200, reply.text
     (obj,) = reply.json()["objects"]
     assert "centre_floor" not in obj and "category_recheck" not in obj
+    assert obj["named_by"] == "classifier"
 
 
 def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
@@ -195,9 +197,11 @@ def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
         remote._http = httpx.AsyncClient(transport=httpx.ASGITransport(app=client.app),
                                          base_url="http://testserver")  # fmt: skip
         async with remote:
-            return await remote.scene(png, intrinsics=camera, budget_ms=300, recheck=False)
+            return await remote.scene(png, intrinsics=camera, budget_ms=300, recheck=False,
+                                      scene_classifier=False)  # fmt: skip
 
     (obj,) = asyncio.run(from_async())["objects"]
-    assert obj["category"] and "category_recheck" not in obj
+    assert obj["category"] and "category_recheck" not in obj and obj["named_by"] == "classifier"
+    assert replies[0]["objects"][0]["named_by"] == "scene_classifier"
     with pytest.raises(ValueError, match=".png or .npy"):
         sync.scene(files / "chair.ply")

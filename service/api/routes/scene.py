@@ -121,6 +121,9 @@ async def scene(
     recheck: Annotated[
         bool, Query(description="a doubted pose weighed against the second category's")
     ] = True,
+    scene_classifier: Annotated[
+        bool, Query(description="name objects by their shape on the floor too (else height only)")
+    ] = True,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
@@ -137,7 +140,7 @@ async def scene(
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
             _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
-            SceneFinishing(floor_centre, along_floor, recheck),
+            SceneFinishing(floor_centre, along_floor, recheck), scene_classifier,
         )  # fmt: skip
 
 
@@ -170,7 +173,7 @@ def _decode(
 def _find(
     state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None,
     depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
-    finishing: SceneFinishing = SceneFinishing(),
+    finishing: SceneFinishing = SceneFinishing(), scene_classifier: bool = True,
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
@@ -178,7 +181,7 @@ def _find(
     try:
         given = _decode(body, kind, camera, depth_scale)
         result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
-                              finishing=finishing)  # fmt: skip
+                              finishing=finishing, scene_classifier=scene_classifier)  # fmt: skip
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:

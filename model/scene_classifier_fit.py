@@ -1,0 +1,194 @@
+"""Fit the scene classifier (``itnet.scene.scene_classifier``) on scenes of training shapes.
+
+Development scenes (``itnet.model.scenes``, desks among them) are made of ModelNet10's training
+split: of the shapes the category classifiers left out of their training (their validation
+carve-out), and of the others (on which the classifier is surer than it will be on new shapes;
+the two sets together named the validation scenes' objects best), rendered at 320x240 and
+segmented as served. Every cluster matched to a scene object gives its
+features (``cluster_features``: the classifier's log-probabilities as served, and the cluster's
+shape on the floor) and the object's category; a network of one hidden layer is fitted to them
+(full batch, Adam, weight decay). Its threshold (below it an answer is ``unsure``) is the
+lowest at which 95% of the validation scenes' clusters above it are named right::
+
+    python -m itnet.model.scene_classifier_fit                     # writes the shipped file
+    python -m itnet.model.scene_classifier_fit --model-dir DIR --out FILE
+
+The file names the classifier's graphs by their SHA-256, so it serves only them. Measuring it:
+``benchmarks/bench_scene.py`` (``--no-scene-classifier``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from itnet.model.scenes import (
+    FIT_SPLIT,
+    HELD_OUT_SPLIT,
+    WITH_DESKS,
+    make_scene,
+    matched_objects,
+    split_shapes,
+)
+from itnet.pose.catalog import Catalog
+from itnet.scene import scene_catalog
+from itnet.scene.inputs import from_depth
+from itnet.scene.pipeline import VIEWPOINT, shipped_catalog
+from itnet.scene.posing import BadCloudError, classifier_probabilities
+from itnet.scene.scene_classifier import (
+    FILE,
+    SceneClassifier,
+    classifier_graphs,
+    cluster_features,
+)
+from itnet.scene.segment import segment
+
+PRECISION = 0.95  # the threshold: the lowest at which this share of the answers above it is right
+
+
+def scene_samples(
+    shapes: dict, scenes: int, seed: int, catalog: Catalog
+) -> tuple[NDArray[np.float64], list[str]]:
+    """``scenes`` scenes of ``shapes`` -> the features (S, F) of every cluster the segmentation
+    found and matched to a scene object, and those objects' categories (S,)."""
+    rng = np.random.default_rng(seed)
+    features, labels = [], []
+    for _ in range(scenes):
+        scene = make_scene(shapes, rng, categories=WITH_DESKS)
+        given = from_depth(scene.depth, scene.intrinsics)
+        found = segment(given.points)
+        if found.floor is None:
+            continue
+        returned = [given.indices[rows] for rows in found.objects]
+        for i, k in matched_objects(returned, scene.labels, len(scene.objects)):
+            points = given.points[found.objects[i]]
+            try:  # the classifier's probabilities as served
+                _, probabilities, _ = classifier_probabilities(catalog, points, found.up)
+            except BadCloudError:
+                continue
+            log_p = np.log(np.maximum(probabilities, 1e-12))
+            features.append(cluster_features(points, log_p, found.floor, VIEWPOINT))
+            labels.append(scene.objects[k - 1].category)
+    return np.array(features), labels
+
+
+def fit_network(
+    features: NDArray, labels: list[str], classes: tuple[str, ...], hidden: int, weight_decay: float,
+    epochs: int, seed: int = 0,
+) -> dict[str, NDArray[np.float64]]:  # fmt: skip
+    """Features (S, F) and their categories -> the network's arrays (``SceneClassifier``'s
+    mean, scale, hidden, hidden_bias, output, output_bias): full-batch Adam (lr 0.01, weight
+    decay) on the cross-entropy, ``epochs`` steps from a seeded start."""
+    torch.manual_seed(seed)
+    mean, scale = features.mean(0), features.std(0) + 1e-6
+    x = torch.tensor((features - mean) / scale, dtype=torch.float32)
+    y = torch.tensor([classes.index(label) for label in labels])
+    first, last = torch.nn.Linear(x.shape[1], hidden), torch.nn.Linear(hidden, len(classes))
+    net = torch.nn.Sequential(first, torch.nn.Tanh(), last)
+    optimiser = torch.optim.Adam(net.parameters(), lr=1e-2, weight_decay=weight_decay)
+    for _ in range(epochs):
+        optimiser.zero_grad()
+        loss = torch.nn.functional.cross_entropy(net(x), y)
+        loss.backward()
+        optimiser.step()
+
+    def array(t: torch.Tensor) -> NDArray[np.float64]:
+        return t.detach().numpy().astype(np.float64)
+
+    return {"mean": mean, "scale": scale, "hidden": array(first.weight.T),
+            "hidden_bias": array(first.bias), "output": array(last.weight.T),
+            "output_bias": array(last.bias)}  # fmt: skip
+
+
+def precision_threshold(
+    probabilities: NDArray, right: NDArray, precision: float = PRECISION
+) -> float:
+    """Top probabilities (S,) and whether each answer was right (S,) -> the lowest threshold at
+    which at least ``precision`` of the answers at or above it are right (1.0 where none)."""
+    order = np.argsort(-probabilities, kind="stable")
+    shares = np.cumsum(right[order]) / np.arange(1, len(order) + 1)
+    ok = np.flatnonzero(shares >= precision)
+    return float(probabilities[order][ok[-1]]) if len(ok) else 1.0
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=4000, help="of held-out shapes")
+    parser.add_argument("--seed", type=int, default=21)
+    parser.add_argument("--train-scenes", type=int, default=3000, help="of the others")
+    parser.add_argument("--train-seed", type=int, default=22)
+    parser.add_argument("--train-shapes", type=int, default=150, help="of the others, a category")
+    parser.add_argument("--hidden", type=int, default=64, help="chosen on validation scenes")
+    parser.add_argument("--weight-decay", type=float, default=1e-3, help="chosen on validation")
+    parser.add_argument("--epochs", type=int, default=1000, help="chosen on validation")
+    parser.add_argument("--threshold-scenes", type=int, default=300,
+                        help="validation scenes the threshold is chosen on")  # fmt: skip
+    parser.add_argument("--threshold-seed", type=int, default=5)
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    parser.add_argument("--model-dir", type=Path, default=None)
+    parser.add_argument("--samples", type=Path, default=None,
+                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
+    parser.add_argument("--threshold-samples", type=Path, default=None,
+                        help="the same for the validation scenes")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=FILE)
+    args = parser.parse_args(argv)
+    catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
+    assert catalog.classifier is not None
+    started = time.perf_counter()
+    if args.samples is not None and args.samples.exists():
+        with np.load(args.samples) as saved:
+            features, labels = saved["features"], [str(v) for v in saved["labels"]]
+    else:
+        held_out = split_shapes(args.data, HELD_OUT_SPLIT, args.cache)
+        trained = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.train_shapes)
+        x1, y1 = scene_samples(held_out, args.scenes, args.seed, catalog)
+        x2, y2 = scene_samples(trained, args.train_scenes, args.train_seed, catalog)
+        features, labels = np.concatenate([x1, x2]), y1 + y2
+        if args.samples is not None:
+            np.savez(args.samples, features=features, labels=np.array(labels))
+    classes = tuple(c for c in WITH_DESKS if c in set(labels))
+    classes = tuple(sorted(classes))
+    arrays = fit_network(features, labels, classes, args.hidden, args.weight_decay, args.epochs)
+    fitted = SceneClassifier(classes, tuple(catalog.classifier.card.classes),
+                             classifier_graphs(catalog.classifier), threshold=1.0, fit={},
+                             **arrays)  # fmt: skip
+    if args.threshold_samples is not None and args.threshold_samples.exists():
+        with np.load(args.threshold_samples) as saved:
+            x, y = saved["features"], [str(v) for v in saved["labels"]]
+    else:
+        check_shapes = split_shapes(args.data, "validation", args.cache)
+        x, y = scene_samples(check_shapes, args.threshold_scenes, args.threshold_seed, catalog)
+        if args.threshold_samples is not None:
+            np.savez(args.threshold_samples, features=x, labels=np.array(y))
+    probabilities = fitted.probabilities(x)
+    named = np.array(classes)[probabilities.argmax(1)]
+    right = named == np.array(y)
+    threshold = precision_threshold(probabilities.max(1), right)
+    fit = {
+        "scenes": {HELD_OUT_SPLIT: [args.scenes, args.seed],
+                   FIT_SPLIT: [args.train_scenes, args.train_seed, args.train_shapes]},
+        "clusters": {c: labels.count(c) for c in classes},
+        "network": {"hidden": args.hidden, "weight_decay": args.weight_decay,
+                    "epochs": args.epochs},
+        "threshold": {"precision": PRECISION, "validation_scenes": args.threshold_scenes,
+                      "seed": args.threshold_seed, "clusters": len(y),
+                      "named_right": round(float(right.mean()), 4)},
+        "command": "python -m itnet.model.scene_classifier_fit",
+    }  # fmt: skip
+    out = SceneClassifier(fitted.classes, fitted.inputs, fitted.graphs, fitted.mean,
+                          fitted.scale, fitted.hidden, fitted.hidden_bias, fitted.output,
+                          fitted.output_bias, threshold, fit)  # fmt: skip
+    args.out.write_text(json.dumps(out.to_dict()) + "\n")
+    print(json.dumps(fit, indent=1))
+    print(f"threshold {threshold:.4f}; wrote {args.out} in {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

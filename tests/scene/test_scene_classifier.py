@@ -1,0 +1,181 @@
+"""The scene classifier: a cluster's features on the floor, the network and its file, which
+classifier it serves, how a scene's objects are named by it, and its fit."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from itnet.geometry import axis_angle_to_matrix
+from itnet.model import scene_classifier_fit
+from itnet.model.scenes import Scene
+from itnet.scene import find_objects
+from itnet.scene.pipeline import serving_scene_classifier, shipped_catalog
+from itnet.scene.planes import Plane
+from itnet.scene.posing import scene_category
+from itnet.scene.scene_classifier import (
+    SceneClassifier,
+    classifier_graphs,
+    cluster_features,
+    load_scene_classifier,
+)
+
+UP = np.array([0.0, -1.0, 0.0])  # the camera's y points down
+FLOOR = Plane(UP, 1.5)  # 1.5 m below the camera
+CLASSES = 10
+
+
+def front_face(width: float, height: float, distance: float, n: int = 4000) -> np.ndarray:
+    """A flat face (n, 3) ``width`` across and ``height`` tall, standing on FLOOR ``distance``
+    ahead of the camera, facing it."""
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-width / 2, width / 2, n)
+    h = rng.uniform(0, height, n)
+    return np.stack([x, 1.5 - h, np.full(n, distance)], axis=1)
+
+
+def test_a_face_on_the_floor_is_measured_in_metres_seen_from_the_camera() -> None:
+    log_p = np.log(np.full(CLASSES, 1 / CLASSES))
+    f = cluster_features(front_face(0.8, 1.0, 3.0), log_p, FLOOR, np.zeros(3))
+    assert f.shape == (CLASSES + 21,)
+    np.testing.assert_allclose(f[:CLASSES], log_p)
+    shape = f[CLASSES:]
+    assert np.exp(shape[0]) == pytest.approx(0.98, abs=0.01)  # the top's height
+    np.testing.assert_allclose(shape[1:7], 1 / 6, atol=0.02)  # evenly up its height
+    assert np.exp(shape[7]) == pytest.approx(0.72, abs=0.02)  # width, 5th-95th percentile
+    assert np.exp(shape[8]) == pytest.approx(0.02)  # a face has no depth (the floor of 2 cm)
+    assert np.exp(shape[13]) == pytest.approx(3.0, abs=0.01)  # its distance along the floor
+    assert shape[-1] == pytest.approx(0.5, abs=0.02)  # mean height over the top
+    taller = cluster_features(front_face(0.8, 1.6, 3.0), log_p, FLOOR, np.zeros(3))[CLASSES:]
+    assert np.exp(taller[0]) == pytest.approx(1.57, abs=0.02)
+
+
+def test_the_features_turn_with_the_camera_about_up() -> None:
+    """An object and the camera turned together about the floor's normal: the same features."""
+    log_p = np.log(np.linspace(1, 2, CLASSES) / np.linspace(1, 2, CLASSES).sum())
+    rng = np.random.default_rng(1)
+    points = front_face(0.6, 0.9, 2.5) + rng.normal(0, 0.05, size=(4000, 3)) * [1, 0, 1]
+    turn = axis_angle_to_matrix(UP, 0.7)
+    camera = np.zeros(3)
+    about = np.array([0.0, 1.5, 0.0])  # a point of the floor's normal through the camera
+    turned_points = (points - about) @ turn.T + about
+    turned_camera = turn @ (camera - about) + about
+    np.testing.assert_allclose(
+        cluster_features(turned_points, log_p, FLOOR, turned_camera),
+        cluster_features(points, log_p, FLOOR, camera), atol=1e-9,
+    )  # fmt: skip
+
+
+def tiny_classifier(favoured: int, classes: tuple[str, ...], inputs: tuple[str, ...],
+                    graphs: tuple[str, str] = ("a", "b"), threshold: float = 0.5) -> SceneClassifier:  # fmt: skip
+    """A network that answers ``classes[favoured]`` surely, whatever the features."""
+    f, h, c = len(inputs) + 21, 3, len(classes)
+    bias = np.zeros(c)
+    bias[favoured] = 8.0
+    return SceneClassifier(classes, inputs, graphs, np.zeros(f), np.ones(f), np.zeros((f, h)),
+                           np.zeros(h), np.zeros((h, c)), bias, threshold, {"note": "tiny"})  # fmt: skip
+
+
+def test_the_network_answers_probabilities_and_survives_its_file(tmp_path: Path) -> None:
+    rng = np.random.default_rng(2)
+    f, h, c = 31, 5, 4
+    net = SceneClassifier(("a", "b", "c", "d"), tuple(f"i{k}" for k in range(10)), ("x", ""),
+                          rng.normal(size=f), rng.uniform(0.5, 2, f), rng.normal(size=(f, h)),
+                          rng.normal(size=h), rng.normal(size=(h, c)), rng.normal(size=c), 0.6,
+                          {"scenes": 1})  # fmt: skip
+    x = rng.normal(size=(7, f))
+    p = net.probabilities(x)
+    assert p.shape == (7, 4) and np.allclose(p.sum(1), 1) and (p > 0).all()
+    z = np.tanh(((x - net.mean) / net.scale) @ net.hidden + net.hidden_bias) @ net.output
+    np.testing.assert_array_equal(p.argmax(1), (z + net.output_bias).argmax(1))
+    path = tmp_path / "net.json"
+    path.write_text(json.dumps(net.to_dict()))
+    back = load_scene_classifier(path)
+    assert back is not None and back.classes == net.classes and back.graphs == net.graphs
+    np.testing.assert_allclose(back.probabilities(x), p, atol=1e-5)
+    assert load_scene_classifier(tmp_path / "none.json") is None
+
+
+def test_the_shipped_file_serves_the_shipped_classifier_and_no_other() -> None:
+    catalog = shipped_catalog()
+    assert catalog.classifier is not None
+    shipped = load_scene_classifier()
+    assert shipped is not None and shipped.graphs == classifier_graphs(catalog.classifier)
+    assert serving_scene_classifier(catalog) is shipped
+    assert serving_scene_classifier(catalog, False) is None
+    other = replace(shipped, graphs=("0" * 64, shipped.graphs[1]))
+    assert serving_scene_classifier(catalog, other) is None
+    assert "monitor" not in shipped.classes and {"desk", "dresser", "chair"} <= set(shipped.classes)
+    assert 0 < shipped.threshold < 1
+
+
+def test_a_scene_object_is_named_by_the_scene_classifier_where_it_names_the_categories() -> None:
+    catalog = shipped_catalog()
+    assert catalog.classifier is not None
+    inputs = tuple(catalog.classifier.card.classes)
+    points = front_face(0.5, 0.7, 3.0, 1500)
+    sure = tiny_classifier(1, ("bed", "desk", "sofa"), inputs, threshold=0.5)
+    seen = scene_category(catalog, points, UP, np.zeros(3), floor=FLOOR, scene_classifier=sure)
+    assert seen.category == "desk" and not seen.unsure
+    assert seen.candidates[0]["category"] == "desk" and len(seen.candidates) == 3
+    doubting = replace(sure, threshold=1.0)
+    assert scene_category(catalog, points, UP, np.zeros(3), floor=FLOOR,
+                          scene_classifier=doubting).unsure  # fmt: skip
+    only = scene_category(catalog, points, UP, np.zeros(3), categories=frozenset({"bed", "sofa"}),
+                          floor=FLOOR, scene_classifier=sure)  # fmt: skip
+    assert only.category in {"bed", "sofa"}  # renormalised over what the object may be
+    assert sum(c["probability"] for c in only.candidates) == pytest.approx(1.0, abs=1e-5)
+    monitor = scene_category(catalog, points, UP, np.zeros(3), categories=frozenset({"monitor"}),
+                             floor=FLOOR, scene_classifier=sure)  # fmt: skip
+    assert monitor.category == "monitor"  # it names no monitor: the classifier and the height
+
+
+def test_find_objects_names_by_the_scene_classifier_unless_told_not_to(
+    monkeypatch: pytest.MonkeyPatch, chair_scene: Scene
+) -> None:
+    catalog = shipped_catalog()
+    assert catalog.classifier is not None
+    inputs = tuple(catalog.classifier.card.classes)
+    sofa = tiny_classifier(1, ("bed", "sofa"), inputs, classifier_graphs(catalog.classifier))
+    (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
+                          scene_classifier=sofa).objects  # fmt: skip
+    assert obj.category == "sofa" and obj.run is not None and obj.run["model"] == "sofa"
+    (plain,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
+                            scene_classifier=False).objects  # fmt: skip
+    assert plain.category == "chair"
+
+
+def test_the_fit_learns_the_categories_from_features_and_sets_the_threshold(
+    tmp_path: Path,
+) -> None:
+    rng = np.random.default_rng(3)
+    names = ("chair", "desk", "dresser")
+    labels = [names[k] for k in rng.integers(0, 3, 600)]
+    centres = {"chair": 0.0, "desk": 2.0, "dresser": 4.0}
+    features = rng.normal(size=(600, CLASSES + 21))
+    features[:, CLASSES] += [centres[name] for name in labels]  # the top's height tells them apart
+    samples = tmp_path / "samples.npz"
+    np.savez(samples, features=features, labels=np.array(labels))
+    check = tmp_path / "check.npz"
+    np.savez(check, features=features[:200], labels=np.array(labels[:200]))
+    out = tmp_path / "scene_classifier.json"
+    scene_classifier_fit.main(["--samples", str(samples), "--threshold-samples", str(check),
+                               "--epochs", "200", "--out", str(out)])  # fmt: skip
+    fitted = load_scene_classifier(out)
+    assert fitted is not None and fitted.classes == names
+    named = np.array(names)[fitted.probabilities(features).argmax(1)]
+    assert (named == np.array(labels)).mean() > 0.9
+    assert fitted.fit["threshold"]["clusters"] == 200 and 0 < fitted.threshold <= 1
+    assert fitted.graphs == classifier_graphs(shipped_catalog().classifier)  # type: ignore[arg-type]
+
+
+def test_the_threshold_is_the_lowest_with_the_precision_above_it() -> None:
+    p = np.array([0.99, 0.9, 0.8, 0.7, 0.6, 0.5])
+    right = np.array([True, True, True, True, False, False])
+    assert scene_classifier_fit.precision_threshold(p, right, 0.95) == 0.7
+    assert scene_classifier_fit.precision_threshold(p, right, 0.6) == 0.5  # 4 of 6 right
+    assert scene_classifier_fit.precision_threshold(p, ~right, 0.95) == 1.0  # none is enough
