@@ -25,12 +25,14 @@ from itnet.scene.inputs import (
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, find_objects
 from itnet.scene.posing import scene_catalog
 from itnet.scene.result import Box, SceneObject, SceneResult
+from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import SegmentOptions
 
 __all__ = [
     "DEFAULT_BUDGET_MS",
     "Box",
     "Intrinsics",
+    "SceneClassifier",
     "SceneFinishing",
     "SceneInput",
     "SceneInputError",
@@ -46,6 +48,7 @@ __all__ = [
     "from_file",
     "from_png",
     "intrinsics_from_json",
+    "load_scene_classifier",
     "parse_intrinsics",
     "scene_catalog",
 ]
