@@ -45,7 +45,7 @@ export async function runScene({ view, file, intrinsics, depthScale, budgetMs })
   return reply;
 }
 
-/** The objects as a list: category, probability, points, pose or why none. */
+/** The objects as a list: category, probability (and whether unsure), points, pose or why none. */
 export function describeObjects(list, reply) {
   list.replaceChildren(...reply.objects.map((o, k) => {
     const item = document.createElement('li');
@@ -54,8 +54,9 @@ export function describeObjects(list, reply) {
       ? `posed in ${o.iterations} iterations (${o.model})`
       : `no pose (${o.no_pose})`;
     const centre = o.box.center.map((v) => v.toFixed(2)).join(', ');
-    item.textContent = `${o.category} ${(100 * o.category_probability).toFixed(0)}%, ${o.points} points, `
-      + `box centre [${centre}] m, ${pose}`;
+    const named = o.unsure ? ' (unsure)' : '';
+    item.textContent = `${o.category} ${(100 * o.category_probability).toFixed(0)}%${named}, `
+      + `${o.points} points, box centre [${centre}] m, ${pose}`;
     return item;
   }));
 }

@@ -44,6 +44,9 @@ def test_a_dropped_depth_image_shows_the_apis_objects(
     assert [o["category"] for o in shown["objects"]] == [o["category"] for o in api["objects"]]
     assert len(shown["objects"]) == 1
     assert page.locator("#scene-objects li").count() == 1
+    (obj,) = api["objects"]
+    listed = page.text_content("#scene-objects li")
+    assert listed.startswith(obj["category"]) and ("(unsure)" in listed) == obj["unsure"]
     assert not errors
     # the drawn scene: its points, one box, and the object's axes where it has a pose
     drawn = page.evaluate("document.querySelectorAll('canvas#view3d').length")
