@@ -1,13 +1,13 @@
 """A scene object's category rechecked by the pose models' learned verifiers.
 
-The classifier names some scene objects wrongly, and surely: from the front a dresser is a flat
+The classifiers name some scene objects wrongly, and surely: from the front a dresser is a flat
 face, named a chair or a monitor. Each category's learned verifier (``model/verifier.py``) was
 trained to tell a right pose of its category from a wrong one by how the cloud looks where the
 pose puts it, and a cluster posed as a category it is not tends to look wrong there too. So
 where the named category's verifier doubts the object's pose (logit below ``RECHECK_BELOW``),
-the object is posed as the classifier's second category as well (the same pipeline and
+the object is posed as its second candidate category as well (the same pipeline and
 finishing), and that category is kept where its own verifier finds its pose likelier by more
-than ``RECHECK_MARGIN`` (and reported ``unsure``: the classifier ranked it second). The second
+than ``RECHECK_MARGIN`` (and reported ``unsure``: it was ranked second). The second
 pose shares the object's part of the scene's budget; the reply says ``category_recheck``:
 ``changed``, ``kept`` or ``budget`` (doubted, no time left).
 """
@@ -73,7 +73,7 @@ def rechecked(
     left_ms = (deadline - now) * 1e3 - FINISH_MS
     if left_ms < MIN_RECHECK_MS:
         return _noted(seen, "budget")
-    # the classifier ranked it second: an object whose category changes is reported unsure
+    # ranked second: an object whose category changes is reported unsure
     other = ObjectPose(second["category"], second["probability"], seen.candidates, True,
                        named_by=seen.named_by)  # fmt: skip
     other = posed_as(catalog, other, points, up, viewpoint, left_ms, now)

@@ -16,8 +16,9 @@ The top is what the camera sees best (it looks down on furniture); the network p
 centre of a partial view too near the surface it sees, and the floor says how high it is.
 Before that, where the pose model has a scene correction (``centre_along_floor``), the centre
 moves along the floor to where it predicts. Last, a pose the category's verifier doubts is
-weighed against a pose as the classifier's second category (``category_recheck``). Each of
-these steps is a switch of ``SceneFinishing``.
+weighed against a pose as its second candidate category (``category_recheck``). Each of
+these steps is a switch of ``SceneFinishing``. The category itself is named by the scene
+classifier where it applies (``scene_classifier``), else by the classifier and the height.
 """
 
 from __future__ import annotations
