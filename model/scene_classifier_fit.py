@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +108,20 @@ def fit_network(
             "output_bias": array(last.bias)}  # fmt: skip
 
 
+def cached(
+    path: Path | None, collect: Callable[[], tuple[NDArray[np.float64], list[str]]]
+) -> tuple[NDArray[np.float64], list[str]]:
+    """Samples (features (S, F), categories (S,)) read from the .npz at ``path`` where it
+    exists, else collected (and written there, where a path is given)."""
+    if path is not None and path.exists():
+        with np.load(path) as saved:
+            return saved["features"], [str(v) for v in saved["labels"]]
+    features, labels = collect()
+    if path is not None:
+        np.savez(path, features=features, labels=np.array(labels))
+    return features, labels
+
+
 def precision_threshold(
     probabilities: NDArray, right: NDArray, precision: float = PRECISION
 ) -> float:
@@ -142,31 +158,25 @@ def main(argv: list[str] | None = None) -> None:
     catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
     assert catalog.classifier is not None
     started = time.perf_counter()
-    if args.samples is not None and args.samples.exists():
-        with np.load(args.samples) as saved:
-            features, labels = saved["features"], [str(v) for v in saved["labels"]]
-    else:
+
+    def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
         held_out = split_shapes(args.data, HELD_OUT_SPLIT, args.cache)
         trained = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.train_shapes)
         x1, y1 = scene_samples(held_out, args.scenes, args.seed, catalog)
         x2, y2 = scene_samples(trained, args.train_scenes, args.train_seed, catalog)
-        features, labels = np.concatenate([x1, x2]), y1 + y2
-        if args.samples is not None:
-            np.savez(args.samples, features=features, labels=np.array(labels))
-    classes = tuple(c for c in WITH_DESKS if c in set(labels))
-    classes = tuple(sorted(classes))
+        return np.concatenate([x1, x2]), y1 + y2
+
+    def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
+        shapes = split_shapes(args.data, "validation", args.cache)
+        return scene_samples(shapes, args.threshold_scenes, args.threshold_seed, catalog)
+
+    features, labels = cached(args.samples, fitting_samples)
+    classes = tuple(sorted(set(labels)))
     arrays = fit_network(features, labels, classes, args.hidden, args.weight_decay, args.epochs)
     fitted = SceneClassifier(classes, tuple(catalog.classifier.card.classes),
                              classifier_graphs(catalog.classifier), threshold=1.0, fit={},
                              **arrays)  # fmt: skip
-    if args.threshold_samples is not None and args.threshold_samples.exists():
-        with np.load(args.threshold_samples) as saved:
-            x, y = saved["features"], [str(v) for v in saved["labels"]]
-    else:
-        check_shapes = split_shapes(args.data, "validation", args.cache)
-        x, y = scene_samples(check_shapes, args.threshold_scenes, args.threshold_seed, catalog)
-        if args.threshold_samples is not None:
-            np.savez(args.threshold_samples, features=x, labels=np.array(y))
+    x, y = cached(args.threshold_samples, threshold_samples)
     probabilities = fitted.probabilities(x)
     named = np.array(classes)[probabilities.argmax(1)]
     right = named == np.array(y)
@@ -182,9 +192,7 @@ def main(argv: list[str] | None = None) -> None:
                       "named_right": round(float(right.mean()), 4)},
         "command": "python -m itnet.model.scene_classifier_fit",
     }  # fmt: skip
-    out = SceneClassifier(fitted.classes, fitted.inputs, fitted.graphs, fitted.mean,
-                          fitted.scale, fitted.hidden, fitted.hidden_bias, fitted.output,
-                          fitted.output_bias, threshold, fit)  # fmt: skip
+    out = replace(fitted, threshold=threshold, fit=fit)
     args.out.write_text(json.dumps(out.to_dict()) + "\n")
     print(json.dumps(fit, indent=1))
     print(f"threshold {threshold:.4f}; wrote {args.out} in {time.perf_counter() - started:.0f} s")
