@@ -79,5 +79,8 @@ def test_pose_object_weighs_the_height_into_the_category(monkeypatch) -> None:
     assert plain.category == "night_stand" and low.category == "night_stand"
     assert tall.category == "dresser" and tall.pose is not None
     assert tall.result is not None and tall.result["model"] == "dresser"
+    # the dresser's card recommends one run; an object of a scene gets at least SCENE_LEAST_RUNS
+    assert catalog.models["dresser"].card.recommended_ensemble < posing.SCENE_LEAST_RUNS
+    assert tall.result["ensemble"] == posing.SCENE_LEAST_RUNS
     assert [c["category"] for c in tall.candidates[:2]] == ["dresser", "night_stand"]
     assert sum(c["probability"] for c in tall.candidates) == pytest.approx(1.0, abs=1e-5)
