@@ -22,14 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 from numpy.typing import NDArray
 
+from itnet.model.feature_network_fit import cached, fit_network
 from itnet.model.scenes import (
     FIT_SPLIT,
     HELD_OUT_SPLIT,
@@ -78,48 +77,6 @@ def scene_samples(
             features.append(cluster_features(points, log_p, found.floor, VIEWPOINT))
             labels.append(scene.objects[k - 1].category)
     return np.array(features), labels
-
-
-def fit_network(
-    features: NDArray, labels: list[str], classes: tuple[str, ...], hidden: int, weight_decay: float,
-    epochs: int, seed: int = 0,
-) -> dict[str, NDArray[np.float64]]:  # fmt: skip
-    """Features (S, F) and their categories -> the network's arrays (``SceneClassifier``'s
-    mean, scale, hidden, hidden_bias, output, output_bias): full-batch Adam (lr 0.01, weight
-    decay) on the cross-entropy, ``epochs`` steps from a seeded start."""
-    torch.manual_seed(seed)
-    mean, scale = features.mean(0), features.std(0) + 1e-6
-    x = torch.tensor((features - mean) / scale, dtype=torch.float32)
-    y = torch.tensor([classes.index(label) for label in labels])
-    first, last = torch.nn.Linear(x.shape[1], hidden), torch.nn.Linear(hidden, len(classes))
-    net = torch.nn.Sequential(first, torch.nn.Tanh(), last)
-    optimiser = torch.optim.Adam(net.parameters(), lr=1e-2, weight_decay=weight_decay)
-    for _ in range(epochs):
-        optimiser.zero_grad()
-        loss = torch.nn.functional.cross_entropy(net(x), y)
-        loss.backward()
-        optimiser.step()
-
-    def array(t: torch.Tensor) -> NDArray[np.float64]:
-        return t.detach().numpy().astype(np.float64)
-
-    return {"mean": mean, "scale": scale, "hidden": array(first.weight.T),
-            "hidden_bias": array(first.bias), "output": array(last.weight.T),
-            "output_bias": array(last.bias)}  # fmt: skip
-
-
-def cached(
-    path: Path | None, collect: Callable[[], tuple[NDArray[np.float64], list[str]]]
-) -> tuple[NDArray[np.float64], list[str]]:
-    """Samples (features (S, F), categories (S,)) read from the .npz at ``path`` where it
-    exists, else collected (and written there, where a path is given)."""
-    if path is not None and path.exists():
-        with np.load(path) as saved:
-            return saved["features"], [str(v) for v in saved["labels"]]
-    features, labels = collect()
-    if path is not None:
-        np.savez(path, features=features, labels=np.array(labels))
-    return features, labels
 
 
 def precision_threshold(
@@ -172,10 +129,10 @@ def main(argv: list[str] | None = None) -> None:
 
     features, labels = cached(args.samples, fitting_samples)
     classes = tuple(sorted(set(labels)))
-    arrays = fit_network(features, labels, classes, args.hidden, args.weight_decay, args.epochs)
+    network = fit_network(features, labels, classes, args.hidden, args.weight_decay, args.epochs)
     fitted = SceneClassifier(classes, tuple(catalog.classifier.card.classes),
-                             classifier_graphs(catalog.classifier), threshold=1.0, fit={},
-                             **arrays)  # fmt: skip
+                             classifier_graphs(catalog.classifier), network, threshold=1.0,
+                             fit={})  # fmt: skip
     x, y = cached(args.threshold_samples, threshold_samples)
     probabilities = fitted.probabilities(x)
     named = np.array(classes)[probabilities.argmax(1)]

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from itnet.pose.runtime import LoadedClassifier
 from itnet.scene.centre_along_floor import graph_digest
+from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.planes import Plane
 
 FILE = Path(__file__).with_name("scene_classifier.json")
@@ -91,32 +92,21 @@ def _spread(values: NDArray, percent: float) -> float:
 
 @dataclass(frozen=True)
 class SceneClassifier:
-    """features (F,) -> probabilities over ``classes``: standardised by ``mean`` and ``scale``
-    (F,), then ``hidden`` (F, H) and ``hidden_bias`` (H,) under tanh, then ``output`` (H, C)
-    and ``output_bias`` (C,) under softmax. ``inputs``: the classifier's classes, in the order
-    of its log-probabilities in the features; ``graphs``: the SHA-256 of the classifier's
-    graph and of its upright classifier's ('' for none); ``threshold``: below it the answer is
-    unsure; ``fit``: how it was fitted and measured."""
+    """features (F,) -> probabilities over ``classes`` by ``network``. ``inputs``: the
+    classifier's classes, in the order of its log-probabilities in the features; ``graphs``: the
+    SHA-256 of the classifier's graph and of its upright classifier's ('' for none);
+    ``threshold``: below it the answer is unsure; ``fit``: how it was fitted and measured."""
 
     classes: tuple[str, ...]
     inputs: tuple[str, ...]
     graphs: tuple[str, str]
-    mean: NDArray[np.float64]
-    scale: NDArray[np.float64]
-    hidden: NDArray[np.float64]
-    hidden_bias: NDArray[np.float64]
-    output: NDArray[np.float64]
-    output_bias: NDArray[np.float64]
+    network: FeatureNetwork
     threshold: float
     fit: dict[str, Any]
 
     def probabilities(self, features: ArrayLike) -> NDArray[np.float64]:
         """features (..., F) -> probabilities (..., C) over ``classes``."""
-        x = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
-        logits = np.tanh(x @ self.hidden + self.hidden_bias) @ self.output + self.output_bias
-        logits = logits - logits.max(axis=-1, keepdims=True)
-        e = np.exp(logits)
-        return e / e.sum(axis=-1, keepdims=True)
+        return self.network.probabilities(features)
 
     def serves(self, classifier: LoadedClassifier) -> bool:
         """Whether it was fitted on this classifier's graphs (and its classes)."""
@@ -126,23 +116,20 @@ class SceneClassifier:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        arrays = ("mean", "scale", "hidden", "hidden_bias", "output", "output_bias")
         return {
             "classes": list(self.classes),
             "inputs": list(self.inputs),
             "graphs": {"classifier": self.graphs[0], "upright": self.graphs[1]},
             "threshold": self.threshold,
-            **{k: np.round(getattr(self, k), 7).tolist() for k in arrays},
+            **self.network.to_dict(),
             "fit": self.fit,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SceneClassifier:
-        arrays = {k: np.asarray(d[k], dtype=np.float64)
-                  for k in ("mean", "scale", "hidden", "hidden_bias", "output", "output_bias")}  # fmt: skip
         return cls(tuple(d["classes"]), tuple(d["inputs"]),
-                   (d["graphs"]["classifier"], d["graphs"]["upright"]),
-                   threshold=float(d["threshold"]), fit=d.get("fit", {}), **arrays)  # fmt: skip
+                   (d["graphs"]["classifier"], d["graphs"]["upright"]), FeatureNetwork.from_dict(d),
+                   threshold=float(d["threshold"]), fit=d.get("fit", {}))  # fmt: skip
 
 
 def classifier_graphs(classifier: LoadedClassifier) -> tuple[str, str]:

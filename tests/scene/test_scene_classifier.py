@@ -14,6 +14,7 @@ from itnet.geometry import axis_angle_to_matrix
 from itnet.model import scene_classifier_fit
 from itnet.model.scenes import Scene
 from itnet.scene import find_objects
+from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.pipeline import serving_scene_classifier, shipped_catalog
 from itnet.scene.planes import Plane
 from itnet.scene.posing import scene_category
@@ -76,22 +77,23 @@ def tiny_classifier(favoured: int, classes: tuple[str, ...], inputs: tuple[str, 
     f, h, c = len(inputs) + 21, 3, len(classes)
     bias = np.zeros(c)
     bias[favoured] = 8.0
-    return SceneClassifier(classes, inputs, graphs, np.zeros(f), np.ones(f), np.zeros((f, h)),
-                           np.zeros(h), np.zeros((h, c)), bias, threshold, {"note": "tiny"})  # fmt: skip
+    network = FeatureNetwork(np.zeros(f), np.ones(f), np.zeros((f, h)), np.zeros(h),
+                             np.zeros((h, c)), bias)  # fmt: skip
+    return SceneClassifier(classes, inputs, graphs, network, threshold, {"note": "tiny"})
 
 
 def test_the_network_answers_probabilities_and_survives_its_file(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
     f, h, c = 31, 5, 4
+    arrays = FeatureNetwork(rng.normal(size=f), rng.uniform(0.5, 2, f), rng.normal(size=(f, h)),
+                            rng.normal(size=h), rng.normal(size=(h, c)), rng.normal(size=c))  # fmt: skip
     net = SceneClassifier(("a", "b", "c", "d"), tuple(f"i{k}" for k in range(10)), ("x", ""),
-                          rng.normal(size=f), rng.uniform(0.5, 2, f), rng.normal(size=(f, h)),
-                          rng.normal(size=h), rng.normal(size=(h, c)), rng.normal(size=c), 0.6,
-                          {"scenes": 1})  # fmt: skip
+                          arrays, 0.6, {"scenes": 1})  # fmt: skip
     x = rng.normal(size=(7, f))
     p = net.probabilities(x)
     assert p.shape == (7, 4) and np.allclose(p.sum(1), 1) and (p > 0).all()
-    z = np.tanh(((x - net.mean) / net.scale) @ net.hidden + net.hidden_bias) @ net.output
-    np.testing.assert_array_equal(p.argmax(1), (z + net.output_bias).argmax(1))
+    z = np.tanh(((x - arrays.mean) / arrays.scale) @ arrays.hidden + arrays.hidden_bias)
+    np.testing.assert_array_equal(p.argmax(1), (z @ arrays.output + arrays.output_bias).argmax(1))
     path = tmp_path / "net.json"
     path.write_text(json.dumps(net.to_dict()))
     back = load_scene_classifier(path)
