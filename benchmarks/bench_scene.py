@@ -43,6 +43,7 @@ from itnet.model.scenes import (
 from itnet.scene import SceneFinishing, SceneResult, find_objects, scene_catalog
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
+from itnet.scene.segment import SegmentOptions
 from itnet.symmetry import symmetric_rotation_error_deg
 
 
@@ -146,6 +147,9 @@ def main(argv: list[str] | None = None) -> None:
         help="name the objects by the classifier and their height alone",
     )
     parser.add_argument(
+        "--no-split-touching", action="store_true", help="no cuts of clusters holding two objects"
+    )
+    parser.add_argument(
         "--with-desks", action="store_true", help="desks among the scenes' objects too"
     )
     parser.add_argument(
@@ -160,6 +164,7 @@ def main(argv: list[str] | None = None) -> None:
         not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
     )
     budget["scene_classifier"] = not args.no_scene_classifier
+    budget["options"] = SegmentOptions(split_touching=not args.no_split_touching)
     drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
     if args.categories == "posed":
         budget["categories"] = frozenset(drawn)
@@ -189,7 +194,8 @@ def main(argv: list[str] | None = None) -> None:
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         "with_desks": args.with_desks,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
-           if k not in ("catalog", "finishing")},
+           if k not in ("catalog", "finishing", "options")},
+        "split_touching": not args.no_split_touching,
         **asdict(budget["finishing"]),
         **({"model_dir": str(args.model_dir)} if args.model_dir is not None else {}),
         "320x240": summary(rows, returned) | timing(times),
@@ -198,7 +204,9 @@ def main(argv: list[str] | None = None) -> None:
     print(json.dumps(report, indent=1))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({**report, "rows": rows}, indent=1))
+        args.out.write_text(
+            json.dumps({**report, "rows": rows, "rows_640x480": rows_large}, indent=1)
+        )
 
 
 def large_scene(

@@ -163,10 +163,11 @@ class AsyncItnetClient:
         along_floor: bool = True,
         recheck: bool = True,
         scene_classifier: bool = True,
+        split_touching: bool = True,
     ) -> Any:
         """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier}  # fmt: skip
+                    "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
         body, query, headers = scene_request(
             scene, intrinsics, budget_ms, depth_scale, indices, switches
         )

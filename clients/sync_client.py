@@ -169,6 +169,7 @@ class ItnetClient:
         along_floor: bool = True,
         recheck: bool = True,
         scene_classifier: bool = True,
+        split_touching: bool = True,
     ) -> Any:
         """``POST /v1/scene``: every object of a depth image or a scene cloud -> the reply (a
         dict: ``objects``, each with ``category``, ``T_canonical_from_input``, ``box``, ...;
@@ -176,10 +177,11 @@ class ItnetClient:
         units) or ``.npy`` file, PNG bytes, a depth image (H, W) (float: metres) or a cloud
         (N, 3) in the camera's frame (metres); ``intrinsics`` (fx, fy, cx, cy) for an image.
         ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default);
-        ``scene_classifier``: objects named by their shape on the floor too (on by default).
-        Raises ItnetRequestError (refused), ItnetConnectionError."""
+        ``scene_classifier``: objects named by their shape on the floor too; ``split_touching``:
+        a cluster cut where it holds two objects standing against each other (both on by
+        default). Raises ItnetRequestError (refused), ItnetConnectionError."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier}  # fmt: skip
+                    "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
         body, query, headers = scene_request(
             scene, intrinsics, budget_ms, depth_scale, indices, switches
         )

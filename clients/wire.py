@@ -200,7 +200,7 @@ def scene_request(
 ) -> tuple[bytes, dict[str, str], dict[str, str]]:
     """``POST /v1/scene``'s body (``scene_body``), query and headers: the intrinsics (fx, fy,
     cx, cy), the budget and depth scale where given (else the service's), ``indices`` and the
-    switches (finishing steps, scene classifier) in the query."""
+    switches (finishing steps, scene classifier, touching cuts) in the query."""
     body, kind = scene_body(scene)
     query: dict[str, str] = {"indices": str(indices).lower()}
     if intrinsics is not None:

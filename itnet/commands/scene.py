@@ -50,6 +50,11 @@ def scene(
         "--scene-classifier/--no-scene-classifier",
         help="Name each object by its shape on the floor too (else the classifier and height).",
     ),
+    split_touching: bool = typer.Option(
+        True,
+        "--split-touching/--no-split-touching",
+        help="Cut a cluster where the cut judge finds two objects standing against each other.",
+    ),
 ) -> None:
     """Find the objects standing on the floor of each scene (camera frame: x right, y down, z
     ahead, metres): category, probability, T_canonical_from_input, box, points. Bad files are
@@ -59,6 +64,7 @@ def scene(
     from itnet.geometry import rotation_angle_deg
     from itnet.scene import SceneFinishing, SceneInputError, find_objects, parse_intrinsics
     from itnet.scene.posing import ModelLoadError, scene_catalog
+    from itnet.scene.segment import SegmentOptions
 
     if not 0 < budget_ms <= 60_000:
         raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
@@ -77,7 +83,8 @@ def scene(
         try:
             result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
                                   depth_scale=depth_scale, finishing=finishing,
-                                  scene_classifier=scene_classifier)  # fmt: skip
+                                  scene_classifier=scene_classifier,
+                                  options=SegmentOptions(split_touching=split_touching))  # fmt: skip
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)
             failed = True

@@ -29,6 +29,14 @@ class Plane:
         return np.asarray(points, dtype=np.float64) @ self.normal + self.offset
 
 
+def floor_axes(up: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A unit up (3,) -> two unit directions (3,) along the floor, normal to it and to each
+    other."""
+    across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    return across, np.cross(up, across)
+
+
 def fit_plane(points: NDArray) -> Plane:
     """Least-squares plane through points (N >= 3, 3): through their centroid, normal to the
     direction of least variance."""

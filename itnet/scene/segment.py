@@ -29,6 +29,8 @@ stands on the floor, filtered by size.
    of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
    cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m``, is a piece of
    that object too.
+6. Objects standing against each other: a cluster is cut by a vertical plane where the cut
+   judge finds that it holds two objects (``itnet.scene.touching``; ``split_touching``).
 """
 
 from __future__ import annotations
@@ -42,7 +44,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from itnet.scene.planes import Plane, ransac_plane
+from itnet.scene.planes import Plane, floor_axes, ransac_plane
+from itnet.scene.touching import load_cut_judge, split_touching
 
 CAMERA_UP = (0.0, -1.0, 0.0)  # a camera whose image y points down, held about level
 
@@ -75,6 +78,7 @@ class SegmentOptions:
     min_height_m: float = 0.2
     max_size_m: float = 3.0
     max_points: int = 80_000  # a larger cloud is segmented on a random subset (see ``segment``)
+    split_touching: bool = True  # a cluster cut where the cut judge finds two objects (step 6)
 
 
 @dataclass
@@ -275,9 +279,8 @@ def _gap(points: NDArray, piece: NDArray[np.int64], tree: cKDTree) -> float:
 def _footprint(points: NDArray, up: NDArray) -> NDArray[np.float64]:
     """Points (N, 3) -> their places on the floor (N, 2): coordinates along two directions
     normal to ``up``."""
-    across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
-    across /= np.linalg.norm(across)
-    return np.stack([points @ across, points @ np.cross(up, across)], axis=1)
+    across, along = floor_axes(up)
+    return np.stack([points @ across, points @ along], axis=1)
 
 
 def segment(
@@ -309,6 +312,9 @@ def segment(
     groups = [index[g] for g in clusters(work[index], up, options)]
     objects = [g for g in groups if standing(work[g], heights[g], up, walls, options)]
     objects = attach_pieces(work, heights, objects, up, options)
+    judge = load_cut_judge() if options.split_touching else None
+    if judge is not None:
+        objects = split_touching(work, objects, floor, judge)
     if subset is not None:
         objects = spread(points, floor, walls, [subset[g] for g in objects], options)
     objects.sort(key=len, reverse=True)

@@ -11,6 +11,8 @@ from itnet.geometry import axis_angle_to_matrix
 from itnet.model.scenes import Scene, render, world_from_camera
 from itnet.model.shapes import Shape
 from itnet.scene import Intrinsics
+from itnet.scene.feature_network import FeatureNetwork
+from itnet.scene.touching import CLASSES, CutJudge
 
 BoxSpec = tuple[tuple[float, float, float], tuple[float, float, float]]  # centre, size
 
@@ -61,3 +63,15 @@ def make_test_scene(
     depth, labels = render(placed, camera, wall, intrinsics, width, height,
                            np.random.default_rng(seed))  # fmt: skip
     return Scene(depth, intrinsics, labels, [])
+
+
+FEATURES = 22  # a cut's features (itnet.scene.touching.cut_features)
+
+
+def sure_judge(answer: str, features: int = FEATURES, threshold: float = 0.8) -> CutJudge:
+    """A judge that answers ``answer`` surely, whatever the cut."""
+    bias = np.zeros(2)
+    bias[CLASSES.index(answer)] = 8.0
+    network = FeatureNetwork(np.zeros(features), np.ones(features), np.zeros((features, 2)),
+                             np.zeros(2), np.zeros((2, 2)), bias)  # fmt: skip
+    return CutJudge(network, threshold, {"note": "sure"})

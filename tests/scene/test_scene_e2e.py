@@ -163,6 +163,37 @@ def test_the_finishing_steps_switch_off_on_the_cli_and_http(
     assert obj["named_by"] == "classifier"
 
 
+def test_the_touching_cut_switches_off_on_the_cli_http_and_clients(
+    client: TestClient, files: Path, chair_scene: Scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With a cut judge that finds two objects in every cluster, the chair is cut; with
+    ``--no-split-touching`` / ``split_touching=false`` it stays one object."""
+    from scene_helpers import sure_judge
+
+    from itnet.clients import ItnetClient
+    from itnet.scene import segment as segment_module
+
+    monkeypatch.setattr(segment_module, "load_cut_judge", lambda: sure_judge("two"))
+    args = ["scene", str(files / "chair.png"), "--intrinsics", camera_arg(chair_scene), "--json",
+            "--budget-ms", "300"]  # fmt: skip
+    cut, whole = (json.loads(runner.invoke(app, args + extra).output)["objects"]
+                  for extra in ([], ["--no-split-touching"]))  # fmt: skip
+    assert len(cut) >= 2 and len(whole) == 1
+    i = chair_scene.intrinsics
+    query = f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300&split_touching=false"
+    png = (files / "chair.png").read_bytes()
+    reply = client.post(f"/v1/scene?{query}", content=png, headers={"content-type": "image/png"})
+    assert reply.status_code == 200, reply.text
+    assert len(reply.json()["objects"]) == 1
+    sync = ItnetClient("http://testserver")
+    sync._http = client
+    camera = (i.fx, i.fy, i.cx, i.cy)
+    assert (
+        len(sync.scene(png, intrinsics=camera, budget_ms=300, split_touching=False)["objects"]) == 1
+    )
+    assert len(sync.scene(png, intrinsics=camera, budget_ms=300)["objects"]) >= 2
+
+
 def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
     client: TestClient, files: Path, chair_scene: Scene
 ) -> None:

@@ -35,6 +35,7 @@ from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing
 from itnet.scene.posing import NoClassifierError
+from itnet.scene.segment import SegmentOptions
 from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, malformed_json
 from itnet.service.schemas import ErrorResponse
@@ -124,6 +125,9 @@ async def scene(
     scene_classifier: Annotated[
         bool, Query(description="name objects by their shape on the floor too (else height only)")
     ] = True,
+    split_touching: Annotated[
+        bool, Query(description="cut a cluster where the cut judge finds two objects touching")
+    ] = True,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
@@ -141,6 +145,7 @@ async def scene(
         return await anyio.to_thread.run_sync(
             _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
             SceneFinishing(floor_centre, along_floor, recheck), scene_classifier,
+            SegmentOptions(split_touching=split_touching),
         )  # fmt: skip
 
 
@@ -174,6 +179,7 @@ def _find(
     state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None,
     depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
     finishing: SceneFinishing = SceneFinishing(), scene_classifier: bool = True,
+    options: SegmentOptions = SegmentOptions(),
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
@@ -181,7 +187,8 @@ def _find(
     try:
         given = _decode(body, kind, camera, depth_scale)
         result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
-                              finishing=finishing, scene_classifier=scene_classifier)  # fmt: skip
+                              finishing=finishing, scene_classifier=scene_classifier,
+                              options=options)  # fmt: skip
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:

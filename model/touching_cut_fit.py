@@ -1,0 +1,137 @@
+"""Fit the cut judge (``itnet.scene.touching``) on scenes of training shapes.
+
+Development scenes (``itnet.model.scenes``, desks among them) of the pose models' training
+shapes, half of them with their objects standing against each other (``touching``), are
+rendered at 320x240 and segmented as served but without cuts. Each cluster's candidate cuts
+(``cut_candidates``) are samples: ``two`` where the cluster holds two or more objects (each at
+least 15% of its points) and the cut leaves at least 90% of each side's points to one object,
+else ``one``. A network of one hidden layer is fitted to them (``fit_network``). Its threshold
+is the lowest at which at most 0.5% of the clusters of ordinary validation scenes (every object
+apart from the others) would be cut::
+
+    python -m itnet.model.touching_cut_fit                  # writes the shipped file
+
+Measuring it: ``benchmarks/bench_scene.py`` (``--touching``, ``--no-split-touching``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from itnet.model.feature_network_fit import cached, fit_network
+from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, split_shapes
+from itnet.scene.inputs import from_depth
+from itnet.scene.segment import SegmentOptions, segment
+from itnet.scene.touching import CLASSES, FILE, CutJudge, cut_candidates
+
+MERGED_SHARE = 0.15  # an object with this share of a cluster's points is in it
+CLEAN = 0.9  # a cut parts two objects where each side is this pure
+MAX_CUT_SHARE = 0.005  # of ordinary validation clusters: the threshold's rule
+
+
+def cut_samples(
+    shapes: dict, scenes: int, seed: int, touching: bool
+) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
+    """``scenes`` scenes of ``shapes`` -> every candidate cut's features (S, F) of every cluster
+    the segmentation found, and its label: ``CLUSTER:LABEL`` (the cluster's running number in
+    these samples, and ``one`` or ``two``)."""
+    rng = np.random.default_rng(seed)
+    features, labels = [], []
+    cluster = 0
+    for _ in range(scenes):
+        scene = make_scene(shapes, rng, touching=touching, categories=WITH_DESKS)
+        given = from_depth(scene.depth, scene.intrinsics)
+        found = segment(given.points, SegmentOptions(split_touching=False))
+        if found.floor is None:
+            continue
+        for rows in found.objects:
+            owner = scene.labels.ravel()[given.indices[rows]]
+            count = np.bincount(owner, minlength=len(scene.objects) + 1)
+            merged = int((count[1:] >= MERGED_SHARE * len(rows)).sum()) >= 2
+            for cut in cut_candidates(given.points[rows], found.floor):
+                side = cut.side(given.points[rows])
+                pure = sum(np.bincount(owner[s], minlength=len(count)).max() for s in (side, ~side))
+                two = merged and pure >= CLEAN * len(rows)
+                features.append(cut.features)
+                labels.append(f"{cluster}:{'two' if two else 'one'}")
+            cluster += 1
+    return np.array(features), labels
+
+
+def cut_threshold(judge: CutJudge, features: NDArray, labels: list[str]) -> tuple[float, int]:
+    """Ordinary scenes' candidate cuts (S, F) and labels (``cut_samples``) -> the lowest
+    threshold at which at most MAX_CUT_SHARE of their one-object clusters would be cut, and how
+    many such clusters there were."""
+    chance = judge.probabilities(features)
+    best: dict[str, float] = {}
+    for p, label in zip(chance, labels):
+        cluster, kind = label.split(":")
+        if kind == "one":
+            best[cluster] = max(best.get(cluster, 0.0), float(p))
+    ordered = np.sort(np.array(list(best.values())))[::-1]
+    allowed = int(MAX_CUT_SHARE * len(ordered))
+    threshold = float(ordered[allowed]) + 1e-6 if len(ordered) > allowed else 0.5
+    return min(max(threshold, 0.5), 1.0), len(ordered)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=1500, help="of each kind")
+    parser.add_argument("--seed", type=int, default=41)
+    parser.add_argument("--hidden", type=int, default=32, help="chosen on validation scenes")
+    parser.add_argument("--weight-decay", type=float, default=1e-4, help="chosen on validation")
+    parser.add_argument("--epochs", type=int, default=1500)
+    parser.add_argument("--threshold-scenes", type=int, default=300,
+                        help="ordinary validation scenes the threshold is chosen on")  # fmt: skip
+    parser.add_argument("--threshold-seed", type=int, default=32)
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    parser.add_argument("--samples", type=Path, default=None,
+                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
+    parser.add_argument("--threshold-samples", type=Path, default=None,
+                        help="the same for the validation scenes")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=FILE)
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+
+    def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
+        shapes = split_shapes(args.data, FIT_SPLIT, args.cache)
+        x1, y1 = cut_samples(shapes, args.scenes, args.seed, touching=True)
+        x2, y2 = cut_samples(shapes, args.scenes, args.seed + 1, touching=False)
+        return np.concatenate([x1, x2]), y1 + y2
+
+    def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
+        shapes = split_shapes(args.data, "validation", args.cache)
+        return cut_samples(shapes, args.threshold_scenes, args.threshold_seed, touching=False)
+
+    features, labels = cached(args.samples, fitting_samples)
+    kinds = [label.split(":")[1] for label in labels]
+    network = fit_network(features, kinds, CLASSES, args.hidden, args.weight_decay, args.epochs)
+    judge = CutJudge(network, 1.0, {})
+    x, y = cached(args.threshold_samples, threshold_samples)
+    threshold, clusters = cut_threshold(judge, x, y)
+    fit = {
+        "scenes": {FIT_SPLIT: [args.scenes, args.seed, "touching"],
+                   f"{FIT_SPLIT} apart": [args.scenes, args.seed + 1]},
+        "cuts": {c: kinds.count(c) for c in CLASSES},
+        "network": {"hidden": args.hidden, "weight_decay": args.weight_decay,
+                    "epochs": args.epochs},
+        "threshold": {"most_cut": MAX_CUT_SHARE, "validation_scenes": args.threshold_scenes,
+                      "seed": args.threshold_seed, "clusters": clusters},
+        "command": "python -m itnet.model.touching_cut_fit",
+    }  # fmt: skip
+    out = replace(judge, threshold=threshold, fit=fit)
+    args.out.write_text(json.dumps(out.to_dict()) + "\n")
+    print(json.dumps(fit, indent=1))
+    print(f"threshold {threshold:.4f}; wrote {args.out} in {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
