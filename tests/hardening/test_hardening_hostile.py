@@ -96,7 +96,7 @@ def test_idle_websockets_count_and_give_way(slow_server: LiveServer, points: lis
         assert sum(closed(sock, 0.2) for sock in idle[:8]) == 8  # the first eight made room
         reply = httpx.post(f"{slow_server.url}/v1/estimate", json={"points": points,
                            "budget_ms": 60, "max_iterations": 1}, timeout=5)  # fmt: skip
-        assert reply.status_code == 200
+        assert reply.status_code == 200, reply.text
         assert httpx.get(f"{slow_server.url}/healthz", timeout=5).status_code == 200
     finally:
         for sock in idle:
