@@ -3,8 +3,11 @@ samples' cache the fitting commands share."""
 
 from __future__ import annotations
 
+import json
+import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -53,4 +56,21 @@ def cached(
     return features, labels
 
 
-__all__ = ["cached", "fit_network"]
+class Fitted(Protocol):
+    threshold: float
+    fit: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+def write_fitted(path: Path, fitted: Fitted, started: float) -> None:
+    """Write a fitted network's file (JSON, one line) and say how it was fitted, its threshold
+    and how long it took since ``started`` (``time.perf_counter()``)."""
+    path.write_text(json.dumps(fitted.to_dict()) + "\n")
+    print(json.dumps(fitted.fit, indent=1))
+    print(
+        f"threshold {fitted.threshold:.4f}; wrote {path} in {time.perf_counter() - started:.0f} s"
+    )
+
+
+__all__ = ["cached", "fit_network", "write_fitted"]

@@ -20,7 +20,6 @@ The file names the classifier's graphs by their SHA-256, so it serves only them.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -28,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.model.feature_network_fit import cached, fit_network
+from itnet.model.feature_network_fit import cached, fit_network, write_fitted
 from itnet.model.scenes import (
     FIT_SPLIT,
     HELD_OUT_SPLIT,
@@ -149,10 +148,7 @@ def main(argv: list[str] | None = None) -> None:
                       "named_right": round(float(right.mean()), 4)},
         "command": "python -m itnet.model.scene_classifier_fit",
     }  # fmt: skip
-    out = replace(fitted, threshold=threshold, fit=fit)
-    args.out.write_text(json.dumps(out.to_dict()) + "\n")
-    print(json.dumps(fit, indent=1))
-    print(f"threshold {threshold:.4f}; wrote {args.out} in {time.perf_counter() - started:.0f} s")
+    write_fitted(args.out, replace(fitted, threshold=threshold, fit=fit), started)
 
 
 if __name__ == "__main__":

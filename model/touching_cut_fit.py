@@ -17,7 +17,6 @@ Measuring it: ``benchmarks/bench_scene.py`` (``--touching``, ``--no-split-touchi
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.model.feature_network_fit import cached, fit_network
+from itnet.model.feature_network_fit import cached, fit_network, write_fitted
 from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, split_shapes
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, segment
@@ -127,10 +126,7 @@ def main(argv: list[str] | None = None) -> None:
                       "seed": args.threshold_seed, "clusters": clusters},
         "command": "python -m itnet.model.touching_cut_fit",
     }  # fmt: skip
-    out = replace(judge, threshold=threshold, fit=fit)
-    args.out.write_text(json.dumps(out.to_dict()) + "\n")
-    print(json.dumps(fit, indent=1))
-    print(f"threshold {threshold:.4f}; wrote {args.out} in {time.perf_counter() - started:.0f} s")
+    write_fitted(args.out, replace(judge, threshold=threshold, fit=fit), started)
 
 
 if __name__ == "__main__":
