@@ -37,6 +37,7 @@ DIRECTIONS = 36  # planes' directions along the floor, over half a turn
 BIN_M = 0.005
 STRIP_BINS = 6  # the strip a cut should leave empty: 3 cm
 MIN_SIDE = 0.1  # the lesser side of a cut holds at least this share of the points
+MIN_PART = 3  # and, counted point by point (a histogram's bin may hold them all), this many
 CANDIDATES = 6
 SPREAD_DEG = 15.0
 SAMPLE = 2048  # a larger cluster's candidates are found on this many of its points
@@ -87,11 +88,15 @@ def cut_candidates(
     score = np.where(lesser >= MIN_SIDE * n, strip / np.maximum(lesser, 1.0), np.inf)
     where = score.argmin(axis=1)
     best = score[np.arange(DIRECTIONS), where]
+    offsets = lo + (where + 0.5) * BIN_M
+    first = (along < offsets).sum(axis=0)  # the points each direction's cut leaves first
+    parted = (first >= MIN_PART) & (n - first >= MIN_PART)  # not where they share one bin
     chosen: list[int] = []
     for j in np.argsort(best, kind="stable"):
         if not np.isfinite(best[j]) or len(chosen) == CANDIDATES:
             break
-        if all(_apart(angles[j], angles[k]) > math.radians(SPREAD_DEG) for k in chosen):
+        if parted[j] and all(_apart(angles[j], angles[k]) > math.radians(SPREAD_DEG)
+                             for k in chosen):  # fmt: skip
             chosen.append(int(j))
     heights = floor.distance(p)
     toward = np.asarray(viewpoint, dtype=np.float64) - p.mean(0)
@@ -103,7 +108,7 @@ def cut_candidates(
              np.log(_spread(centred @ axes[1]) + 0.02)]  # fmt: skip
     cuts = []
     for rank, j in enumerate(chosen):
-        i, offset = int(where[j]), lo[j] + (where[j] + 0.5) * BIN_M
+        i, offset = int(where[j]), offsets[j]
         empty = _empty_run(hist[j], i, max(1.0, 0.002 * n)) * BIN_M
         features = cut_features(
             flat, heights, along[:, j], offset, directions[j], sight,

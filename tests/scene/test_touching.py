@@ -147,3 +147,16 @@ def test_the_fit_learns_which_cuts_part_two_objects(tmp_path: Path) -> None:
     assert judge is not None and judge.fit["threshold"]["clusters"] == 400
     assert ((judge.probabilities(features) >= 0.5) == two).mean() > 0.9
     assert (judge.probabilities(plain) >= judge.threshold).mean() <= 0.005
+
+
+def test_degenerate_clusters_get_no_cut_and_no_error() -> None:
+    """A cluster whose points all coincide, or stand on one vertical line, has no side to cut
+    off; a flat row along the floor can be cut, and its features stay finite."""
+    same = np.tile([[0.1, 1.0, 3.0]], (400, 1))
+    pole = np.stack([np.zeros(400), np.linspace(0.5, 1.5, 400), np.full(400, 3.0)], 1)
+    assert cut_candidates(same, FLOOR) == [] and cut_candidates(pole, FLOOR) == []
+    row = np.stack([np.linspace(-1, 1, 400), np.full(400, 1.2), np.full(400, 3.0)], 1)
+    for cut in cut_candidates(row, FLOOR):
+        assert np.isfinite(cut.features).all()
+    rows = np.arange(400)
+    assert len(split_touching(same, [rows], FLOOR, sure_judge("two"))) == 1
