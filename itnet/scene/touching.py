@@ -98,7 +98,7 @@ def cut_candidates(
         if parted[j] and all(_apart(angles[j], angles[k]) > math.radians(SPREAD_DEG)
                              for k in chosen):  # fmt: skip
             chosen.append(int(j))
-    heights = floor.distance(p)
+    heights = np.maximum(floor.distance(p), 0.0)  # a cluster stands on the floor
     toward = np.asarray(viewpoint, dtype=np.float64) - p.mean(0)
     sight = np.array([toward @ a, toward @ b])
     sight /= max(float(np.linalg.norm(sight)), 1e-9)
@@ -238,7 +238,7 @@ def _cut(
     cuts = cut_candidates(points[rows], floor, viewpoint)
     if not cuts:
         return [rows]
-    chance = judge.probabilities(np.stack([c.features for c in cuts]))
+    chance = np.nan_to_num(judge.probabilities(np.stack([c.features for c in cuts])), nan=0.0)
     k = int(np.argmax(chance))
     if chance[k] < judge.threshold:
         return [rows]

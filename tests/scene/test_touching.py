@@ -160,3 +160,8 @@ def test_degenerate_clusters_get_no_cut_and_no_error() -> None:
         assert np.isfinite(cut.features).all()
     rows = np.arange(400)
     assert len(split_touching(same, [rows], FLOOR, sure_judge("two"))) == 1
+    rng = np.random.default_rng(0)  # rounded clouds, through and below the floor: finite
+    for _ in range(30):
+        cloud = np.round(rng.normal(size=(int(rng.integers(200, 2000)), 3)), 1)
+        for cut in cut_candidates(cloud, FLOOR):
+            assert np.isfinite(cut.features).all()
