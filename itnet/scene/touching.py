@@ -98,14 +98,16 @@ def cut_candidates(
         if parted[j] and all(_apart(angles[j], angles[k]) > math.radians(SPREAD_DEG)
                              for k in chosen):  # fmt: skip
             chosen.append(int(j))
+    if not chosen:
+        return []
     heights = np.maximum(floor.distance(p), 0.0)  # a cluster stands on the floor
     toward = np.asarray(viewpoint, dtype=np.float64) - p.mean(0)
     sight = np.array([toward @ a, toward @ b])
     sight /= max(float(np.linalg.norm(sight)), 1e-9)
     centred = flat - flat.mean(0)
     axes = np.linalg.svd(centred, full_matrices=False)[2]
-    whole = [np.log(_reach(heights, 98) + 0.02), np.log(_spread(centred @ axes[0]) + 0.02),
-             np.log(_spread(centred @ axes[1]) + 0.02)]  # fmt: skip
+    ends = np.percentile(centred @ axes.T, [2, 98], axis=0)  # (2, 2): along its two axes
+    whole = [np.log(float(np.percentile(heights, 98)) + 0.02), *np.log(ends[1] - ends[0] + 0.02)]
     cuts = []
     for rank, j in enumerate(chosen):
         i, offset = int(where[j]), offsets[j]
@@ -160,16 +162,6 @@ def _apart(a: float, b: float) -> float:
     """The angle (radians) between two lines along the floor at angles a and b."""
     d = abs(a - b) % math.pi
     return min(d, math.pi - d)
-
-
-def _reach(values: NDArray, percent: float) -> float:
-    return float(np.percentile(values, percent))
-
-
-def _spread(values: NDArray) -> float:
-    """How far ``values`` (K,) reach between their 2nd and 98th percentiles."""
-    lo, hi = np.percentile(values, [2, 98])
-    return float(hi - lo)
 
 
 def _empty_run(hist: NDArray, at: int, most: float) -> int:
