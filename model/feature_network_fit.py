@@ -3,6 +3,7 @@ samples' cache the fitting commands share."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections.abc import Callable
@@ -56,6 +57,28 @@ def cached(
     return features, labels
 
 
+def add_fit_arguments(
+    parser: argparse.ArgumentParser, hidden: int, weight_decay: float, epochs: int,
+    threshold_seed: int, out: Path, threshold_help: str,
+) -> None:  # fmt: skip
+    """The options every fitting command shares, with its defaults: the network's (hidden,
+    weight decay, epochs), the validation scenes its threshold is chosen on, the data, the
+    samples' caches and the file written."""
+    parser.add_argument("--hidden", type=int, default=hidden, help="chosen on validation scenes")
+    parser.add_argument("--weight-decay", type=float, default=weight_decay,
+                        help="chosen on validation")  # fmt: skip
+    parser.add_argument("--epochs", type=int, default=epochs, help="chosen on validation")
+    parser.add_argument("--threshold-scenes", type=int, default=300, help=threshold_help)
+    parser.add_argument("--threshold-seed", type=int, default=threshold_seed)
+    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
+    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    parser.add_argument("--samples", type=Path, default=None,
+                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
+    parser.add_argument("--threshold-samples", type=Path, default=None,
+                        help="the same for the validation scenes")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=out)
+
+
 class Fitted(Protocol):
     threshold: float
     fit: dict[str, Any]
@@ -73,4 +96,4 @@ def write_fitted(path: Path, fitted: Fitted, started: float) -> None:
     )
 
 
-__all__ = ["cached", "fit_network", "write_fitted"]
+__all__ = ["add_fit_arguments", "cached", "fit_network", "write_fitted"]

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.model.feature_network_fit import cached, fit_network, write_fitted
+from itnet.model.feature_network_fit import add_fit_arguments, cached, fit_network, write_fitted
 from itnet.model.scenes import (
     FIT_SPLIT,
     HELD_OUT_SPLIT,
@@ -96,20 +96,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--train-scenes", type=int, default=3000, help="of the others")
     parser.add_argument("--train-seed", type=int, default=22)
     parser.add_argument("--train-shapes", type=int, default=150, help="of the others, a category")
-    parser.add_argument("--hidden", type=int, default=64, help="chosen on validation scenes")
-    parser.add_argument("--weight-decay", type=float, default=1e-3, help="chosen on validation")
-    parser.add_argument("--epochs", type=int, default=1000, help="chosen on validation")
-    parser.add_argument("--threshold-scenes", type=int, default=300,
-                        help="validation scenes the threshold is chosen on")  # fmt: skip
-    parser.add_argument("--threshold-seed", type=int, default=5)
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
+    add_fit_arguments(parser, hidden=64, weight_decay=1e-3, epochs=1000, threshold_seed=5,
+                      out=FILE, threshold_help="validation scenes the threshold is chosen on")  # fmt: skip
     parser.add_argument("--model-dir", type=Path, default=None)
-    parser.add_argument("--samples", type=Path, default=None,
-                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
-    parser.add_argument("--threshold-samples", type=Path, default=None,
-                        help="the same for the validation scenes")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=FILE)
     args = parser.parse_args(argv)
     catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
     assert catalog.classifier is not None

@@ -19,12 +19,11 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.model.feature_network_fit import cached, fit_network, write_fitted
+from itnet.model.feature_network_fit import add_fit_arguments, cached, fit_network, write_fitted
 from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, split_shapes
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, segment
@@ -84,19 +83,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=1500, help="of each kind")
     parser.add_argument("--seed", type=int, default=41)
-    parser.add_argument("--hidden", type=int, default=32, help="chosen on validation scenes")
-    parser.add_argument("--weight-decay", type=float, default=1e-4, help="chosen on validation")
-    parser.add_argument("--epochs", type=int, default=1500)
-    parser.add_argument("--threshold-scenes", type=int, default=300,
-                        help="ordinary validation scenes the threshold is chosen on")  # fmt: skip
-    parser.add_argument("--threshold-seed", type=int, default=32)
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
-    parser.add_argument("--samples", type=Path, default=None,
-                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
-    parser.add_argument("--threshold-samples", type=Path, default=None,
-                        help="the same for the validation scenes")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=FILE)
+    add_fit_arguments(parser, hidden=32, weight_decay=1e-4, epochs=1500, threshold_seed=32,
+                      out=FILE, threshold_help="ordinary validation scenes the threshold is chosen on")  # fmt: skip
     args = parser.parse_args(argv)
     started = time.perf_counter()
 
