@@ -25,6 +25,7 @@ import json
 import time
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -155,6 +156,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--touching", action="store_true", help="objects standing against each other (2-3)"
     )
+    parser.add_argument(
+        "--draw", default=None, help="the categories drawn, comma-separated (default: the eight)"
+    )
+    parser.add_argument(
+        "--pitch", default="0,25", help="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
+    )
+    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -166,6 +174,13 @@ def main(argv: list[str] | None = None) -> None:
     budget["scene_classifier"] = not args.no_scene_classifier
     budget["options"] = SegmentOptions(split_touching=not args.no_split_touching)
     drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
+    if args.draw is not None:
+        drawn = tuple(args.draw.split(","))
+        if unknown := set(drawn) - set(WITH_DESKS):
+            parser.error(f"--draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
+    low, high = (float(x) for x in args.pitch.split(","))
+    kind = {"touching": args.touching, "categories": drawn, "pitch_deg": (low, high),
+            "most": args.most}  # fmt: skip
     if args.categories == "posed":
         budget["categories"] = frozenset(drawn)
     if args.model_dir is not None:
@@ -175,7 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     rows: list[dict] = []
     returned, times, times_large, rows_large, returned_large = 0, [], [], [], 0
     for s in range(args.scenes):
-        scene = make_scene(shapes, rng, touching=args.touching, categories=drawn)
+        scene = make_scene(shapes, rng, **kind)
         png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
         start = time.perf_counter()
         result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
@@ -183,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
         rows += match(result, scene, args.min_pixels)
         returned += len(result.objects)
         if not args.no_large:
-            big = large_scene(shapes, seed, s, args.touching, drawn)
+            big = large_scene(shapes, seed, s, **kind)
             png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
             start = time.perf_counter()
             result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
@@ -192,7 +207,8 @@ def main(argv: list[str] | None = None) -> None:
             returned_large += len(result.objects)
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
-        "with_desks": args.with_desks,
+        "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
+        "most": args.most,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options")},
         "split_touching": not args.no_split_touching,
@@ -209,13 +225,11 @@ def main(argv: list[str] | None = None) -> None:
         )
 
 
-def large_scene(
-    shapes: dict, seed: int, index: int, touching: bool = False,
-    categories: tuple[str, ...] = DEVELOPMENT,
-) -> Scene:  # fmt: skip
-    """A scene of the same kind at 640x480, drawn from its own generator (seed, index)."""
+def large_scene(shapes: dict, seed: int, index: int, **kind: Any) -> Scene:
+    """A scene of the same ``kind`` (``make_scene``'s keywords) at 640x480, drawn from its own
+    generator (seed, index)."""
     rng = np.random.default_rng([seed, index, 640])
-    return make_scene(shapes, rng, 640, 480, touching=touching, categories=categories)
+    return make_scene(shapes, rng, 640, 480, **kind)
 
 
 def timing(ms: list[float]) -> dict:

@@ -275,16 +275,19 @@ def render(
 def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
-    categories: tuple[str, ...] = DEVELOPMENT,
+    categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
+    most: int = 3,
 ) -> Scene:  # fmt: skip
-    """One random scene (see the module) of ``categories`` from the given shapes of each.
-    ``touching``: two or three objects, each after the first standing against one placed
-    before it (its footprint's points 1-5 cm from that one's), as chairs stand at a table."""
+    """One random scene (see the module) of ``categories`` from the given shapes of each, of
+    one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
+    level camera). ``touching``: two to ``most`` objects, each after the first standing against
+    one placed before it (its footprint's points 1-5 cm from that one's), as chairs stand at a
+    table."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
-    camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(0.0, 25.0), rng.uniform(-3, 3))
+    camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     camera_from_world = invert_rigid(camera)
     placed: list[tuple[Shape, float, NDArray, str, float]] = []
-    wanted = int(rng.integers(2, 4)) if touching else int(rng.integers(1, 4))
+    wanted = int(rng.integers(2 if touching else 1, most + 1))
     for _ in range(60):
         if len(placed) == wanted:
             break

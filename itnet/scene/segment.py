@@ -56,6 +56,10 @@ class SegmentOptions:
 
     max_tilt_deg: float = 45.0  # the floor's normal within this of the expected up
     floor_threshold_m: float = 0.03
+    # RANSAC hypotheses for the floor: a level camera's floor is a tenth of what it sees, and
+    # 200 left it 5-45 degrees off in 9% of such frames, 1,000 over 1 degree in 0.6%, 2,000 in
+    # none (180 frames, and none of the pitched cameras' either), for about 3 ms more
+    floor_hypotheses: int = 2000
     wall_threshold_m: float = 0.04
     max_walls: int = 3
     wall_min_width_m: float = 2.5
@@ -100,7 +104,11 @@ def find_floor(
     origin), or None where no plane is near-normal to ``expected_up`` (3,, unit)."""
     cos_tilt = math.cos(math.radians(options.max_tilt_deg))
     found = ransac_plane(
-        points, rng, options.floor_threshold_m, lambda n: np.abs(n @ expected_up) > cos_tilt
+        points,
+        rng,
+        options.floor_threshold_m,
+        lambda n: np.abs(n @ expected_up) > cos_tilt,
+        hypotheses=options.floor_hypotheses,
     )
     if found is None:
         return None

@@ -1,7 +1,7 @@
 import math
 
 import numpy as np
-from scene_helpers import boxes_shape, make_test_scene
+from scene_helpers import boxes_shape, chair_shape, make_test_scene
 
 from itnet.scene import from_depth
 from itnet.scene.planes import fit_plane, ransac_plane
@@ -198,3 +198,43 @@ def test_scenes_hold_only_the_categories_asked_for():
         o.category for _ in range(4) for o in make_scene(shapes, rng, categories=("desk",)).objects
     }
     assert only == {"desk"}
+
+
+def test_scenes_of_a_level_camera_and_at_most_so_many_objects():
+    """``pitch_deg=(0, 0)``: the camera looks level (the truth's up lies within its 3 degrees
+    of roll of the image's -y); ``most``: no scene holds more objects."""
+    from itnet.geometry import invert_rigid
+    from itnet.model.scenes import SIZES, make_scene
+
+    shapes = {name: [boxes_shape([((0, 0, 0), (0.6, 0.8, 0.5))], seed=k)]
+              for k, name in enumerate(SIZES)}  # fmt: skip
+    rng = np.random.default_rng(4)
+    counts = []
+    for _ in range(8):
+        scene = make_scene(shapes, rng, pitch_deg=(0.0, 0.0), most=2)
+        counts.append(len(scene.objects))
+        for truth in scene.objects:
+            up = invert_rigid(truth.pose)[:3, 1]  # the canonical up in the camera frame
+            assert abs(up[2]) < 1e-9  # no pitch: up is normal to the optical axis
+            assert up[1] < -math.cos(math.radians(3.01))
+    assert max(counts) == 2 and min(counts) >= 1
+
+
+def test_a_level_camera_finds_the_floor_whatever_the_seed():
+    """A level camera 1.7 m up sees the floor only from about 4 m on, a band at the bottom of
+    its view between the chairs' feet and the wall: the floor's normal is up within a degree
+    for every seed of the search, not a plane tilted through the floor's and the wall's edge."""
+    from itnet.scene.segment import SegmentOptions
+
+    scene = make_test_scene(
+        [(chair_shape(), 0.5, -0.6, 4.5, 30.0), (chair_shape(), 0.5, 0.8, 4.2, 120.0)],
+        camera_height=1.7,
+        pitch_deg=0.0,
+    )
+    points = from_depth(scene.depth, scene.intrinsics).points
+    options = SegmentOptions(split_touching=False)
+    for seed in range(10):
+        found = segment(points, options, seed=seed)
+        assert found.floor is not None
+        assert math.degrees(math.acos(min(1.0, found.up @ np.array([0.0, -1.0, 0.0])))) < 1.0
+        assert abs(found.floor.offset - 1.7) < 0.02
