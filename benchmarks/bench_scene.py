@@ -163,6 +163,9 @@ def main(argv: list[str] | None = None) -> None:
         "--pitch", default="0,25", help="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
     )
     parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
+    parser.add_argument(
+        "--cut-off", action="store_true", help="objects' lower parts may lie below the view"
+    )
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -180,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
     low, high = (float(x) for x in args.pitch.split(","))
     kind = {"touching": args.touching, "categories": drawn, "pitch_deg": (low, high),
-            "most": args.most}  # fmt: skip
+            "most": args.most, "cut_off": args.cut_off}  # fmt: skip
     if args.categories == "posed":
         budget["categories"] = frozenset(drawn)
     if args.model_dir is not None:
@@ -208,7 +211,7 @@ def main(argv: list[str] | None = None) -> None:
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
-        "most": args.most,
+        "most": args.most, "cut_off": args.cut_off,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options")},
         "split_touching": not args.no_split_touching,

@@ -276,13 +276,14 @@ def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
-    most: int = 3,
+    most: int = 3, cut_off: bool = False,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
     level camera). ``touching``: two to ``most`` objects, each after the first standing against
     one placed before it (its footprint's points 1-5 cm from that one's), as chairs stand at a
-    table."""
+    table. ``cut_off``: an object's lower part may lie below the view (a level camera at head
+    height sees a chair 2 m away from its seat up); by default each is wholly in view."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     camera_from_world = invert_rigid(camera)
@@ -319,7 +320,7 @@ def make_scene(
             or u.min() < 0
             or u.max() >= width
             or v.min() < 0
-            or v.max() >= height
+            or (v.max() >= height and not cut_off)
         ):
             continue
         placed.append((shape, scale, world, category, footprint))

@@ -54,15 +54,33 @@ def ransac_plane(
     hypotheses: int = 200,
     sample: int = 2000,
     refine: int = 20000,
+    beyond_m: float | None = None,
+    local: int = 0,
+    neighbours: int = 16,
 ) -> tuple[Plane, NDArray[np.bool_]] | None:
     """The plane with most points within ``threshold`` among ``hypotheses`` random triples
     whose normals (K, 3) ``accept`` keeps (K,) bool, counted on ``sample`` random points, then
     refined twice by ``fit_plane`` on its inliers among ``refine`` random points -> (plane,
-    inlier mask (N,)), or None when no hypothesis is kept."""
+    inlier mask (N,)), or None when no hypothesis is kept. With ``beyond_m``, each point
+    farther than that beyond a hypothesis, on its side away from the origin (the camera),
+    counts against it: nothing is seen below a floor, while a plane through a seat or a
+    tub's rim has the floor and the objects' lower parts below it. ``local`` of the
+    hypotheses take their second and third points among the first's ``neighbours`` nearest
+    in the sample: a plane that is a small part of the view (a floor seen past the objects
+    before it) is then still drawn often, where three points drawn anywhere rarely all lie
+    on it."""
     if len(points) < 3:
         return None
     scored = points[rng.integers(0, len(points), size=min(sample, len(points)))]
     triples = scored[rng.integers(0, len(scored), size=(hypotheses, 3))]
+    local = min(local, hypotheses)
+    if local and len(scored) > neighbours:
+        from scipy.spatial import cKDTree
+
+        first = rng.integers(0, len(scored), size=local)
+        _, near = cKDTree(scored).query(scored[first], k=neighbours + 1)
+        pick = near[np.arange(local)[:, None], rng.integers(1, neighbours + 1, size=(local, 2))]
+        triples[:local] = scored[np.c_[first, pick]]
     normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     normals = normals / np.maximum(length, 1e-12)
@@ -71,7 +89,14 @@ def ransac_plane(
         return None
     normals, anchors = normals[kept], triples[kept, 0]
     offsets = -np.einsum("kj,kj->k", normals, anchors)
-    counts = (np.abs(scored @ normals.T + offsets) < threshold).sum(axis=0)
+    if beyond_m is not None:  # the origin on each plane's positive side
+        side = np.where(offsets < 0, -1.0, 1.0)
+        normals, offsets = normals * side[:, None], offsets * side
+    # (S, K) distances in float32: the sample's points to every hypothesis
+    signed = scored.astype(np.float32) @ normals.T.astype(np.float32) + offsets.astype(np.float32)
+    counts = (np.abs(signed) < threshold).sum(axis=0)
+    if beyond_m is not None:
+        counts = counts - (signed < -beyond_m).sum(axis=0)
     best = int(np.argmax(counts))
     plane = Plane(normals[best], float(offsets[best]))
     fitted = points if len(points) <= refine else points[rng.integers(0, len(points), size=refine)]

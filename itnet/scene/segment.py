@@ -60,6 +60,7 @@ class SegmentOptions:
     # 200 left it 5-45 degrees off in 9% of such frames, 1,000 over 1 degree in 0.6%, 2,000 in
     # none (180 frames, and none of the pitched cameras' either), for about 3 ms more
     floor_hypotheses: int = 2000
+    floor_beyond_m: float | None = 0.1  # a point this far below a floor counts against it
     wall_threshold_m: float = 0.04
     max_walls: int = 3
     wall_min_width_m: float = 2.5
@@ -109,6 +110,8 @@ def find_floor(
         options.floor_threshold_m,
         lambda n: np.abs(n @ expected_up) > cos_tilt,
         hypotheses=options.floor_hypotheses,
+        beyond_m=options.floor_beyond_m,
+        local=options.floor_hypotheses // 2,
     )
     if found is None:
         return None
