@@ -44,6 +44,7 @@ from itnet.model.scenes import (
 from itnet.scene import SceneFinishing, SceneResult, find_objects, scene_catalog
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
+from itnet.scene.scene_classifier import load_scene_classifier
 from itnet.scene.segment import SegmentOptions
 from itnet.symmetry import symmetric_rotation_error_deg
 
@@ -148,6 +149,9 @@ def main(argv: list[str] | None = None) -> None:
         help="name the objects by the classifier and their height alone",
     )
     parser.add_argument(
+        "--scene-classifier", type=Path, default=None, help="a scene classifier's file to name by"
+    )
+    parser.add_argument(
         "--no-split-touching", action="store_true", help="no cuts of clusters holding two objects"
     )
     parser.add_argument(
@@ -175,6 +179,11 @@ def main(argv: list[str] | None = None) -> None:
         not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
     )
     budget["scene_classifier"] = not args.no_scene_classifier
+    if args.scene_classifier is not None and not args.no_scene_classifier:
+        namer = load_scene_classifier(args.scene_classifier)
+        if namer is None:
+            parser.error(f"--scene-classifier: no file {args.scene_classifier}")
+        budget["scene_classifier"] = namer
     budget["options"] = SegmentOptions(split_touching=not args.no_split_touching)
     drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
     if args.draw is not None:
@@ -213,7 +222,9 @@ def main(argv: list[str] | None = None) -> None:
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
-           if k not in ("catalog", "finishing", "options")},
+           if k not in ("catalog", "finishing", "options", "scene_classifier")},
+        "scene_classifier": (str(args.scene_classifier) if args.scene_classifier is not None
+                             else True) if not args.no_scene_classifier else False,
         "split_touching": not args.no_split_touching,
         **asdict(budget["finishing"]),
         **({"model_dir": str(args.model_dir)} if args.model_dir is not None else {}),

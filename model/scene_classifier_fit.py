@@ -53,14 +53,15 @@ PRECISION = 0.95  # the threshold: the lowest at which this share of the answers
 
 
 def scene_samples(
-    shapes: dict, scenes: int, seed: int, catalog: Catalog
+    shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False
 ) -> tuple[NDArray[np.float64], list[str]]:
-    """``scenes`` scenes of ``shapes`` -> the features (S, F) of every cluster the segmentation
-    found and matched to a scene object, and those objects' categories (S,)."""
+    """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
+    view) -> the features (S, F) of every cluster the segmentation found and matched to a
+    scene object, and those objects' categories (S,)."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
     for _ in range(scenes):
-        scene = make_scene(shapes, rng, categories=WITH_DESKS)
+        scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off)
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points)
         if found.floor is None:
@@ -96,6 +97,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--train-scenes", type=int, default=3000, help="of the others")
     parser.add_argument("--train-seed", type=int, default=22)
     parser.add_argument("--train-shapes", type=int, default=150, help="of the others, a category")
+    parser.add_argument("--cut-off-scenes", type=int, default=2000,
+                        help="of held-out shapes, objects' lower parts may lie below the view")  # fmt: skip
+    parser.add_argument("--cut-off-seed", type=int, default=23)
     add_fit_arguments(parser, hidden=64, weight_decay=1e-3, epochs=1000, threshold_seed=5,
                       out=FILE, threshold_help="validation scenes the threshold is chosen on")  # fmt: skip
     parser.add_argument("--model-dir", type=Path, default=None)
@@ -109,7 +113,8 @@ def main(argv: list[str] | None = None) -> None:
         trained = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.train_shapes)
         x1, y1 = scene_samples(held_out, args.scenes, args.seed, catalog)
         x2, y2 = scene_samples(trained, args.train_scenes, args.train_seed, catalog)
-        return np.concatenate([x1, x2]), y1 + y2
+        x3, y3 = scene_samples(held_out, args.cut_off_scenes, args.cut_off_seed, catalog, True)
+        return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
         shapes = split_shapes(args.data, "validation", args.cache)
@@ -128,7 +133,8 @@ def main(argv: list[str] | None = None) -> None:
     threshold = precision_threshold(probabilities.max(1), right)
     fit = {
         "scenes": {HELD_OUT_SPLIT: [args.scenes, args.seed],
-                   FIT_SPLIT: [args.train_scenes, args.train_seed, args.train_shapes]},
+                   FIT_SPLIT: [args.train_scenes, args.train_seed, args.train_shapes],
+                   "cut_off": [args.cut_off_scenes, args.cut_off_seed]},
         "clusters": {c: labels.count(c) for c in classes},
         "network": {"hidden": args.hidden, "weight_decay": args.weight_decay,
                     "epochs": args.epochs},
