@@ -3,8 +3,9 @@
 Development scenes (``itnet.model.scenes``, desks among them) are made of ModelNet10's training
 split: of the shapes the category classifiers left out of their training (their validation
 carve-out), and of the others (on which the classifier is surer than it will be on new shapes;
-the two sets together named the validation scenes' objects best), rendered at 320x240 and
-segmented as served. Every cluster matched to a scene object gives its
+the two sets together named the validation scenes' objects best), and more of the held-out
+shapes with objects that may stand so near the camera that their lower parts lie below the
+view (``make_scene(cut_off=True)``), rendered at 320x240 and segmented as served. Every cluster matched to a scene object gives its
 features (``cluster_features``: the classifier's log-probabilities as served, and the cluster's
 shape on the floor) and the object's category; a network of one hidden layer is fitted to them
 (full batch, Adam, weight decay). Its threshold (below it an answer is ``unsure``) is the

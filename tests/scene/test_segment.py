@@ -238,3 +238,36 @@ def test_a_level_camera_finds_the_floor_whatever_the_seed():
         assert found.floor is not None
         assert math.degrees(math.acos(min(1.0, found.up @ np.array([0.0, -1.0, 0.0])))) < 1.0
         assert abs(found.floor.offset - 1.7) < 0.02
+
+
+def test_ransac_finds_a_plane_that_is_a_small_part_of_the_cloud_from_neighbours():
+    """A floor of 150 points among 4,000 scattered ones: three points drawn anywhere rarely
+    all lie on it, three neighbours often do."""
+    rng = np.random.default_rng(5)
+    floor = np.c_[rng.uniform(-1, 1, 150), np.full(150, 1.2), rng.uniform(3, 4, 150)]
+    clutter = rng.uniform([-2, -1, 2], [2, 1.2, 6], size=(4000, 3))
+    points = np.concatenate([clutter, floor])
+    level = lambda n: np.abs(n[:, 1]) > 0.7  # noqa: E731
+    found = ransac_plane(points, np.random.default_rng(0), 0.02, level, 2000, local=1000)
+    assert found is not None
+    plane, inliers = found
+    assert abs(plane.normal[1]) > 0.999 and inliers[-150:].mean() > 0.95
+    missed = [ransac_plane(points, np.random.default_rng(s), 0.02, level, 200) for s in range(5)]
+    assert any(m is None or abs(m[0].normal[1]) < 0.999 for m in missed)
+
+
+def test_a_floor_is_the_plane_with_nothing_below_it():
+    """A table top larger than the floor seen around it: counting the points below each plane
+    against it, the floor wins; counting inliers alone, the top does."""
+    rng = np.random.default_rng(6)
+    top = np.c_[rng.uniform(-1, 1, 3000), np.full(3000, 0.8), rng.uniform(2, 3.5, 3000)]
+    floor = np.c_[rng.uniform(-2, 2, 1500), np.full(1500, 1.5), rng.uniform(2, 6, 1500)]
+    legs = np.c_[
+        rng.choice([-0.95, 0.95], 800), rng.uniform(0.8, 1.5, 800), rng.uniform(2, 3.5, 800)
+    ]
+    points = np.concatenate([top, floor, legs])  # y down: the floor 1.5 m below the camera
+    level = lambda n: np.abs(n[:, 1]) > 0.9  # noqa: E731
+    plane, _ = ransac_plane(points, np.random.default_rng(0), 0.02, level, 500, beyond_m=0.1)
+    assert abs(abs(plane.offset) - 1.5) < 0.01
+    plane, _ = ransac_plane(points, np.random.default_rng(0), 0.02, level, 500)
+    assert abs(abs(plane.offset) - 0.8) < 0.01
