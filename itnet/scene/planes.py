@@ -1,9 +1,10 @@
 """Planes of a scene: the floor (which way is up) and the walls, by RANSAC.
 
-Pure numpy. A plane is ``n·p + d = 0`` with ``n`` a unit normal; the floor's normal is oriented
-toward the camera (the camera stands above the floor), so ``n·p + d`` is a point's height.
-Hypotheses are drawn many at once and scored on a random sample of the cloud, the best one
-refined by a least-squares fit to its inliers in the whole cloud. A prior direction restricts
+Numpy (and scipy's KD-tree for neighbouring points). A plane is ``n·p + d = 0`` with ``n`` a
+unit normal; the floor's normal is oriented toward the camera (the camera stands above the
+floor), so ``n·p + d`` is a point's height. Hypotheses are drawn many at once, from points
+anywhere or near each other, and scored on a random sample of the cloud, the best one refined
+by a least-squares fit to its inliers in the whole cloud. A prior direction restricts
 the hypotheses: the floor's normal lies within ``max_tilt_deg`` of the expected up (a camera
 with its image's y down, held about level: −y), a wall's is horizontal.
 """
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -75,8 +77,6 @@ def ransac_plane(
     triples = scored[rng.integers(0, len(scored), size=(hypotheses, 3))]
     local = min(local, hypotheses)
     if local and len(scored) > neighbours:
-        from scipy.spatial import cKDTree
-
         first = rng.integers(0, len(scored), size=local)
         _, near = cKDTree(scored).query(scored[first], k=neighbours + 1)
         pick = near[np.arange(local)[:, None], rng.integers(1, neighbours + 1, size=(local, 2))]

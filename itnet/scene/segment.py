@@ -2,7 +2,8 @@
 stands on the floor, filtered by size.
 
 1. The floor: the largest plane whose normal lies within ``max_tilt_deg`` of the expected up
-   (``planes.ransac_plane``); up is its normal, toward the camera. Points within
+   and that has nothing below it (``planes.ransac_plane``); up is its normal, toward the
+   camera. Points within
    ``floor_threshold_m`` of it, or below it, are floor.
 2. The walls: up to ``max_walls`` vertical planes among the rest, each kept only where it is
    larger than furniture (wider than ``wall_min_width_m`` or reaching ``wall_min_top_m`` above
@@ -56,9 +57,9 @@ class SegmentOptions:
 
     max_tilt_deg: float = 45.0  # the floor's normal within this of the expected up
     floor_threshold_m: float = 0.03
-    # RANSAC hypotheses for the floor: a level camera's floor is a tenth of what it sees, and
-    # 200 left it 5-45 degrees off in 9% of such frames, 1,000 over 1 degree in 0.6%, 2,000 in
-    # none (180 frames, and none of the pitched cameras' either), for about 3 ms more
+    # RANSAC hypotheses for the floor, half of them from neighbouring points: a level camera's
+    # floor is a tenth of what it sees (a twentieth with objects near it), and 200 drawn
+    # anywhere left it 5-45 degrees off in 9% of such frames (docs/scenes.md, step 1)
     floor_hypotheses: int = 2000
     floor_beyond_m: float | None = 0.1  # a point this far below a floor counts against it
     wall_threshold_m: float = 0.04
