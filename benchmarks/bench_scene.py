@@ -42,6 +42,7 @@ from itnet.model.scenes import (
     split_shapes,
 )
 from itnet.scene import SceneFinishing, SceneResult, find_objects, scene_catalog
+from itnet.scene.centre_along_floor import load_table
 from itnet.scene.depth_io import depth_to_png
 from itnet.scene.inputs import from_png
 from itnet.scene.scene_classifier import load_scene_classifier
@@ -152,6 +153,9 @@ def main(argv: list[str] | None = None) -> None:
         "--scene-classifier", type=Path, default=None, help="a scene classifier's file to name by"
     )
     parser.add_argument(
+        "--centre-table", type=Path, default=None, help="a table of scene corrections to use"
+    )
+    parser.add_argument(
         "--no-split-touching", action="store_true", help="no cuts of clusters holding two objects"
     )
     parser.add_argument(
@@ -184,6 +188,10 @@ def main(argv: list[str] | None = None) -> None:
         if namer is None:
             parser.error(f"--scene-classifier: no file {args.scene_classifier}")
         budget["scene_classifier"] = namer
+    if args.centre_table is not None:
+        if not args.centre_table.exists():
+            parser.error(f"--centre-table: no file {args.centre_table}")
+        budget["centre_table"] = load_table(args.centre_table)
     budget["options"] = SegmentOptions(split_touching=not args.no_split_touching)
     drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
     if args.draw is not None:
@@ -222,7 +230,8 @@ def main(argv: list[str] | None = None) -> None:
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
-           if k not in ("catalog", "finishing", "options", "scene_classifier")},
+           if k not in ("catalog", "finishing", "options", "scene_classifier", "centre_table")},
+        **({"centre_table": str(args.centre_table)} if args.centre_table is not None else {}),
         "scene_classifier": (str(args.scene_classifier) if args.scene_classifier is not None
                              else True) if not args.no_scene_classifier else False,
         "split_touching": not args.no_split_touching,

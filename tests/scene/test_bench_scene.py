@@ -1,0 +1,60 @@
+"""The scenes benchmark end to end on a tiny tree of box shapes: the scene kinds it is asked for,
+its report and its rows."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks import bench_scene
+from itnet.model.scenes import SIZES
+
+
+def _box(rng: np.random.Generator, n: int = 1024) -> np.ndarray:
+    """A noisy box, z up (ModelNet's frame), whose upper half stands at its +y end only (a
+    chair's back), so that every category's orientation check keeps it."""
+    size = np.array([0.6, 0.5, 0.8]) * rng.uniform(0.9, 1.1, size=3)
+    face = rng.integers(6, size=4 * n)
+    points = rng.uniform(-1, 1, size=(4 * n, 3))
+    points[np.arange(4 * n), face // 2] = np.where(face % 2, 1.0, -1.0)
+    points = points[(points[:, 2] < 0) | (points[:, 1] > 0.4)][:n]
+    return points * size + rng.normal(0, 0.005, size=points.shape)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from modelnet_tree import write_modelnet_tree
+
+    root = tmp_path_factory.mktemp("bench_scene")
+    return write_modelnet_tree(root / "data", {name: _box for name in SIZES},
+                               np.random.default_rng(0), train=2, test=4)  # fmt: skip
+
+
+def test_a_level_camera_s_scenes_of_the_categories_drawn(data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report.json"
+    bench_scene.main(["--split", "validation", "--scenes", "3", "--no-large", "--data", str(data),
+                      "--cache", str(tmp_path / "cache"), "--draw", "chair,toilet", "--pitch",
+                      "0,0", "--most", "2", "--cut-off", "--out", str(out)])  # fmt: skip
+    report = json.loads(out.read_text())
+    assert report["drawn"] == ["chair", "toilet"] and report["pitch_deg"] == [0.0, 0.0]
+    assert report["most"] == 2 and report["cut_off"] is True
+    objects = [row for row in report["rows"] if row["kind"] == "object"]
+    assert 3 <= len(objects) <= 6
+    assert {row["category"] for row in objects} <= {"chair", "toilet"}
+    size = report["320x240"]
+    assert size["found"]["of"] == sum(row["visible"] for row in objects)
+    assert 0 <= size["right"]["count"] <= size["found"]["count"] <= size["found"]["of"]
+    assert size["ms_median"] > 0
+
+
+def test_categories_without_scenes_are_refused(data: Path, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as stopped:
+        bench_scene.main(["--split", "validation", "--scenes", "1", "--data", str(data),
+                          "--draw", "chair,monitor"])  # fmt: skip
+    assert stopped.value.code == 2
+    with pytest.raises(SystemExit):
+        bench_scene.main(["--split", "validation", "--scenes", "1", "--data", str(data),
+                          "--scene-classifier", str(tmp_path / "none.json")])  # fmt: skip
