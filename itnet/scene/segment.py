@@ -66,6 +66,9 @@ class SegmentOptions:
     max_walls: int = 3
     wall_min_width_m: float = 2.5
     wall_min_top_m: float = 1.6
+    # ... or seen up to within this of the view's top edge (a camera pitched down sees only a
+    # wall's lower part)
+    wall_view_top_deg: float = 1.0
     wall_min_share: float = 0.03  # of the points left after the floor
     wall_behind_m: float = 0.25  # a point this far beyond a plane is seen behind it ...
     wall_max_behind: float = 0.02  # ... and a wall has at most this share of the points so
@@ -124,6 +127,21 @@ def find_floor(
     return plane
 
 
+def _reaches_view_top(part: NDArray, points: NDArray, within_deg: float) -> bool:
+    """Whether some of ``part`` (K, 3) lies within ``within_deg`` of the top edge of the view
+    that ``points`` (N, 3), in the camera's frame (y down, z ahead), fill: a plane seen up to
+    there goes on above what the camera sees."""
+    ahead = points[:, 2] > 1e-6
+    if not ahead.any():
+        return False
+    edge = float(np.min(np.arctan2(points[ahead, 1], points[ahead, 2])))
+    mine = part[part[:, 2] > 1e-6]
+    if not len(mine):
+        return False
+    reach = float(np.percentile(np.arctan2(mine[:, 1], mine[:, 2]), 1))
+    return reach <= edge + math.radians(within_deg)
+
+
 def find_walls(
     points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator
 ) -> list[Plane]:
@@ -146,8 +164,13 @@ def find_walls(
         along = np.cross(plane.normal, up)
         span = np.percentile(left[inliers] @ along, [2, 98])
         top = np.percentile(floor.distance(left[inliers]), 98)
-        if span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m:
-            break  # the largest vertical plane left is furniture-sized: no more walls
+        if (
+            span[1] - span[0] < options.wall_min_width_m
+            and top < options.wall_min_top_m
+            and not _reaches_view_top(left[inliers], points, options.wall_view_top_deg)
+        ):  # furniture-sized (a steep camera sees more of its objects' sides than of a wall)
+            left = left[~inliers]
+            continue
         facing = plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset)
         behind = np.mean(facing.distance(points) < -options.wall_behind_m)
         if behind <= options.wall_max_behind:

@@ -48,9 +48,10 @@ def make_test_scene(
     camera_height: float = 1.4,
     pitch_deg: float = 15.0,
     seed: int = 0,
+    wall_m: float = 6.0,
 ) -> Scene:
     """Objects (shape, metres per unit, x, z on the floor in metres, yaw in degrees) before a
-    wall 6 m ahead, seen from ``camera_height``, pitched down."""
+    wall ``wall_m`` ahead, seen from ``camera_height``, pitched down."""
     intrinsics = Intrinsics.from_fov(width, height, 60.0)
     camera = world_from_camera(camera_height, pitch_deg, 0.0)
     placed = []
@@ -59,7 +60,7 @@ def make_test_scene(
         world[:3, :3] = axis_angle_to_matrix([0.0, 1.0, 0.0], math.radians(yaw))
         world[:3, 3] = [x, -float(shape.points[:, 1].min()) * scale, z]
         placed.append((shape, scale, world))
-    wall = (np.array([0.0, 0.0, -1.0]), 6.0)
+    wall = (np.array([0.0, 0.0, -1.0]), wall_m)
     depth, labels = render(placed, camera, wall, intrinsics, width, height,
                            np.random.default_rng(seed))  # fmt: skip
     return Scene(depth, intrinsics, labels, [])

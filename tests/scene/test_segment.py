@@ -271,3 +271,19 @@ def test_a_floor_is_the_plane_with_nothing_below_it():
     assert abs(abs(plane.offset) - 1.5) < 0.01
     plane, _ = ransac_plane(points, np.random.default_rng(0), 0.02, level, 500)
     assert abs(abs(plane.offset) - 0.8) < 0.01
+
+
+def test_a_steep_camera_s_strip_of_wall_is_a_wall_not_an_object():
+    """A camera 1.4 m up pitched 35 degrees down sees a wall 2 m ahead only up to about 1 m,
+    and 2.3 m of its width: smaller than the wall rule's size, but seen up to the top of the
+    view, so it is a wall, and the chair before it the only object."""
+    from itnet.scene.segment import SegmentOptions
+
+    scene = make_test_scene([(chair_shape(), 0.5, 0.0, 1.3, 160.0)], pitch_deg=35.0, wall_m=2.0)
+    given = from_depth(scene.depth, scene.intrinsics)
+    labels = scene.labels.ravel()[given.indices]
+    found = segment(given.points, SegmentOptions(split_touching=False))
+    assert len(found.walls) == 1 and abs(found.walls[0].normal @ found.up) < 0.05
+    assert len(found.objects) == 1 and (labels[found.objects[0]] == 1).mean() > 0.95
+    blind = segment(given.points, SegmentOptions(split_touching=False, wall_view_top_deg=-90.0))
+    assert len(blind.objects) == 2  # without the rule the strip of wall is an object
