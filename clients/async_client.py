@@ -164,12 +164,13 @@ class AsyncItnetClient:
         recheck: bool = True,
         scene_classifier: bool = True,
         split_touching: bool = True,
+        up: tuple[float, float, float] | None = None,
     ) -> Any:
         """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
                     "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
         body, query, headers = scene_request(
-            scene, intrinsics, budget_ms, depth_scale, indices, switches
+            scene, intrinsics, budget_ms, depth_scale, indices, switches, up
         )
         try:
             reply = await self._http.post(SCENE_PATH, content=body, params=query, headers=headers)

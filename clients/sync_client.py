@@ -170,6 +170,7 @@ class ItnetClient:
         recheck: bool = True,
         scene_classifier: bool = True,
         split_touching: bool = True,
+        up: tuple[float, float, float] | None = None,
     ) -> Any:
         """``POST /v1/scene``: every object of a depth image or a scene cloud -> the reply (a
         dict: ``objects``, each with ``category``, ``T_canonical_from_input``, ``box``, ...;
@@ -179,11 +180,12 @@ class ItnetClient:
         ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default);
         ``scene_classifier``: objects named by their shape on the floor too; ``split_touching``:
         a cluster cut where it holds two objects standing against each other (both on by
-        default). Raises ItnetRequestError (refused), ItnetConnectionError."""
+        default); ``up``: which way is up in the camera's frame (default: the service's −y, a
+        camera held about level). Raises ItnetRequestError (refused), ItnetConnectionError."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
                     "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
         body, query, headers = scene_request(
-            scene, intrinsics, budget_ms, depth_scale, indices, switches
+            scene, intrinsics, budget_ms, depth_scale, indices, switches, up
         )
         try:
             reply = self._http.post(SCENE_PATH, content=body, params=query, headers=headers)

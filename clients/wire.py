@@ -197,10 +197,11 @@ def scene_request(
     depth_scale: float | None,
     indices: bool,
     switches: dict[str, bool],
+    up: tuple[float, float, float] | None = None,
 ) -> tuple[bytes, dict[str, str], dict[str, str]]:
     """``POST /v1/scene``'s body (``scene_body``), query and headers: the intrinsics (fx, fy,
-    cx, cy), the budget and depth scale where given (else the service's), ``indices`` and the
-    switches (finishing steps, scene classifier, touching cuts) in the query."""
+    cx, cy), the budget, depth scale and up where given (else the service's), ``indices`` and
+    the switches (finishing steps, scene classifier, touching cuts) in the query."""
     body, kind = scene_body(scene)
     query: dict[str, str] = {"indices": str(indices).lower()}
     if intrinsics is not None:
@@ -210,6 +211,8 @@ def scene_request(
         query["budget_ms"] = repr(float(budget_ms))
     if depth_scale is not None:
         query["depth_scale"] = repr(float(depth_scale))
+    if up is not None:
+        query["up"] = ",".join(repr(float(v)) for v in up)
     query.update({name: str(bool(on)).lower() for name, on in switches.items()})
     return body, query, {"Content-Type": kind}
 

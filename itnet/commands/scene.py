@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from itnet.commands import check_xyz
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS
 
 
@@ -55,6 +56,12 @@ def scene(
         "--split-touching/--no-split-touching",
         help="Cut a cluster where the cut judge finds two objects standing against each other.",
     ),
+    up: str | None = typer.Option(
+        None,
+        help="Which way is up in the camera's frame, 'x,y,z' (e.g. from an IMU's gravity); the "
+        "floor is searched within 45 degrees of it (default 0,-1,0: a camera held about level).",
+        callback=check_xyz,
+    ),
 ) -> None:
     """Find the objects standing on the floor of each scene (camera frame: x right, y down, z
     ahead, metres): category, probability, T_canonical_from_input, box, points. Bad files are
@@ -68,6 +75,8 @@ def scene(
 
     if not 0 < budget_ms <= 60_000:
         raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
+    if up is not None and not any(up):
+        raise typer.BadParameter("--up must not be 0,0,0")
     try:
         camera = None if intrinsics is None else parse_intrinsics(intrinsics)
     except SceneInputError as err:
@@ -84,7 +93,8 @@ def scene(
             result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
                                   depth_scale=depth_scale, finishing=finishing,
                                   scene_classifier=scene_classifier,
-                                  options=SegmentOptions(split_touching=split_touching))  # fmt: skip
+                                  options=SegmentOptions(split_touching=split_touching),
+                                  **({} if up is None else {"expected_up": tuple(up)}))  # fmt: skip
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)
             failed = True

@@ -87,11 +87,17 @@ def find_objects(
     ``finishing``: the steps each posed object gets after its pose pipeline; ``centre_table``:
     the pose models' scene corrections (default: the shipped table). ``scene_classifier``: what
     names the objects (``itnet.scene.scene_classifier``): True, the shipped one where it was
-    fitted for the catalog's classifier; False, the classifier with the height alone. Raises SceneInputError for
-    a scene that cannot be used, ValueError for a budget that is not positive."""
+    fitted for the catalog's classifier; False, the classifier with the height alone.
+    ``expected_up``: roughly which way is up in the camera's frame (default −y: a camera held
+    about level; from an IMU's gravity for one pitched 45° or more, or turned on its side): the
+    floor is searched within 45° of it. Raises SceneInputError for a scene that cannot be used,
+    ValueError for a budget that is not positive or an up that is no direction."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
         raise ValueError(f"budget_ms must be positive, got {budget_ms}")
+    expected = np.asarray(expected_up, dtype=np.float64)
+    if expected.shape != (3,) or not np.isfinite(expected).all() or not expected.any():
+        raise ValueError(f"expected_up must be three finite numbers, not all 0, got {expected_up}")
     if isinstance(scene, SceneInput):
         given = scene
     elif isinstance(scene, (str, Path)):
@@ -99,7 +105,7 @@ def find_objects(
     else:
         given = from_array(np.asarray(scene), intrinsics, depth_scale, limits)
     catalog = catalog or shipped_catalog()
-    found = segment(given.points, options, expected_up)
+    found = segment(given.points, options, expected)
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
     table = load_table() if centre_table is None else centre_table

@@ -236,3 +236,46 @@ def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
     assert replies[0]["objects"][0]["named_by"] == "scene_classifier"
     with pytest.raises(ValueError, match=".png or .npy"):
         sync.scene(files / "chair.ply")
+
+
+def test_a_camera_pitched_60_degrees_finds_its_floor_when_told_up(
+    client: TestClient, tmp_path: Path
+) -> None:
+    """A camera pitched 60 degrees down looks past the floor search's 45 degrees about -y: no
+    floor, no object; told which way is up (``expected_up``, ``--up``, ``up=``, the clients'
+    ``up``), it finds the chair below it. An up that is no direction is refused."""
+    from scene_helpers import chair_shape, make_test_scene
+
+    from itnet.clients import ItnetClient
+
+    pitch = np.radians(60.0)
+    up = (0.0, -float(np.cos(pitch)), -float(np.sin(pitch)))
+    scene = make_test_scene([(chair_shape(), 0.5, 0.0, 1.2, 150.0)], pitch_deg=60.0)
+    assert find_objects(scene.depth, scene.intrinsics, budget_ms=300).objects == []
+    told = find_objects(scene.depth, scene.intrinsics, budget_ms=300, expected_up=up)
+    assert len(told.objects) == 1 and told.up is not None and told.up @ np.array(up) > 0.999
+    with pytest.raises(ValueError, match="expected_up"):
+        find_objects(scene.depth, scene.intrinsics, expected_up=(0.0, 0.0, 0.0))
+
+    png = depth_to_png(depth_mm(scene))
+    (tmp_path / "steep.png").write_bytes(png)
+    args = ["scene", str(tmp_path / "steep.png"), "--intrinsics", camera_arg(scene), "--json",
+            "--budget-ms", "300"]  # fmt: skip
+    text = ",".join(map(str, up))
+    assert json.loads(runner.invoke(app, args).output)["objects"] == []
+    assert len(json.loads(runner.invoke(app, [*args, "--up", text]).output)["objects"]) == 1
+    assert runner.invoke(app, [*args, "--up", "0,0,0"]).exit_code == 2
+
+    i = scene.intrinsics
+    query = f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300"
+    headers = {"content-type": "image/png"}
+    reply = client.post(f"/v1/scene?{query}&up={text}", content=png, headers=headers)
+    assert reply.status_code == 200, reply.text
+    assert len(reply.json()["objects"]) == 1
+    for bad in ("1,2", "0,0,0", "nan,1,0"):
+        refused = client.post(f"/v1/scene?{query}&up={bad}", content=png, headers=headers)
+        assert refused.status_code == 422 and refused.json()["kind"] == "invalid_request"
+    sync = ItnetClient("http://testserver")
+    sync._http = client
+    camera = (i.fx, i.fy, i.cx, i.cy)
+    assert len(sync.scene(png, intrinsics=camera, budget_ms=300, up=up)["objects"]) == 1

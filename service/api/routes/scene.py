@@ -35,7 +35,7 @@ from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing
 from itnet.scene.posing import NoClassifierError
-from itnet.scene.segment import SegmentOptions
+from itnet.scene.segment import CAMERA_UP, SegmentOptions
 from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, malformed_json
 from itnet.service.schemas import ErrorResponse
@@ -128,6 +128,13 @@ async def scene(
     split_touching: Annotated[
         bool, Query(description="cut a cluster where the cut judge finds two objects touching")
     ] = True,
+    up: Annotated[
+        str | None,
+        Query(
+            description="which way is up in the camera's frame, 'x,y,z' (default 0,-1,0); "
+            "the floor is searched within 45 degrees of it"
+        ),
+    ] = None,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
@@ -140,13 +147,25 @@ async def scene(
     if given and len(given) != 4:
         raise ServiceError(422, "invalid_request", "give all four intrinsics: fx, fy, cx, cy")
     camera = Intrinsics(fx, fy, cx, cy) if fx and fy and cx is not None and cy is not None else None
+    expected_up = _direction(up) if up is not None else CAMERA_UP
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
             _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
             SceneFinishing(floor_centre, along_floor, recheck), scene_classifier,
-            SegmentOptions(split_touching=split_touching),
+            SegmentOptions(split_touching=split_touching), expected_up,
         )  # fmt: skip
+
+
+def _direction(text: str) -> tuple[float, float, float]:
+    """'x,y,z' -> three finite numbers, not all 0 (else a 422)."""
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ServiceError(422, "invalid_request", f"up: expected 'x,y,z', got {text!r}") from None
+    if not all(np.isfinite([x, y, z])) or not any((x, y, z)):
+        raise ServiceError(422, "invalid_request", f"up must be a direction, got {text!r}")
+    return x, y, z
 
 
 def _decode(
@@ -180,6 +199,7 @@ def _find(
     depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
     finishing: SceneFinishing = SceneFinishing(), scene_classifier: bool = True,
     options: SegmentOptions = SegmentOptions(),
+    expected_up: tuple[float, float, float] = CAMERA_UP,
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread)."""
     if not state.ready:
@@ -188,7 +208,7 @@ def _find(
         given = _decode(body, kind, camera, depth_scale)
         result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
                               finishing=finishing, scene_classifier=scene_classifier,
-                              options=options)  # fmt: skip
+                              options=options, expected_up=expected_up)  # fmt: skip
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
