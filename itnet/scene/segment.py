@@ -127,19 +127,21 @@ def find_floor(
     return plane
 
 
-def _reaches_view_top(part: NDArray, points: NDArray, within_deg: float) -> bool:
-    """Whether some of ``part`` (K, 3) lies within ``within_deg`` of the top edge of the view
-    that ``points`` (N, 3), in the camera's frame (y down, z ahead), fill: a plane seen up to
-    there goes on above what the camera sees."""
-    ahead = points[:, 2] > 1e-6
-    if not ahead.any():
+def _view_angles(points: NDArray) -> NDArray[np.float64]:
+    """Points (N, 3) in the camera's frame (y down, z ahead) -> the angle (K,) below the
+    optical axis of each one ahead of the camera (negative: above it)."""
+    ahead = points[points[:, 2] > 1e-6]
+    return np.arctan2(ahead[:, 1], ahead[:, 2])
+
+
+def _reaches_view_top(part: NDArray, view_top: float, within_deg: float) -> bool:
+    """Whether some of ``part`` (K, 3) lies within ``within_deg`` of the top edge of the view,
+    ``view_top`` (the least of ``_view_angles``): a plane seen up to there goes on above what the
+    camera sees."""
+    angles = _view_angles(part)
+    if not len(angles):
         return False
-    edge = float(np.min(np.arctan2(points[ahead, 1], points[ahead, 2])))
-    mine = part[part[:, 2] > 1e-6]
-    if not len(mine):
-        return False
-    reach = float(np.percentile(np.arctan2(mine[:, 1], mine[:, 2]), 1))
-    return reach <= edge + math.radians(within_deg)
+    return float(np.percentile(angles, 1)) <= view_top + math.radians(within_deg)
 
 
 def find_walls(
@@ -150,6 +152,7 @@ def find_walls(
     walls: list[Plane] = []
     left = points
     sin_vertical = math.sin(math.radians(10.0))
+    view_top: float | None = None  # the top edge of the view, measured where first needed
     for _ in range(2 * options.max_walls):  # planes that are not walls are passed over
         if len(walls) == options.max_walls or len(left) < options.min_points:
             break
@@ -164,13 +167,14 @@ def find_walls(
         along = np.cross(plane.normal, up)
         span = np.percentile(left[inliers] @ along, [2, 98])
         top = np.percentile(floor.distance(left[inliers]), 98)
-        if (
-            span[1] - span[0] < options.wall_min_width_m
-            and top < options.wall_min_top_m
-            and not _reaches_view_top(left[inliers], points, options.wall_view_top_deg)
-        ):  # furniture-sized (a steep camera sees more of its objects' sides than of a wall)
-            left = left[~inliers]
-            continue
+        if span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m:
+            if view_top is None:
+                angles = _view_angles(points)
+                view_top = float(angles.min()) if len(angles) else -math.inf
+            if not _reaches_view_top(left[inliers], view_top, options.wall_view_top_deg):
+                # furniture-sized (a steep camera sees more of its objects' sides than a wall)
+                left = left[~inliers]
+                continue
         facing = plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset)
         behind = np.mean(facing.distance(points) < -options.wall_behind_m)
         if behind <= options.wall_max_behind:
