@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from itnet.commands import check_xyz
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS, up_direction
 
 
 def scene(
@@ -75,8 +75,11 @@ def scene(
 
     if not 0 < budget_ms <= 60_000:
         raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
-    if up is not None and not any(up):
-        raise typer.BadParameter("--up must not be 0,0,0")
+    if up is not None:
+        try:
+            up_direction(up)
+        except ValueError as err:
+            raise typer.BadParameter(f"--up: {err}") from None
     try:
         camera = None if intrinsics is None else parse_intrinsics(intrinsics)
     except SceneInputError as err:

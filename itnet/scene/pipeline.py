@@ -95,9 +95,10 @@ def find_objects(
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
         raise ValueError(f"budget_ms must be positive, got {budget_ms}")
-    expected = np.asarray(expected_up, dtype=np.float64)
-    if expected.shape != (3,) or not np.isfinite(expected).all() or not expected.any():
-        raise ValueError(f"expected_up must be three finite numbers, not all 0, got {expected_up}")
+    try:
+        expected = up_direction(expected_up)
+    except ValueError as err:
+        raise ValueError(f"expected_up: {err}") from None
     if isinstance(scene, SceneInput):
         given = scene
     elif isinstance(scene, (str, Path)):
@@ -139,6 +140,21 @@ def find_objects(
         len(given.points), given.image_shape, budget_ms, segment_ms,
         (time.perf_counter() - started) * 1e3,
     )  # fmt: skip
+
+
+def up_direction(value: NDArray | tuple[float, float, float] | str) -> NDArray[np.float64]:
+    """Which way is up, three numbers or 'x,y,z' -> (3,); ValueError unless they are three
+    finite numbers, not all 0."""
+    try:
+        up = np.asarray(
+            [float(v) for v in value.split(",")] if isinstance(value, str) else value,
+            dtype=np.float64,
+        )
+    except ValueError:
+        up = np.empty(0)
+    if up.shape != (3,) or not np.isfinite(up).all() or not up.any():
+        raise ValueError(f"up must be three finite numbers 'x,y,z', not all 0, got {value!r}")
+    return up
 
 
 _SHIPPED: Catalog | None = None
@@ -229,4 +245,5 @@ __all__ = [
     "object_box",
     "serving_scene_classifier",
     "shipped_catalog",
+    "up_direction",
 ]

@@ -33,7 +33,7 @@ from itnet.scene import (
 )
 from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, up_direction
 from itnet.scene.posing import NoClassifierError
 from itnet.scene.segment import CAMERA_UP, SegmentOptions
 from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
@@ -160,12 +160,10 @@ async def scene(
 def _direction(text: str) -> tuple[float, float, float]:
     """'x,y,z' -> three finite numbers, not all 0 (else a 422)."""
     try:
-        x, y, z = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ServiceError(422, "invalid_request", f"up: expected 'x,y,z', got {text!r}") from None
-    if not all(np.isfinite([x, y, z])) or not any((x, y, z)):
-        raise ServiceError(422, "invalid_request", f"up must be a direction, got {text!r}")
-    return x, y, z
+        x, y, z = up_direction(text)
+    except ValueError as err:
+        raise ServiceError(422, "invalid_request", str(err)) from None
+    return float(x), float(y), float(z)
 
 
 def _decode(
