@@ -51,3 +51,37 @@ def test_a_dropped_depth_image_shows_the_apis_objects(
     # the drawn scene: its points, one box, and the object's axes where it has a pose
     drawn = page.evaluate("document.querySelectorAll('canvas#view3d').length")
     assert drawn == 1
+
+
+def test_the_up_field_finds_a_steep_cameras_floor(
+    live_server: Server, browser_page: Any, tmp_path: Path
+) -> None:
+    """A camera pitched 60 degrees down: without up the page finds no object; with the IMU's up
+    typed in its field it finds the chair; an up that is no direction is refused, said in the
+    status line."""
+    from scene_helpers import chair_shape, make_test_scene
+
+    pitch = np.radians(60.0)
+    up = f"0,{-np.cos(pitch):.6f},{-np.sin(pitch):.6f}"
+    scene = make_test_scene([(chair_shape(), 0.5, 0.0, 1.2, 150.0)], pitch_deg=60.0)
+    png = tmp_path / "steep.png"
+    png.write_bytes(depth_to_png(np.round(scene.depth * 1000).astype(np.uint16)))
+    i = scene.intrinsics
+    page = browser_page
+    page.goto(f"{live_server.url}/?tab=scene&budget_ms=2000")
+    page.wait_for_function("document.body.dataset.ready === 'true'")
+    page.set_input_files("#file-scene", str(png))
+    page.fill("#intrinsics", f"{i.fx},{i.fy},{i.cx},{i.cy}")
+    found = []
+    for typed in ("", up, "0,0,0"):
+        page.fill("#scene-up", typed)
+        page.evaluate("document.body.dataset.run = ''")
+        page.click("#run")
+        page.wait_for_function(DONE, timeout=30_000)
+        if typed == "0,0,0":
+            assert page.evaluate("document.body.dataset.run") == "failed"
+            assert "up" in page.text_content("#status")
+        else:
+            assert page.evaluate("document.body.dataset.run") == "done"
+            found.append(page.locator("#scene-objects li").count())
+    assert found == [0, 1]
