@@ -145,6 +145,18 @@ def main(argv: list[str] | None = None) -> None:
         "--no-recheck", action="store_true", help="no category recheck by the verifiers"
     )
     parser.add_argument(
+        "--view-edge-deg",
+        type=float,
+        default=SceneFinishing.view_edge_deg,
+        help="objects whose base is out of view (this near its bottom edge) are not rechecked "
+        "(negative: all are)",
+    )
+    parser.add_argument(
+        "--no-base-hidden-models",
+        action="store_true",
+        help="pose objects whose base is out of view by their category's own model",
+    )
+    parser.add_argument(
         "--no-scene-classifier",
         action="store_true",
         help="name the objects by the classifier and their height alone",
@@ -180,7 +192,11 @@ def main(argv: list[str] | None = None) -> None:
     shapes = split_shapes(args.data, args.split, args.cache)
     budget: dict = {} if args.budget_ms is None else {"budget_ms": args.budget_ms}
     budget["finishing"] = SceneFinishing(
-        not args.no_floor_centre, not args.no_along_floor, not args.no_recheck
+        not args.no_floor_centre,
+        not args.no_along_floor,
+        not args.no_recheck,
+        args.view_edge_deg,
+        base_hidden_models=not args.no_base_hidden_models,
     )
     budget["scene_classifier"] = not args.no_scene_classifier
     if args.scene_classifier is not None and not args.no_scene_classifier:

@@ -176,6 +176,8 @@ def cached_scan_set(
     # the names and a fingerprint of the geometry (a category's turn changes the points, not names)
     fingerprint = round(float(sum(np.abs(s.points[:4] @ [1.0, 2.0, 3.0]).sum() for s in shapes)), 6)
     viewpoints = [] if config.elevation is None else [list(config.elevation)]  # not in its repr
+    if config.cut_below is not None:  # nor this
+        viewpoints.append(["cut_below", *config.cut_below])
     key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint, *viewpoints)
     path = cache / f"scans-{key}.npz"
     if path.exists():

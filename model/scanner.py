@@ -60,6 +60,11 @@ class ScanConfig:
     # azimuth and roll free, as a camera held above the floor sees furniture; None: any direction.
     # Left out of the repr, so the caches of views from any direction keep their keys.
     elevation: tuple[float, float] | None = field(default=None, repr=False)
+    # (min, max) object radii: the object's base below the view (``below_view_edge``): what a
+    # level camera does not see under the bottom edge of its view, a level plane across the view
+    # through the camera and through the object's centre line at this height over its centre.
+    # Left out of the repr, as ``elevation``.
+    cut_below: tuple[float, float] | None = field(default=None, repr=False)
 
 
 PAPER_VIEWS: dict[str, object] = {
@@ -73,10 +78,16 @@ SURFACE_VIEWS: dict[str, object] = {"splat": 1.0, "tolerance": 0.03}
 """ScanConfig overrides for surface views: each point a disc as wide as the local spacing, seen
 when within 0.03 radii of the nearest disc at its pixel (``model/surface.py``)."""
 
+BASE_HIDDEN: dict[str, object] = {"cut_below": (-0.7, 0.3), "elevation": (5.0, 40.0)}
+"""ScanConfig overrides for views whose lower part lies below the view: a camera 5-40 degrees
+above the object's horizon (one at head height, 2-4 m from furniture) whose view's bottom edge
+passes 0.7 radii below to 0.3 above the object's centre (``below_view_edge``)."""
+
 VIEW_RULES: dict[str, dict[str, object]] = {
     "occluded": {},
     "paper": PAPER_VIEWS,
     "surface": SURFACE_VIEWS,
+    "base_hidden": BASE_HIDDEN,
 }
 """The named view rules (``--scanner``) and their ScanConfig overrides."""
 
@@ -247,9 +258,28 @@ def scan_shape(
                 config.tolerance,
                 config.occlusion_tolerance,
             )
+        if config.cut_below is not None:
+            height = rng.uniform(*config.cut_below)
+            seen = seen[below_view_edge(seen, camera_from_canonical, height)]
         if len(seen) >= config.min_points:
             return add_sensor_effects(seen, rng, config), invert_rigid(camera_from_canonical)
     raise ValueError("no viewpoint saw enough of the shape")
+
+
+def below_view_edge(
+    seen: NDArray, camera_from_canonical: NDArray, height: float
+) -> NDArray[np.bool_]:
+    """Camera-frame points (K, 3) of a canonical shape seen from ``camera_from_canonical``
+    (4, 4) -> which of them (K,) lie above the bottom edge of a level view: the plane through
+    the camera, level across the view (perpendicular to up, canonical +y, and to the direction
+    of the object's centre) and through the point ``height`` (object radii) above the centre."""
+    up = camera_from_canonical[:3, 1]
+    centre = camera_from_canonical[:3, 3]
+    across = np.cross(up, centre)
+    normal = np.cross(across, centre + height * up)
+    if normal @ up < 0:
+        normal = -normal
+    return np.asarray(seen @ normal >= 0.0)
 
 
 def scan_of(

@@ -11,6 +11,13 @@ frame; a ridge regression per pose model is its correction::
     python -m itnet.model.scene_centre_fit                       # writes the shipped table
     python -m itnet.model.scene_centre_fit --model-dir DIR --out DIR/centre_along_floor.json
 
+The networks for objects whose base is out of view (``<category>_base_hidden``) pose only such
+objects, which the usual scenes rarely hold: their corrections are fitted on scenes of a level
+camera with objects cut off by the view, and added to the table as it is::
+
+    python -m itnet.model.scene_centre_fit --only chair_base_hidden,toilet_base_hidden \
+        --draw chair,toilet,bathtub --pitch 0,0 --most 2 --cut-off
+
 The table names each model's graph by its SHA-256, so it applies only to the graphs it was
 fitted for. Choosing it and measuring it: ``benchmarks/bench_scene.py`` (``--no-along-floor``).
 """
@@ -21,6 +28,7 @@ import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,16 +52,18 @@ MIN_OBJECTS = 20  # a model with fewer usable objects gets no correction
 
 
 def scene_samples(
-    shapes: dict, scenes: int, seed: int, catalog, budget_ms: float
+    shapes: dict, scenes: int, seed: int, catalog, budget_ms: float, **kind: Any
 ) -> dict[str, tuple[list[NDArray], list[NDArray]]]:
-    """``scenes`` scenes of ``shapes`` -> per pose model, the features (F,) and true offsets (3,)
-    of its objects found, named right and turned within FIT_MAX_ROTATION_DEG."""
+    """``scenes`` scenes of ``shapes`` (``make_scene``'s ``kind``; default: desks among the
+    eight) -> per pose model, the features (F,) and true offsets (3,) of its objects found,
+    named right and turned within FIT_MAX_ROTATION_DEG."""
     from itnet.scene.inputs import from_depth
 
     rng = np.random.default_rng(seed)
     samples: dict[str, tuple[list, list]] = defaultdict(lambda: ([], []))
+    kind = {"categories": WITH_DESKS, **kind}
     for _ in range(scenes):
-        scene = make_scene(shapes, rng, categories=WITH_DESKS)
+        scene = make_scene(shapes, rng, **kind)
         given = from_depth(scene.depth, scene.intrinsics)
         finishing = SceneFinishing(along_floor=False, recheck=False)  # each model's own poses
         result = find_objects(given, budget_ms=budget_ms, catalog=catalog, finishing=finishing)
@@ -109,7 +119,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--samples", type=Path, default=None,
                         help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
     parser.add_argument("--out", type=Path, default=TABLE)
+    parser.add_argument("--only", default=None,
+                        help="fit these models (comma-separated) and keep the others' from --out")  # fmt: skip
+    parser.add_argument("--draw", default=None, help="the categories drawn (default: all nine)")
+    parser.add_argument("--pitch", default="0,25", help="the camera's pitch down: LOW,HIGH")
+    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
+    parser.add_argument("--cut-off", action="store_true", help="lower parts below the view")
     args = parser.parse_args(argv)
+    low, high = (float(x) for x in args.pitch.split(","))
+    kind = {"pitch_deg": (low, high), "most": args.most, "cut_off": args.cut_off,
+            **({"categories": tuple(args.draw.split(","))} if args.draw else {})}  # fmt: skip
     catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
     if args.samples is not None and args.samples.exists():
         with np.load(args.samples) as saved:
@@ -117,12 +136,22 @@ def main(argv: list[str] | None = None) -> None:
             samples = {n: (list(saved[f"{n}/x"]), list(saved[f"{n}/y"])) for n in names}
     else:
         shapes = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.shapes)
-        samples = scene_samples(shapes, args.scenes, args.seed, catalog, args.budget_ms)
+        samples = scene_samples(shapes, args.scenes, args.seed, catalog, args.budget_ms, **kind)
         if args.samples is not None:
             arrays = {f"{n}/{k}": np.array(v) for n, (x, y) in samples.items()
                       for k, v in (("x", x), ("y", y))}  # fmt: skip
             np.savez(args.samples, **arrays)
+    if args.only is not None:
+        only = set(args.only.split(","))
+        samples = {name: got for name, got in samples.items() if name in only}
     table, stats = fit_table(samples, catalog, args.ridge)
+    if args.only is not None:  # the other models keep their corrections
+        kept = (
+            CentreTable.from_dict(json.loads(args.out.read_text())) if args.out.exists() else None
+        )
+        if kept is not None:
+            others = {n: c for n, c in kept.corrections.items() if n not in table.corrections}
+            table = CentreTable({**others, **table.corrections})
     args.out.write_text(json.dumps(table.to_dict(), indent=1) + "\n")
     print(json.dumps(stats, indent=1))
     print(f"wrote {args.out}: {len(table.corrections)} model(s)")

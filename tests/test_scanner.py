@@ -71,3 +71,26 @@ def test_a_camera_above_sees_the_upper_side(rng):
         cloud, pose = scan_shape(sphere, rng, config)
         heights = apply_rigid(pose, cloud)[:, 1]
         assert 0.1 < heights.mean() < 0.45
+
+
+def test_a_level_views_bottom_edge_hides_the_base(rng):
+    """Views with the base below the view (BASE_HIDDEN): the cut is a plane through the camera,
+    level across the view, through the object's centre line at the drawn height, so a point on
+    that line is seen exactly where it stands above the height; the camera looks down on it."""
+    from itnet.model.scanner import BASE_HIDDEN, below_view_edge, scan_config
+
+    config = scan_config(BASE_HIDDEN)
+    line = np.stack([np.zeros(41), np.linspace(-1.0, 1.0, 41), np.zeros(41)], 1)
+    for _ in range(20):
+        cam = random_camera_pose(rng, config)
+        height = rng.uniform(*config.cut_below)
+        seen = below_view_edge(apply_rigid(cam, line), cam, height)
+        np.testing.assert_array_equal(seen, line[:, 1] >= height - 1e-9)
+    shape = _sphere(rng)
+    whole = ScanConfig(depth_noise=(0, 0), jitter=(0, 0), outlier_fraction=(0, 0))
+    cut = scan_config(whole.__dict__, {"cut_below": (-0.2, -0.2), "elevation": (20.0, 20.0)})
+    lows = []
+    for kind in (whole, cut):
+        cloud, pose = scan_shape(shape, rng, kind)
+        lows.append(apply_rigid(pose, cloud)[:, 1].min())
+    assert lows[0] < -0.8 and -0.6 < lows[1] < -0.2  # the far side is cut lower than the near

@@ -98,6 +98,11 @@ def train(
         help="Train on surface views too (each point a disc, as a camera sees a mesh; "
         "model/surface.py): the scans are split evenly between the kinds of views.",
     ),
+    base_hidden: bool = typer.Option(
+        False,
+        help="Every training and validation view with the object's base below the view, as a "
+        "level camera at head height sees furniture 2-4 m away (model/scanner.py BASE_HIDDEN).",
+    ),
     stretch: float = typer.Option(
         1.0,
         min=1.0,
@@ -135,7 +140,7 @@ def train(
     (35 steps/s on an H200).
     """
     from itnet.model.network import POINT_LOSSES, ROTATIONS
-    from itnet.model.scanner import PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
+    from itnet.model.scanner import BASE_HIDDEN, PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
     from itnet.model.train import TrainConfig
     from itnet.symmetry import SYMMETRY_NAMES
 
@@ -150,6 +155,9 @@ def train(
     if val_scanner not in VIEW_RULES:
         raise typer.BadParameter(f"--val-scanner must be one of {', '.join(VIEW_RULES)}")
     from itnet.model.train import train as run_training
+
+    views = [{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)]
+    hidden = BASE_HIDDEN if base_hidden else {}
 
     config = TrainConfig(
         data=data,
@@ -183,8 +191,8 @@ def train(
         cache=cache,
         init_from=init_from,
         bn_momentum=(bn_momentum, 0.01),
-        scan_mix=[{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)],
-        val_scan=VIEW_RULES[val_scanner],
+        scan_mix=[{**rule, **hidden} for rule in views],
+        val_scan={**VIEW_RULES[val_scanner], **hidden},
         val_views=val_views,
         stretch=stretch,
         upright=upright,

@@ -10,6 +10,11 @@ finishing), and that category is kept where its own verifier finds its pose like
 than ``RECHECK_MARGIN`` (and reported ``unsure``: it was ranked second). The second
 pose shares the object's part of the scene's budget; the reply says ``category_recheck``:
 ``changed``, ``kept`` or ``budget`` (doubted, no time left).
+
+An object whose base lies below the view (a chair before a level camera at head height, seen
+from its seat up) is not rechecked (``base_out_of_view``): the verifiers learned views of whole
+objects, such a part looks wrong to its own category's verifier too, and there the recheck
+traded a right category for a wrong one 27 times for once the other way (validation scenes).
 """
 
 from __future__ import annotations
@@ -55,16 +60,20 @@ def rechecked(
     viewpoint: NDArray,
     deadline: float,
     finish: Callable[[ObjectPose], ObjectPose],
+    base_out_of_view: Callable[[], bool] = lambda: False,
 ) -> ObjectPose:
     """A posed and finished object (``finish``: what the scene does to every pose, such as
     standing it on the floor) -> the same, or, where its verifier doubts it and the second
     category's verifier finds its own finished pose likelier by RECHECK_MARGIN, that one; the
     second pose, its finishing and its verifier's call must end by ``deadline``
-    (``time.perf_counter()``)."""
+    (``time.perf_counter()``). ``base_out_of_view``: whether the object's base lies below the
+    view (asked only of a doubted pose); such an object keeps its category."""
     model = None if seen.result is None else catalog.models[seen.result["model"]]
     logit = None if model is None or seen.pose is None else pose_logit(model, points, seen.pose)
     if logit is None or logit >= RECHECK_BELOW or len(seen.candidates) < 2:
         return seen
+    if base_out_of_view():
+        return _noted(seen, "base_out_of_view")
     second = seen.candidates[1]
     other_model = pose_model_for(second["category"], catalog.models)
     if other_model is None or other_model.verifier is None:

@@ -24,8 +24,9 @@ classifier where it applies (``scene_classifier``), else by the classifier and t
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,7 @@ from itnet.scene.posing import (
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import CAMERA_UP, Segmentation, SegmentOptions, segment
+from itnet.scene.view_edges import ViewEdges
 
 DEFAULT_BUDGET_MS = 140.0
 
@@ -60,6 +62,13 @@ class SceneFinishing:
     floor_centre: bool = True  # stood on the floor: its height from the floor (floor_centred)
     along_floor: bool = True  # its place along the floor by its pose model's scene correction
     recheck: bool = True  # a pose its verifier doubts weighed against the second category's
+    # ... unless its base is out of view: it reaches within view_edge_deg of the view's bottom
+    # edge, and its lowest point seen stands above this share of its top (base_hidden)
+    view_edge_deg: float = 1.0
+    base_hidden: float = 0.2
+    # an object whose base is out of view posed by its category's network for such views
+    # (``<category>_base_hidden``) where the models have one
+    base_hidden_models: bool = True
 
 
 VIEWPOINT = np.zeros(3)  # the camera, in its own frame
@@ -113,23 +122,27 @@ def find_objects(
     if not finishing.along_floor:
         table = CentreTable({})
     namer = serving_scene_classifier(catalog, scene_classifier)
+    edges = cache(partial(ViewEdges.of_points, given.points))  # measured where first needed
     for k, rows in enumerate(found.objects):
         points = given.points[rows]
         now = time.perf_counter()
         left_ms = budget_ms - (now - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         height = None if found.floor is None else top_height(points, found.floor)
+        hidden = cache(partial(base_out_of_view, edges, points, found.floor, finishing))
+        own_model = not finishing.base_hidden_models
         try:
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
-                               categories=categories, floor=found.floor,
-                               scene_classifier=namer)  # fmt: skip
+                               categories=categories, floor=found.floor, scene_classifier=namer,
+                               base_hidden=(lambda: False) if own_model else hidden)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
                          found=found, table=table, floor_centre=finishing.floor_centre)  # fmt: skip
         seen = finish(seen)
         if finishing.recheck:
-            seen = rechecked(catalog, seen, points, found.up, VIEWPOINT, now + share / 1e3, finish)
+            seen = rechecked(catalog, seen, points, found.up, VIEWPOINT, now + share / 1e3, finish,
+                             hidden)  # fmt: skip
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
@@ -203,6 +216,25 @@ def stood_on_floor(
         "centre_along_floor": correction is not None,
     }
     return seen
+
+
+def base_out_of_view(
+    edges: Callable[[], ViewEdges | None], points: NDArray, floor: Plane | None,
+    finishing: SceneFinishing,
+) -> bool:  # fmt: skip
+    """Whether an object's base lies below the view: its points (K, 3) reach within
+    ``finishing.view_edge_deg`` of the view's bottom edge (``edges()``: the scene's), and the
+    lowest of them (2nd percentile) stands above ``finishing.base_hidden`` of its top over the
+    ``floor`` (a table whose near legs leave the view while its far ones reach the floor is
+    whole enough)."""
+    if floor is None:
+        return False
+    heights = floor.distance(points)
+    low, top = np.percentile(heights, [2, 98])
+    if low < finishing.base_hidden * top:
+        return False
+    view = edges()
+    return view is not None and "bottom" in view.reached(points, finishing.view_edge_deg)
 
 
 def floor_centred(pose: NDArray, top: float, floor: Plane) -> NDArray[np.float64]:

@@ -10,6 +10,7 @@ classification restricted to the scene's categories, then the one pose pipeline
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from itnet.pose.recognition import classify, pose_model_for
 from itnet.pose.reply import pose_fields
 from itnet.pose.request import PoseRequest
 from itnet.pose.runtime import (
+    LoadedModel,
     ModelLoadError,
     default_model_dir,
 )
@@ -38,6 +40,9 @@ SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior cou
 # on 150 validation scenes the dresser's single run had 27 of 37 right, 4 runs 30, 8 runs 28
 # (the other objects then left less time).
 SCENE_LEAST_RUNS = 4
+# The pose model of a category's objects whose base lies below the view, where the models have
+# one: ``<category>_base_hidden`` (trained on such views: ``itnet train --base-hidden``).
+BASE_HIDDEN_SUFFIX = "_base_hidden"
 
 
 def scene_catalog(model_dir: Path | None = None, threads: int = 2) -> Catalog:
@@ -82,18 +87,24 @@ def pose_object(
     categories: frozenset[str] | None = None,
     floor: Plane | None = None,
     scene_classifier: SceneClassifier | None = None,
+    base_hidden: Callable[[], bool] = lambda: False,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
     ObjectPose, the classification (``scene_category``) and the run within ``budget_ms`` from
     ``started`` (``time.perf_counter()``; default now). ``categories``: the ones the object may
     be (default: any); ``floor``: the plane it stands on, whose height it is measured from;
-    ``scene_classifier``: the one to name it by (see ``scene_category``). No run where less
-    than ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
+    ``scene_classifier``: the one to name it by (see ``scene_category``); ``base_hidden``:
+    whether the object's base lies below the view (asked where its category has a model for
+    such views, ``BASE_HIDDEN_SUFFIX``, which then poses it). No run where less than
+    ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
     degenerate)."""
     started = time.perf_counter() if started is None else started
     seen = scene_category(catalog, points, up, viewpoint, started + budget_ms / 2e3, categories,
                           floor, scene_classifier)  # fmt: skip
-    return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms)
+    model = catalog.models.get(seen.category + BASE_HIDDEN_SUFFIX)
+    if model is None or model.card.category != seen.category or not base_hidden():
+        model = None  # the category's own
+    return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms, model)
 
 
 def scene_category(
@@ -175,12 +186,13 @@ def posed_as(
     budget_ms: float,
     started: float,
     min_run_ms: float = 2.0,
+    model: LoadedModel | None = None,
 ) -> ObjectPose:
-    """``seen`` (its category) with its pose: the category's anytime pipeline run on the cluster
-    (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs), within
-    ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model for the
-    category, or the budget)."""
-    model = pose_model_for(seen.category, catalog.models)
+    """``seen`` (its category) with its pose: the category's anytime pipeline (or ``model``'s)
+    run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs),
+    within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model
+    for the category, or the budget)."""
+    model = model or pose_model_for(seen.category, catalog.models)
     if model is None:
         seen.no_pose = "no_pose_model"
         return seen

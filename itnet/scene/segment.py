@@ -47,6 +47,7 @@ from scipy.spatial import cKDTree
 
 from itnet.scene.planes import Plane, floor_axes, ransac_plane
 from itnet.scene.touching import load_cut_judge, split_touching
+from itnet.scene.view_edges import ViewEdges
 
 CAMERA_UP = (0.0, -1.0, 0.0)  # a camera whose image y points down, held about level
 
@@ -127,23 +128,6 @@ def find_floor(
     return plane
 
 
-def _view_angles(points: NDArray) -> NDArray[np.float64]:
-    """Points (N, 3) in the camera's frame (y down, z ahead) -> the angle (K,) below the
-    optical axis of each one ahead of the camera (negative: above it)."""
-    ahead = points[points[:, 2] > 1e-6]
-    return np.arctan2(ahead[:, 1], ahead[:, 2])
-
-
-def _reaches_view_top(part: NDArray, view_top: float, within_deg: float) -> bool:
-    """Whether some of ``part`` (K, 3) lies within ``within_deg`` of the top edge of the view,
-    ``view_top`` (the least of ``_view_angles``): a plane seen up to there goes on above what the
-    camera sees."""
-    angles = _view_angles(part)
-    if not len(angles):
-        return False
-    return float(np.percentile(angles, 1)) <= view_top + math.radians(within_deg)
-
-
 def find_walls(
     points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator
 ) -> list[Plane]:
@@ -152,7 +136,7 @@ def find_walls(
     walls: list[Plane] = []
     left = points
     sin_vertical = math.sin(math.radians(10.0))
-    view_top: float | None = None  # the top edge of the view, measured where first needed
+    edges: ViewEdges | None = None  # the view's edges, measured where first needed
     for _ in range(2 * options.max_walls):  # planes that are not walls are passed over
         if len(walls) == options.max_walls or len(left) < options.min_points:
             break
@@ -168,10 +152,10 @@ def find_walls(
         span = np.percentile(left[inliers] @ along, [2, 98])
         top = np.percentile(floor.distance(left[inliers]), 98)
         if span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m:
-            if view_top is None:
-                angles = _view_angles(points)
-                view_top = float(angles.min()) if len(angles) else -math.inf
-            if not _reaches_view_top(left[inliers], view_top, options.wall_view_top_deg):
+            edges = edges or ViewEdges.of_points(points)
+            if edges is None or "top" not in edges.reached(
+                left[inliers], options.wall_view_top_deg
+            ):
                 # furniture-sized (a steep camera sees more of its objects' sides than a wall)
                 left = left[~inliers]
                 continue

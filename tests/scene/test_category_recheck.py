@@ -66,3 +66,48 @@ def test_a_doubted_object_without_time_left_says_so(
     monkeypatch.setattr(category_recheck, "MIN_RECHECK_MS", 1e6)
     (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000).objects
     assert obj.run is not None and obj.run["category_recheck"] == "budget"
+
+
+def test_an_object_whose_base_is_below_the_view_keeps_its_category(
+    monkeypatch: pytest.MonkeyPatch, level_chair_scene: Scene
+) -> None:
+    """The verifiers learned whole objects: a chair seen from its seat up is not rechecked, even
+    where every pose is doubted and the second category always likelier; with the rule off
+    (``view_edge_deg`` negative: no object reaches the edge) it is."""
+    monkeypatch.setattr(category_recheck, "RECHECK_BELOW", np.inf)
+    monkeypatch.setattr(category_recheck, "RECHECK_MARGIN", -np.inf)
+    scene = level_chair_scene
+    (kept,) = find_objects(scene.depth, scene.intrinsics, budget_ms=1000).objects
+    assert kept.run is not None and kept.run["category_recheck"] == "base_out_of_view"
+    assert kept.category == kept.candidates[0]["category"]
+    off = SceneFinishing(view_edge_deg=-90.0)
+    (changed,) = find_objects(scene.depth, scene.intrinsics, budget_ms=1000, finishing=off).objects
+    assert changed.run is not None and changed.run["category_recheck"] == "changed"
+    assert changed.category == kept.candidates[1]["category"]
+
+
+def test_an_object_whose_base_is_below_the_view_is_posed_by_its_base_hidden_model(
+    level_chair_scene: Scene, chair_scene: Scene
+) -> None:
+    """Where the models have a network for views whose base is below the view (named
+    ``<category>_base_hidden``), a chair seen from its seat up is posed by it, a chair seen
+    whole by the chair's own, and with ``base_hidden_models`` off both by the chair's own."""
+    from dataclasses import replace
+
+    from itnet.pose.catalog import Catalog
+    from itnet.scene.posing import BASE_HIDDEN_SUFFIX
+
+    shipped = shipped_catalog()
+    name = "chair" + BASE_HIDDEN_SUFFIX
+    chair = shipped.models["chair"]
+    hidden = replace(chair, card=chair.card.model_copy(update={"name": name}))
+    catalog = Catalog({**shipped.models, name: hidden}, shipped.classifier)
+    off = SceneFinishing(base_hidden_models=False)
+    for scene, finishing, model in (
+        (level_chair_scene, SceneFinishing(), name),
+        (chair_scene, SceneFinishing(), "chair"),
+        (level_chair_scene, off, "chair"),
+    ):
+        (obj,) = find_objects(scene.depth, scene.intrinsics, budget_ms=1000, catalog=catalog,
+                              finishing=finishing, categories=frozenset({"chair"})).objects  # fmt: skip
+        assert obj.category == "chair" and obj.run is not None and obj.run["model"] == model

@@ -121,6 +121,29 @@ def test_the_fit_writes_a_table_for_the_models_it_has_enough_objects_of(tmp_path
     assert np.allclose(correction.predict(x).mean(0), [0.05, 0.0, 0.12], atol=0.01)
 
 
+def test_a_fit_of_some_models_keeps_the_others_corrections(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(60, F))
+    samples = tmp_path / "samples.npz"
+    y = {"chair": [0.05, 0.0, 0.12], "toilet": [-0.1, 0.0, 0.0]}
+    arrays = {f"{n}/{k}": v for n, o in y.items()
+              for k, v in (("x", x), ("y", np.tile(o, (60, 1))))}  # fmt: skip
+    np.savez(samples, **arrays)
+    out = tmp_path / "table.json"
+    scene_centre_fit.main(["--samples", str(samples), "--out", str(out), "--only", "chair"])
+    assert set(CentreTable.from_dict(json.loads(out.read_text())).corrections) == {"chair"}
+    y["chair"] = [0.2, 0.0, 0.0]
+    arrays = {f"{n}/{k}": v for n, o in y.items()
+              for k, v in (("x", x), ("y", np.tile(o, (60, 1))))}  # fmt: skip
+    np.savez(samples, **arrays)
+    scene_centre_fit.main(["--samples", str(samples), "--out", str(out), "--only", "toilet"])
+    table = CentreTable.from_dict(json.loads(out.read_text()))
+    assert set(table.corrections) == {"chair", "toilet"}
+    chair = table.corrections["chair"][1]  # the first fit's, kept
+    assert np.allclose(chair.predict(x).mean(0), [0.05, 0.0, 0.12], atol=0.01)
+    assert np.allclose(table.corrections["toilet"][1].predict(x).mean(0), [-0.1, 0, 0], atol=0.01)
+
+
 def test_find_objects_moves_each_posed_object_along_the_floor(chair_scene: Scene) -> None:
     plain = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
                          finishing=SceneFinishing(along_floor=False, recheck=False))  # fmt: skip
