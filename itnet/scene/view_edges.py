@@ -17,6 +17,9 @@ from numpy.typing import NDArray
 
 EDGES = ("top", "bottom", "left", "right")
 REACH_PERCENT = 1.0  # a part reaches an edge where this share of its points (%) lies near it
+# The edges are measured on every k-th point, at most this many: a depth image's points come
+# row by row, so every row is still seen (about 1 ms at 640x480 instead of 6)
+EDGE_POINTS = 20_000
 
 
 def view_angles(points: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -38,9 +41,10 @@ class ViewEdges:
 
     @classmethod
     def of_points(cls, points: NDArray) -> ViewEdges | None:
-        """The edges of the view that saw ``points`` (N, 3): their extreme angles; None where
-        none lies ahead of the camera."""
-        below, across = view_angles(np.asarray(points, dtype=np.float64))
+        """The edges of the view that saw ``points`` (N, 3): the extreme angles of every k-th
+        of them (at most EDGE_POINTS); None where none lies ahead of the camera."""
+        step = max(1, len(points) // EDGE_POINTS)
+        below, across = view_angles(np.asarray(points[::step], dtype=np.float64))
         if not len(below):
             return None
         return cls(float(below.min()), float(below.max()), float(across.min()),
