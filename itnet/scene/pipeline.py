@@ -130,11 +130,11 @@ def find_objects(
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         height = None if found.floor is None else top_height(points, found.floor)
         hidden = cache(partial(base_out_of_view, edges, points, found.floor, finishing))
-        own_model = not finishing.base_hidden_models
         try:
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
                                categories=categories, floor=found.floor, scene_classifier=namer,
-                               base_hidden=(lambda: False) if own_model else hidden)  # fmt: skip
+                               base_hidden=hidden,
+                               base_hidden_models=finishing.base_hidden_models)  # fmt: skip
         except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
             continue
         finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
