@@ -63,9 +63,9 @@ class SceneFinishing:
     along_floor: bool = True  # its place along the floor by its pose model's scene correction
     recheck: bool = True  # a pose its verifier doubts weighed against the second category's
     # ... unless its base is out of view: it reaches within view_edge_deg of the view's bottom
-    # edge, and its lowest point seen stands above this share of its top (base_hidden)
+    # edge, and its lowest point seen stands above this share of its top (base_low_share)
     view_edge_deg: float = 1.0
-    base_hidden: float = 0.2
+    base_low_share: float = 0.2
     # an object whose base is out of view posed by its category's network for such views
     # (``<category>_base_hidden``) where the models have one
     base_hidden_models: bool = True
@@ -224,14 +224,14 @@ def base_out_of_view(
 ) -> bool:  # fmt: skip
     """Whether an object's base lies below the view: its points (K, 3) reach within
     ``finishing.view_edge_deg`` of the view's bottom edge (``edges()``: the scene's), and the
-    lowest of them (2nd percentile) stands above ``finishing.base_hidden`` of its top over the
+    lowest of them (2nd percentile) stands above ``finishing.base_low_share`` of its top over the
     ``floor`` (a table whose near legs leave the view while its far ones reach the floor is
     whole enough)."""
     if floor is None:
         return False
     heights = floor.distance(points)
     low, top = np.percentile(heights, [2, 98])
-    if low < finishing.base_hidden * top:
+    if low < finishing.base_low_share * top:
         return False
     view = edges()
     return view is not None and "bottom" in view.reached(points, finishing.view_edge_deg)

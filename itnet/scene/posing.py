@@ -97,9 +97,8 @@ def pose_object(
     ``scene_classifier``: the one to name it by (see ``scene_category``); ``base_hidden``:
     whether the object's base lies below the view (asked where ``base_hidden_models`` is on and
     its category has a model for such views, ``BASE_HIDDEN_SUFFIX``, which then poses it). No
-    run where less than
-    ``min_run_ms`` is left after the classification. Raises BadCloudError (too few points,
-    degenerate)."""
+    run where less than ``min_run_ms`` is left after the classification. Raises BadCloudError
+    (too few points, degenerate)."""
     started = time.perf_counter() if started is None else started
     seen = scene_category(catalog, points, up, viewpoint, started + budget_ms / 2e3, categories,
                           floor, scene_classifier)  # fmt: skip

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 EDGES = ("top", "bottom", "left", "right")
 REACH_PERCENT = 1.0  # a part reaches an edge where this share of its points (%) lies near it
 # The edges are measured on every k-th point, at most this many: a depth image's points come
-# row by row, so every row is still seen (about 1 ms at 640x480 instead of 6)
+# row by row, so every row is still seen (under 1 ms at 640x480 instead of 6)
 EDGE_POINTS = 20_000
 
 

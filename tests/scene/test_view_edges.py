@@ -61,5 +61,5 @@ def test_a_chair_seen_from_its_seat_up_has_its_base_out_of_view(
         assert base_out_of_view(lambda e=edges: e, chair, found.floor, SceneFinishing()) is hidden
         assert not base_out_of_view(lambda e=edges: e, chair, None, SceneFinishing())
         # reaching the bottom edge with its lowest fifth in view is whole enough
-        low = SceneFinishing(base_hidden=1.0)
+        low = SceneFinishing(base_low_share=1.0)
         assert not base_out_of_view(lambda e=edges: e, chair, found.floor, low)
