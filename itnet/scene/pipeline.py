@@ -146,7 +146,7 @@ def find_objects(
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
-            box, seen.pose, seen.result, seen.no_pose, seen.named_by,
+            box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden(),
         ))  # fmt: skip
     return SceneResult(
         objects, found.up if found.floor is not None else None, found.floor, found.walls,

@@ -50,10 +50,13 @@ class SceneObject:
     run: dict[str, Any] | None = None  # the anytime run's reply (iterations, stopped_by, ...)
     no_pose: str | None = None
     named_by: str = "classifier"  # or 'scene_classifier' (itnet.scene.scene_classifier)
+    # its base lies below the view: seen from part of its height up (its box still reaches the
+    # floor; itnet.scene.pipeline.base_out_of_view)
+    base_out_of_view: bool = False
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
         """The JSON form: ``category``, ``category_probability``, ``candidates``, ``unsure``,
-        ``named_by``, the run's fields (``T_canonical_from_input``, ``quat_wxyz``, ``quat_xyzw``,
+        ``named_by``, ``base_out_of_view``, the run's fields (``T_canonical_from_input``, ``quat_wxyz``, ``quat_xyzw``,
         ``translation``, ``iterations``, ``stopped_by``, ``model``, ...; null pose where none,
         with ``no_pose``), ``box``, ``points`` (how many) and ``indices``."""
         out: dict[str, Any] = {
@@ -62,6 +65,7 @@ class SceneObject:
             "candidates": self.candidates,
             "unsure": self.unsure,
             "named_by": self.named_by,
+            "base_out_of_view": self.base_out_of_view,
         }
         if self.run is not None:
             out.update(self.run)

@@ -111,3 +111,5 @@ def test_an_object_whose_base_is_below_the_view_is_posed_by_its_base_hidden_mode
         (obj,) = find_objects(scene.depth, scene.intrinsics, budget_ms=1000, catalog=catalog,
                               finishing=finishing, categories=frozenset({"chair"})).objects  # fmt: skip
         assert obj.category == "chair" and obj.run is not None and obj.run["model"] == model
+        assert obj.base_out_of_view is (scene is level_chair_scene)  # said whatever the model
+        assert obj.as_dict()["base_out_of_view"] is obj.base_out_of_view

@@ -91,6 +91,7 @@ def test_http_png_json_and_the_python_api_agree(client: TestClient, files: Path,
     assert reply.status_code == 200, reply.text
     check_the_chair(reply.json()["objects"], chair_scene)
     assert reply.json()["up"][1] < -0.9  # the floor's normal: about -y in a level camera
+    assert reply.json()["objects"][0]["base_out_of_view"] is False  # seen down to the floor
     result = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=300)
     assert [o.category for o in result.objects] == [reply.json()["objects"][0]["category"]]
 
