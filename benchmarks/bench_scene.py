@@ -37,8 +37,10 @@ from itnet.model.scenes import (
     WITH_DESKS,
     Scene,
     SceneObjectTruth,
+    add_kind_arguments,
     make_scene,
     matched_objects,
+    scene_kind,
     split_shapes,
 )
 from itnet.scene import SceneFinishing, SceneResult, find_objects, scene_catalog
@@ -176,16 +178,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--touching", action="store_true", help="objects standing against each other (2-3)"
     )
-    parser.add_argument(
-        "--draw", default=None, help="the categories drawn, comma-separated (default: the eight)"
-    )
-    parser.add_argument(
-        "--pitch", default="0,25", help="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
-    )
-    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
-    parser.add_argument(
-        "--cut-off", action="store_true", help="objects' lower parts may lie below the view"
-    )
+    add_kind_arguments(parser, "the eight")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -209,14 +202,9 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--centre-table: no file {args.centre_table}")
         budget["centre_table"] = load_table(args.centre_table)
     budget["options"] = SegmentOptions(split_touching=not args.no_split_touching)
-    drawn = WITH_DESKS if args.with_desks else DEVELOPMENT
-    if args.draw is not None:
-        drawn = tuple(args.draw.split(","))
-        if unknown := set(drawn) - set(WITH_DESKS):
-            parser.error(f"--draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
-    low, high = (float(x) for x in args.pitch.split(","))
-    kind = {"touching": args.touching, "categories": drawn, "pitch_deg": (low, high),
-            "most": args.most, "cut_off": args.cut_off}  # fmt: skip
+    kind = scene_kind(args, parser, WITH_DESKS if args.with_desks else DEVELOPMENT)
+    drawn, (low, high) = kind["categories"], kind["pitch_deg"]
+    kind["touching"] = args.touching
     if args.categories == "posed":
         budget["categories"] = frozenset(drawn)
     if args.model_dir is not None:

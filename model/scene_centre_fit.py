@@ -35,7 +35,15 @@ from numpy.typing import NDArray
 
 from itnet.centre import fit_centre_correction
 from itnet.model.categories import MODELNET10
-from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, matched_objects, split_shapes
+from itnet.model.scenes import (
+    FIT_SPLIT,
+    WITH_DESKS,
+    add_kind_arguments,
+    make_scene,
+    matched_objects,
+    scene_kind,
+    split_shapes,
+)
 from itnet.scene import find_objects, scene_catalog
 from itnet.scene.centre_along_floor import (
     TABLE,
@@ -121,14 +129,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=TABLE)
     parser.add_argument("--only", default=None,
                         help="fit these models (comma-separated) and keep the others' from --out")  # fmt: skip
-    parser.add_argument("--draw", default=None, help="the categories drawn (default: all nine)")
-    parser.add_argument("--pitch", default="0,25", help="the camera's pitch down: LOW,HIGH")
-    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
-    parser.add_argument("--cut-off", action="store_true", help="lower parts below the view")
+    add_kind_arguments(parser, "all nine")
     args = parser.parse_args(argv)
-    low, high = (float(x) for x in args.pitch.split(","))
-    kind = {"pitch_deg": (low, high), "most": args.most, "cut_off": args.cut_off,
-            **({"categories": tuple(args.draw.split(","))} if args.draw else {})}  # fmt: skip
+    kind = scene_kind(args, parser, WITH_DESKS)
     catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
     if args.samples is not None and args.samples.exists():
         with np.load(args.samples) as saved:

@@ -5,10 +5,10 @@ split: of the shapes the category classifiers left out of their training (their 
 carve-out), and of the others (on which the classifier is surer than it will be on new shapes;
 the two sets together named the validation scenes' objects best), and more of the held-out
 shapes with objects that may stand so near the camera that their lower parts lie below the
-view (``make_scene(cut_off=True)``), rendered at 320x240 and segmented as served. Every cluster matched to a scene object gives its
-features (``cluster_features``: the classifier's log-probabilities as served, and the cluster's
-shape on the floor) and the object's category; a network of one hidden layer is fitted to them
-(full batch, Adam, weight decay). Its threshold (below it an answer is ``unsure``) is the
+view (``make_scene(cut_off=True)``), rendered at 320x240 and segmented as served. Every
+cluster matched to a scene object gives its features (``cluster_features``: the classifier's
+log-probabilities as served, and the cluster's shape on the floor) and the object's category;
+a network of one hidden layer is fitted to them (full batch, Adam, weight decay). Its threshold (below it an answer is ``unsure``) is the
 lowest at which 95% of the validation scenes' clusters above it are named right::
 
     python -m itnet.model.scene_classifier_fit                     # writes the shipped file

@@ -21,9 +21,11 @@ seen at (``labels``: 0 floor or wall, k for the k-th object).
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -340,3 +342,38 @@ def make_scene(
             SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
         )
     return Scene(depth, intrinsics, labels, truths)
+
+
+def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:
+    """The options that choose which scenes ``make_scene`` makes (read back by ``scene_kind``):
+    ``--draw``, ``--pitch``, ``--most``, ``--cut-off``; ``drawn_default`` says what is drawn
+    without ``--draw``."""
+    parser.add_argument(
+        "--draw", default=None,
+        help=f"the categories drawn, comma-separated (default: {drawn_default})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--pitch", default="0,25", help="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
+    )
+    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
+    parser.add_argument(
+        "--cut-off", action="store_true", help="objects' lower parts may lie below the view"
+    )
+
+
+def scene_kind(
+    args: argparse.Namespace, parser: argparse.ArgumentParser, drawn: tuple[str, ...]
+) -> dict[str, Any]:
+    """The options of ``add_kind_arguments`` -> ``make_scene``'s keywords (``categories``,
+    ``pitch_deg``, ``most``, ``cut_off``); ``drawn``: the categories without ``--draw``. A usage
+    error (``parser.error``) for a category without scenes or a pitch that is not LOW,HIGH."""
+    if args.draw is not None:
+        drawn = tuple(args.draw.split(","))
+        if unknown := set(drawn) - set(WITH_DESKS):
+            parser.error(f"--draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
+    try:
+        low, high = (float(x) for x in args.pitch.split(","))
+    except ValueError:
+        parser.error(f"--pitch: expected LOW,HIGH in degrees, got {args.pitch!r}")
+    return {"categories": drawn, "pitch_deg": (low, high), "most": args.most,
+            "cut_off": args.cut_off}  # fmt: skip
