@@ -24,7 +24,6 @@ classifier where it applies (``scene_classifier``), else by the classifier and t
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, partial
 from pathlib import Path
@@ -122,14 +121,13 @@ def find_objects(
     if not finishing.along_floor:
         table = CentreTable({})
     namer = serving_scene_classifier(catalog, scene_classifier)
-    edges = cache(partial(ViewEdges.of_points, given.points))  # measured where first needed
     for k, rows in enumerate(found.objects):
         points = given.points[rows]
         now = time.perf_counter()
         left_ms = budget_ms - (now - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         height = None if found.floor is None else top_height(points, found.floor)
-        hidden = cache(partial(base_out_of_view, edges, points, found.floor, finishing))
+        hidden = cache(partial(base_out_of_view, found.edges, points, found.floor, finishing))
         try:
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
                                categories=categories, floor=found.floor, scene_classifier=namer,
@@ -219,11 +217,10 @@ def stood_on_floor(
 
 
 def base_out_of_view(
-    edges: Callable[[], ViewEdges | None], points: NDArray, floor: Plane | None,
-    finishing: SceneFinishing,
+    edges: ViewEdges | None, points: NDArray, floor: Plane | None, finishing: SceneFinishing,
 ) -> bool:  # fmt: skip
     """Whether an object's base lies below the view: its points (K, 3) reach within
-    ``finishing.view_edge_deg`` of the view's bottom edge (``edges()``: the scene's), and the
+    ``finishing.view_edge_deg`` of the view's bottom edge (``edges``: the scene's), and the
     lowest of them (2nd percentile) stands above ``finishing.base_low_share`` of its top over the
     ``floor`` (a table whose near legs leave the view while its far ones reach the floor is
     whole enough)."""
@@ -233,8 +230,7 @@ def base_out_of_view(
     low, top = np.percentile(heights, [2, 98])
     if low < finishing.base_low_share * top:
         return False
-    view = edges()
-    return view is not None and "bottom" in view.reached(points, finishing.view_edge_deg)
+    return edges is not None and "bottom" in edges.reached(points, finishing.view_edge_deg)
 
 
 def floor_centred(pose: NDArray, top: float, floor: Plane) -> NDArray[np.float64]:

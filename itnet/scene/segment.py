@@ -94,13 +94,14 @@ class SegmentOptions:
 @dataclass
 class Segmentation:
     """What ``segment`` found: the floor (None where there is none), ``up`` (3,) (the floor's
-    normal toward the camera, else the expected up), the walls, and each object's point indices
-    into the cloud, largest first."""
+    normal toward the camera, else the expected up), the walls, each object's point indices
+    into the cloud, largest first, and the view's edges (None where no point lies ahead)."""
 
     floor: Plane | None
     up: NDArray[np.float64]
     walls: list[Plane] = field(default_factory=list)
     objects: list[NDArray[np.int64]] = field(default_factory=list)
+    edges: ViewEdges | None = None
 
 
 def find_floor(
@@ -129,14 +130,14 @@ def find_floor(
 
 
 def find_walls(
-    points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator
-) -> list[Plane]:
+    points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator,
+    edges: ViewEdges | None,
+) -> list[Plane]:  # fmt: skip
     """Vertical planes larger than furniture with nothing seen behind them, among points (N, 3)
-    above the floor, each normal toward the camera (see the module)."""
+    above the floor, each normal toward the camera (see the module); ``edges``: the view's."""
     walls: list[Plane] = []
     left = points
     sin_vertical = math.sin(math.radians(10.0))
-    edges: ViewEdges | None = None  # the view's edges, measured where first needed
     for _ in range(2 * options.max_walls):  # planes that are not walls are passed over
         if len(walls) == options.max_walls or len(left) < options.min_points:
             break
@@ -151,14 +152,13 @@ def find_walls(
         along = np.cross(plane.normal, up)
         span = np.percentile(left[inliers] @ along, [2, 98])
         top = np.percentile(floor.distance(left[inliers]), 98)
-        if span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m:
-            edges = edges or ViewEdges.of_points(points)
-            if edges is None or "top" not in edges.reached(
-                left[inliers], options.wall_view_top_deg
-            ):
-                # furniture-sized (a steep camera sees more of its objects' sides than a wall)
-                left = left[~inliers]
-                continue
+        small = span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m
+        if small and (
+            edges is None or "top" not in edges.reached(left[inliers], options.wall_view_top_deg)
+        ):
+            # furniture-sized (a steep camera sees more of its objects' sides than a wall)
+            left = left[~inliers]
+            continue
         facing = plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset)
         behind = np.mean(facing.distance(points) < -options.wall_behind_m)
         if behind <= options.wall_max_behind:
@@ -316,6 +316,7 @@ def segment(
     module). ``expected_up``: roughly which way is up in the cloud (the floor is searched
     within ``max_tilt_deg`` of it)."""
     rng = np.random.default_rng(seed)
+    edges = ViewEdges.of_points(points)
     prior = np.asarray(expected_up, dtype=np.float64)
     prior = prior / np.linalg.norm(prior)
     subset = None
@@ -324,11 +325,11 @@ def segment(
     work = points if subset is None else points[subset]
     floor = find_floor(work, prior, options, rng)
     if floor is None:
-        return Segmentation(None, prior)
+        return Segmentation(None, prior, edges=edges)
     up = floor.normal
     heights = floor.distance(work)
     keep = heights > options.floor_threshold_m
-    walls = find_walls(work[keep], up, floor, options, rng)
+    walls = find_walls(work[keep], up, floor, options, rng, edges)
     for wall in walls:
         keep &= wall.distance(work) > options.wall_threshold_m
     index = np.flatnonzero(keep)
@@ -341,7 +342,7 @@ def segment(
     if subset is not None:
         objects = spread(points, floor, walls, [subset[g] for g in objects], options)
     objects.sort(key=len, reverse=True)
-    return Segmentation(floor, up, walls, objects)
+    return Segmentation(floor, up, walls, objects, edges)
 
 
 def spread(

@@ -56,10 +56,11 @@ def test_a_chair_seen_from_its_seat_up_has_its_base_out_of_view(
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points)
         (rows,) = found.objects
-        edges = ViewEdges.of_points(given.points)
+        edges = found.edges
+        assert edges == ViewEdges.of_points(given.points)  # the segmentation measured the view
         chair = given.points[rows]
-        assert base_out_of_view(lambda e=edges: e, chair, found.floor, SceneFinishing()) is hidden
-        assert not base_out_of_view(lambda e=edges: e, chair, None, SceneFinishing())
+        assert base_out_of_view(edges, chair, found.floor, SceneFinishing()) is hidden
+        assert not base_out_of_view(edges, chair, None, SceneFinishing())
         # reaching the bottom edge with its lowest fifth in view is whole enough
         low = SceneFinishing(base_low_share=1.0)
-        assert not base_out_of_view(lambda e=edges: e, chair, found.floor, low)
+        assert not base_out_of_view(edges, chair, found.floor, low)
