@@ -12,7 +12,9 @@ The camera: 1.1-1.7 m above the floor, pitched down 0-25 degrees (0: level), rol
 finer). Depth is rendered per pixel: the floor and the wall exactly (ray-plane), each object's
 1,024 points as small oriented discs (``model.surface.surface_discs``), the nearest hit kept;
 then depth noise as a structured-light camera has it, ``0.0012 + 0.0019 (z - 0.4)^2`` m, a few
-dropped pixels, and millimetre steps.
+dropped pixels, and millimetre steps. Where asked (``flying_pixels``), a time-of-flight camera's
+mixed pixels at depth edges: a share of the pixels whose 4-neighbour lies over 0.1 m behind them
+take a depth between the two.
 
 Each object's truth is ``T_canonical_from_input`` for the camera-frame cloud (canonical frame in
 metres: the unit-sphere shape scaled by its size), its radius in metres, and the pixels it is
@@ -248,10 +250,12 @@ def _splat(
 def render(
     objects: list[tuple[Shape, float, NDArray]], camera: NDArray, wall: tuple[NDArray, float],
     intrinsics: Intrinsics, width: int, height: int, rng: np.random.Generator,
+    flying_pixels: float = 0.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
     """Objects (shape, metres per unit, T_world_from_canonical (4, 4) of the unit shape's
     rotation and placement), T_world_from_camera (4, 4), the wall (world normal (3,), offset)
-    -> (depth (H, W) in metres with sensor effects, labels (H, W))."""
+    -> (depth (H, W) in metres with sensor effects, labels (H, W)); ``flying_pixels``: the
+    share of depth-edge pixels mixed with what lies behind them (``mixed_at_edges``)."""
     camera_from_world = invert_rigid(camera)
     rays = _rays(intrinsics, width, height)
     planes = [(np.array([0.0, 1.0, 0.0]), 0.0), wall]
@@ -271,21 +275,47 @@ def render(
     depth[seen] = z + rng.normal(size=z.shape) * (0.0012 + 0.0019 * (z - 0.4) ** 2)
     depth[~seen] = 0.0
     depth[rng.random(depth.shape) < 0.01] = 0.0
+    if flying_pixels > 0:  # drawn from a child of rng: the scenes that follow stay the same
+        depth = mixed_at_edges(depth, flying_pixels, rng.spawn(1)[0])
     return np.round(depth * 1000) / 1000, labels
+
+
+def mixed_at_edges(
+    depth: NDArray, share: float, rng: np.random.Generator, step_m: float = 0.1
+) -> NDArray[np.float64]:
+    """A depth image (H, W) (0: no reading) -> the same with a time-of-flight camera's flying
+    pixels: each pixel whose 4-neighbour reads over ``step_m`` farther is, with probability
+    ``share`` per such neighbour, given a depth drawn uniformly between its own and that
+    neighbour's (the pixel saw both surfaces and averaged them)."""
+    out = np.array(depth, dtype=np.float64)
+    z = np.where(out > 0, out, np.nan)
+    height, width = z.shape
+    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+        behind = np.full_like(z, np.nan)  # each pixel's neighbour at (y + dy, x + dx)
+        behind[max(-dy, 0) : height - max(dy, 0), max(-dx, 0) : width - max(dx, 0)] = z[
+            max(dy, 0) : height + min(dy, 0), max(dx, 0) : width + min(dx, 0)
+        ]
+        with np.errstate(invalid="ignore"):
+            edge = (behind - z > step_m) & (rng.random(z.shape) < share)
+        mix = rng.random(z.shape)
+        out[edge] = (z + mix * (behind - z))[edge]
+    return out
 
 
 def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
-    most: int = 3, cut_off: bool = False,
+    most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
     level camera). ``touching``: two to ``most`` objects, each after the first standing against
     one placed before it (its footprint's points 1-5 cm from that one's), as chairs stand at a
     table. ``cut_off``: an object's lower part may lie below the view (a level camera at head
-    height sees a chair 2 m away from its seat up); by default each is wholly in view."""
+    height sees a chair 2 m away from its seat up); by default each is wholly in view.
+    ``flying_pixels``: the share of depth-edge pixels a time-of-flight camera mixes with what
+    lies behind them (``mixed_at_edges``; default none)."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     camera_from_world = invert_rigid(camera)
@@ -333,7 +363,8 @@ def make_scene(
         [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed] or [3.0]
     ) + rng.uniform(0.3, 1.5)
     depth, labels = render([(s, k, w) for s, k, w, _, _ in placed], camera,
-                           (wall_normal, wall_normal_offset), intrinsics, width, height, rng)  # fmt: skip
+                           (wall_normal, wall_normal_offset), intrinsics, width, height, rng,
+                           flying_pixels)  # fmt: skip
     truths = []
     for shape, scale, world, category, _ in placed:
         metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
@@ -346,7 +377,7 @@ def make_scene(
 
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:
     """The options that choose which scenes ``make_scene`` makes (read back by ``scene_kind``):
-    ``--draw``, ``--pitch``, ``--most``, ``--cut-off``; ``drawn_default`` says what is drawn
+    ``--draw``, ``--pitch``, ``--most``, ``--cut-off``, ``--flying-pixels``; ``drawn_default`` says what is drawn
     without ``--draw``."""
     parser.add_argument(
         "--draw", default=None,
@@ -359,14 +390,20 @@ def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> N
     parser.add_argument(
         "--cut-off", action="store_true", help="objects' lower parts may lie below the view"
     )
+    parser.add_argument(
+        "--flying-pixels", type=float, default=0.0, metavar="SHARE",
+        help="the share of depth-edge pixels mixed with what lies behind them, as a "
+        "time-of-flight camera's are (default 0)",
+    )  # fmt: skip
 
 
 def scene_kind(
     args: argparse.Namespace, parser: argparse.ArgumentParser, drawn: tuple[str, ...]
 ) -> dict[str, Any]:
     """The options of ``add_kind_arguments`` -> ``make_scene``'s keywords (``categories``,
-    ``pitch_deg``, ``most``, ``cut_off``); ``drawn``: the categories without ``--draw``. A usage
-    error (``parser.error``) for a category without scenes or a pitch that is not LOW,HIGH."""
+    ``pitch_deg``, ``most``, ``cut_off``, ``flying_pixels``); ``drawn``: the categories without
+    ``--draw``. A usage error (``parser.error``) for a category without scenes, a pitch that is
+    not LOW,HIGH or a share of flying pixels outside [0, 1]."""
     if args.draw is not None:
         drawn = tuple(args.draw.split(","))
         if unknown := set(drawn) - set(WITH_DESKS):
@@ -375,5 +412,7 @@ def scene_kind(
         low, high = (float(x) for x in args.pitch.split(","))
     except ValueError:
         parser.error(f"--pitch: expected LOW,HIGH in degrees, got {args.pitch!r}")
+    if not 0.0 <= args.flying_pixels <= 1.0:
+        parser.error(f"--flying-pixels: a share in [0, 1], got {args.flying_pixels}")
     return {"categories": drawn, "pitch_deg": (low, high), "most": args.most,
-            "cut_off": args.cut_off}  # fmt: skip
+            "cut_off": args.cut_off, "flying_pixels": args.flying_pixels}  # fmt: skip

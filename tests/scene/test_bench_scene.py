@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import bench_scene
-from itnet.model.scenes import SIZES
+from itnet.model.scenes import SIZES, mixed_at_edges
 
 
 def _box(rng: np.random.Generator, n: int = 1024) -> np.ndarray:
@@ -47,7 +47,42 @@ def test_a_level_camera_s_scenes_of_the_categories_drawn(data: Path, tmp_path: P
     size = report["320x240"]
     assert size["found"]["of"] == sum(row["visible"] for row in objects)
     assert 0 <= size["right"]["count"] <= size["found"]["count"] <= size["found"]["of"]
-    assert size["ms_median"] > 0
+    assert size["ms_median"] > 0 and report["flying_pixels"] == 0.0
+
+
+def test_flying_pixels_lie_between_an_edge_s_two_surfaces() -> None:
+    """A chair 2 m away before a wall 3 m away: with every edge pixel mixed, the pixels of the
+    chair's rim take depths between 2 and 3 m; the rest, the holes (0) and the far side of each
+    edge are untouched; with none mixed the image is unchanged."""
+    depth = np.full((20, 30), 3.0)
+    depth[5:15, 10:20] = 2.0
+    depth[0, 0] = 0.0
+    rng = np.random.default_rng(0)
+    assert np.array_equal(mixed_at_edges(depth, 0.0, rng), depth)
+    mixed = mixed_at_edges(depth, 1.0, rng)
+    rim = np.zeros_like(depth, dtype=bool)
+    rim[5:15, 10:20] = True
+    rim[6:14, 11:19] = False
+    assert np.all((mixed[rim] > 2.0) & (mixed[rim] < 3.0))
+    assert np.array_equal(mixed[~rim], depth[~rim])
+    half = mixed_at_edges(depth, 0.5, np.random.default_rng(1))
+    changed = (half != depth).sum()
+    assert 0.3 * rim.sum() < changed < rim.sum()
+
+
+def test_scenes_with_flying_pixels_are_measured_and_a_bad_share_refused(
+    data: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "report.json"
+    bench_scene.main(["--split", "validation", "--scenes", "2", "--no-large", "--data", str(data),
+                      "--cache", str(tmp_path / "cache"), "--flying-pixels", "0.5", "--out",
+                      str(out)])  # fmt: skip
+    report = json.loads(out.read_text())
+    assert report["flying_pixels"] == 0.5 and report["320x240"]["found"]["of"] >= 1
+    with pytest.raises(SystemExit) as stopped:
+        bench_scene.main(["--split", "validation", "--scenes", "1", "--data", str(data),
+                          "--flying-pixels", "1.5"])  # fmt: skip
+    assert stopped.value.code == 2
 
 
 def test_categories_without_scenes_are_refused(data: Path, tmp_path: Path) -> None:
