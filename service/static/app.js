@@ -18,7 +18,7 @@ import { View, centring, normalization } from './view.js';
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const view = new View($('view3d'), $('notice'));
-const state = { models: [], pairs: [], clouds: {}, estimates: [], queue: [], timer: null, stream: null };
+const state = { models: [], pairs: [], scenes: [], budgetSet: false, clouds: {}, estimates: [], queue: [], timer: null, stream: null };
 
 function setStatus(text, error = false) {
   $('status').textContent = text;
@@ -31,7 +31,7 @@ function saveUrl(extra = {}) {
   const keep = {
     tab: tab === 'pose' ? null : tab,
     model: $('model').value,
-    budget_ms: $('budget').value,
+    budget_ms: state.budgetSet ? $('budget').value : null,  // else the tab's own default
     max_iterations: $('max-iterations').value || null,
     up: $('up').value.trim() || null,
     ...(tab === 'pose'
@@ -46,15 +46,21 @@ function saveUrl(extra = {}) {
           centre: $('centre').value || null,
           play_ms: $('play').value === '250' ? null : $('play').value,
         }
-      : { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }),
+      : tab === 'align'
+        ? { a: state.clouds.a?.example ?? null, b: state.clouds.b?.example ?? null, refine: $('refine').checked ? null : '0' }
+        : { scene: $('example-scene').value || null }),
     ...extra,
   };
   const query = new URLSearchParams(Object.entries(keep).filter(([, v]) => v !== null && v !== ''));
   history.replaceState(null, '', `${location.pathname}?${query}`);
 }
 
+// Each tab's budget until the user sets one: a scene's objects share one budget (the API's default).
+const TAB_BUDGET_MS = { pose: 50, align: 50, scene: 140 };
+
 function setTab(tab) {
   document.body.dataset.tab = tab;
+  if (!state.budgetSet) $('budget').value = TAB_BUDGET_MS[tab];
   document.querySelectorAll('.tab').forEach((b) => b.classList.toggle('active', b.dataset.tab === tab));
   view.showCanonical(tab === 'pose');  // the alignment is shown in B's frame, not canonical
   if (view.sceneGroup) view.sceneGroup.visible = tab === 'scene';
@@ -289,12 +295,35 @@ async function runAlignTab() {
   setButtons(false);
 }
 
+/** The chosen example scene's depth image, fetched as a file, or null where there is none. */
+async function exampleSceneFile() {
+  const name = $('example-scene').value;
+  if (!name) return null;
+  const response = await fetch(`/v1/examples/scenes/${encodeURIComponent(name)}`);
+  if (!response.ok) throw new Error(`example scene ${name}: ${response.status}`);
+  return new File([await response.blob()], `${name}.png`, { type: 'image/png' });
+}
+
+/** Choosing an example scene drops any chosen file and types its camera's intrinsics. */
+function chooseExampleScene() {
+  const example = state.scenes.find((s) => s.name === $('example-scene').value);
+  if (!example) return;
+  state.sceneFile = null;
+  $('file-scene').value = '';
+  const { fx, fy, cx, cy } = example.intrinsics;
+  $('intrinsics').value = [fx, fy, cx, cy].join(',');
+}
+
 async function runSceneTab() {
-  const file = state.sceneFile ?? $('file-scene').files[0];
-  if (!file) return setStatus('drop or choose a depth image or a scene cloud first', true);
   setButtons(true);
-  setStatus(`finding the objects of ${file.name}…`);
   try {
+    const file = state.sceneFile ?? $('file-scene').files[0] ?? await exampleSceneFile();
+    if (!file) {
+      setStatus('drop or choose a depth image or a scene cloud first', true);
+      document.body.dataset.run = 'failed';
+      return setButtons(false);
+    }
+    setStatus(`finding the objects of ${file.name}…`);
     const reply = await runScene({ view, file, intrinsics: $('intrinsics').value,
       depthScale: $('depth-scale').value, up: $('scene-up').value, budgetMs: Number($('budget').value) });
     describeObjects($('scene-objects'), reply);
@@ -340,7 +369,11 @@ async function main() {
   const first = pairOf(modelInfo($('model').value)?.category) ?? examples.pairs[0];
   options($('example-a'), clouds, params.get('a') ?? first?.a ?? clouds[0]);
   options($('example-b'), clouds, params.get('b') ?? first?.b ?? clouds[1]);
-  if (params.has('budget_ms')) $('budget').value = params.get('budget_ms');
+  state.scenes = examples.scenes ?? [];
+  options($('example-scene'), state.scenes.map((s) => s.name), params.get('scene') ?? state.scenes[0]?.name);
+  chooseExampleScene();
+  if (params.has('budget_ms')) { $('budget').value = params.get('budget_ms'); state.budgetSet = true; }
+  $('budget').addEventListener('change', () => { state.budgetSet = true; });
   if (params.has('max_iterations')) $('max-iterations').value = params.get('max_iterations');
   if (['1', '4', '6', '8'].includes(params.get('ensemble'))) $('ensemble').value = params.get('ensemble');
   if (['m', 'cm', 'mm', 'in', 'ft'].includes(params.get('units'))) $('units').value = params.get('units');
@@ -368,6 +401,7 @@ async function main() {
   wireDrop($('drop'), $('file'), 'main'); wireDrop($('drop-a'), $('file-a'), 'a'); wireDrop($('drop-b'), $('file-b'), 'b');
   $('run').addEventListener('click', () => ({ pose: runPose, align: runAlignTab, scene: runSceneTab })[document.body.dataset.tab]());
   const sceneZone = $('drop-scene');
+  $('example-scene').addEventListener('change', () => { chooseExampleScene(); saveUrl(); });
   const takeScene = (file) => { if (file) { state.sceneFile = file; setStatus(`${file.name}: press Run`); } };
   $('file-scene').addEventListener('change', () => takeScene($('file-scene').files[0]));
   sceneZone.addEventListener('dragover', (e) => { e.preventDefault(); sceneZone.classList.add('over'); });

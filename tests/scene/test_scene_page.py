@@ -53,6 +53,42 @@ def test_a_dropped_depth_image_shows_the_apis_objects(
     assert drawn == 1
 
 
+def test_the_example_scene_runs_as_the_page_opens_it(
+    live_server: Server, browser_page: Any
+) -> None:
+    """The scene tab opens on the shipped example scene, its intrinsics typed and the scene's
+    budget (140 ms) in the field: Run finds its three objects; a dropped file takes its place,
+    and choosing the example again brings it back."""
+    examples = Path(__file__).resolve().parents[2] / "itnet" / "examples"
+    truth = json.loads((examples / "scene_truth.json").read_text())
+    camera = json.loads((examples / "scene_camera.json").read_text())
+    page = browser_page
+    page.goto(f"{live_server.url}/?tab=scene")
+    page.wait_for_function("document.body.dataset.ready === 'true'")
+    assert page.input_value("#example-scene") == "scene"
+    assert page.input_value("#budget") == "140"
+    typed = [float(v) for v in page.input_value("#intrinsics").split(",")]
+    assert typed == [camera[k] for k in ("fx", "fy", "cx", "cy")]
+    page.click("#run")
+    page.wait_for_function(DONE, timeout=30_000)
+    assert page.evaluate("document.body.dataset.run") == "done", page.text_content("#status")
+    shown = json.loads(page.text_content("#result"))
+    assert sorted(o["category"] for o in shown["objects"]) == sorted(
+        o["category"] for o in truth["objects"]
+    )
+    assert page.locator("#scene-objects li").count() == 3
+    assert shown["budget_ms"] == 140
+    # the pose tab keeps its own budget
+    page.click("button.tab[data-tab='pose']")
+    assert page.input_value("#budget") == "50"
+    page.click("button.tab[data-tab='scene']")
+    page.set_input_files("#file-scene", str(examples / "scene_camera.json"))
+    assert page.evaluate("document.querySelector('#file-scene').files.length") == 1
+    page.select_option("#example-scene", "scene")
+    assert page.evaluate("document.querySelector('#file-scene').files.length") == 0
+    assert "tab=scene" in page.url and "scene=scene" in page.url and "budget_ms" not in page.url
+
+
 def test_the_up_field_finds_a_steep_cameras_floor(
     live_server: Server, browser_page: Any, tmp_path: Path
 ) -> None:

@@ -55,6 +55,20 @@ def test_examples_list_and_points(client):
     assert unknown.status_code == 404 and "chair_a" in unknown.json()["detail"]
 
 
+def test_example_scenes_list_their_camera_and_serve_their_depth_image(client):
+    (scene,) = client.get("/v1/examples").json()["scenes"]
+    camera = json.loads((EXAMPLES / "scene_camera.json").read_text())
+    truth = json.loads((EXAMPLES / "scene_truth.json").read_text())
+    assert scene["name"] == "scene" and scene["file"] == "scene.png"
+    assert scene["intrinsics"] == {k: camera[k] for k in ("fx", "fy", "cx", "cy")}
+    assert scene["categories"] == [o["category"] for o in truth["objects"]]
+    image = client.get("/v1/examples/scenes/scene")
+    assert image.status_code == 200 and image.headers["content-type"] == "image/png"
+    assert image.content == (EXAMPLES / "scene.png").read_bytes()
+    unknown = client.get("/v1/examples/scenes/chair_a")
+    assert unknown.status_code == 404 and "scene" in unknown.json()["detail"]
+
+
 def _files(points: np.ndarray, tmp_path: Path) -> dict[str, bytes]:
     """The same cloud as .ply, .xyz and .npy bytes."""
     write_ply(tmp_path / "c.ply", points)

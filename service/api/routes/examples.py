@@ -1,8 +1,10 @@
 """Clouds for the page: the shipped examples, and a dropped file read by ``itnet.cloud_io``.
 
-* ``GET /v1/examples``: the example clouds (name, file, point count) and the example pairs with
-  their true ``T_b_from_a``;
+* ``GET /v1/examples``: the example clouds (name, file, point count), the example pairs with
+  their true ``T_b_from_a``, and the example scenes (name, file, the camera's intrinsics, the
+  objects' categories);
 * ``GET /v1/examples/{name}``: one example's points;
+* ``GET /v1/examples/scenes/{name}``: one example scene's depth image (16-bit PNG, millimetres);
 * ``POST /v1/clouds/read?filename=scan.ply``: the raw bytes of a .ply/.pcd/.xyz/.pts/.txt/.npy
   file -> its points, read by the same readers as the CLI (bounded by ``max_body_bytes`` and
   ``max_points``; a bad file is a 422 that says what is wrong).
@@ -18,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import anyio
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 from numpy.typing import NDArray
 
 from itnet.cloud_io import SUFFIXES, CloudReadError, read_cloud
@@ -58,7 +60,16 @@ def _catalogue() -> dict[str, Any]:
             pairs.append({"name": pair, "a": f"{pair}_a", "b": f"{pair}_b",
                           "category": known.get("category"), "T_b_from_a": known["T_b_from_a"],
                           "source": known.get("source", ""), **ups})  # fmt: skip
-    return {"clouds": clouds, "pairs": pairs}
+    scenes = []
+    for image in sorted(folder.glob("*.png")):  # NAME.png, NAME_camera.json, NAME_truth.json
+        camera, truth = (folder / f"{image.stem}_{part}.json" for part in ("camera", "truth"))
+        if camera.is_file() and truth.is_file():
+            intrinsics = json.loads(camera.read_text())
+            scenes.append({"name": image.stem, "file": image.name,
+                           "intrinsics": {k: intrinsics[k] for k in ("fx", "fy", "cx", "cy")},
+                           "categories": [o["category"] for o in
+                                          json.loads(truth.read_text())["objects"]]})  # fmt: skip
+    return {"clouds": clouds, "pairs": pairs, "scenes": scenes}
 
 
 @cache
@@ -71,7 +82,24 @@ async def examples() -> dict[str, Any]:
     catalogue = _catalogue()
     listed = [{"name": name, "file": path.name, "points": len(_points(name))}
               for name, path in catalogue["clouds"].items()]  # fmt: skip
-    return {"examples": listed, "pairs": catalogue["pairs"]}
+    return {"examples": listed, "pairs": catalogue["pairs"], "scenes": catalogue["scenes"]}
+
+
+@router.get(
+    "/examples/scenes/{name}",
+    responses={**ERRORS, 200: {"content": {"image/png": {}}}},
+    response_class=Response,
+    summary="One example scene's depth image",
+)
+async def example_scene(name: str) -> Response:
+    """The depth image (16-bit greyscale PNG, millimetres) of an example scene of ``GET
+    /v1/examples``; its intrinsics are listed there."""
+    scenes = {s["name"]: s for s in _catalogue()["scenes"]}
+    if name not in scenes:
+        known = ", ".join(scenes)
+        raise ServiceError(404, "not_found", f"no example scene named {name!r} (known: {known})")
+    data = (examples_dir() / scenes[name]["file"]).read_bytes()
+    return Response(data, media_type="image/png")
 
 
 @router.get("/examples/{name}", responses=ERRORS, summary="One example cloud's points")
