@@ -47,8 +47,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     millimetres = np.round(scene.depth * 1000).astype(np.uint16)
     (args.out / "scene.png").write_bytes(depth_to_png(millimetres))
-    camera = {**scene.intrinsics.as_dict(), "width": scene.depth.shape[1],
-              "height": scene.depth.shape[0]}  # fmt: skip
+    camera = {**{k: round(v, 4) for k, v in scene.intrinsics.as_dict().items()},
+              "width": scene.depth.shape[1], "height": scene.depth.shape[0]}  # fmt: skip
     (args.out / "scene_camera.json").write_text(json.dumps(camera, indent=1) + "\n")
     pixels = np.bincount(scene.labels.ravel(), minlength=len(scene.objects) + 1)
     truth = {

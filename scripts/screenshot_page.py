@@ -2,6 +2,7 @@
 
     .venv/bin/python scripts/screenshot_page.py                 # starts itnet serve itself
     .venv/bin/python scripts/screenshot_page.py --url http://localhost:8000 --out /tmp/page.png
+    .venv/bin/python scripts/screenshot_page.py --page '/?tab=scene&run=1' --out docs/scene.png
 
 Also the one place that knows how to start the browser: ``open_browser`` (Debian's chromium
 driven by Playwright), used by tests/web/.
@@ -61,11 +62,12 @@ def open_browser(viewport: tuple[int, int] = (1400, 800)) -> Iterator[Any]:
             context.close()
 
 
-def screenshot(url: str, out: Path) -> None:
-    """Open the page on an example, run it, wait for the result, save a PNG."""
+def screenshot(url: str, out: Path, page_path: str = PAGE) -> None:
+    """Open the page at ``page_path`` (an example that runs as it loads), wait for the result,
+    save a PNG."""
     with open_browser() as page:
         for _ in range(2):  # the first run warms a fresh server up; the second is the picture
-            page.goto(url.rstrip("/") + PAGE)
+            page.goto(url.rstrip("/") + page_path)
             page.wait_for_function("document.body.dataset.run === 'done'", timeout=30_000)
         page.wait_for_timeout(500)  # let the view draw its last frame
         page.screenshot(path=str(out))
@@ -76,9 +78,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--url", help="a running itnet serve (default: start one here)")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "page.png")
+    parser.add_argument("--page", default=PAGE, help=f"the page's path and query (default {PAGE})")
     args = parser.parse_args()
     if args.url:
-        screenshot(args.url, args.out)
+        screenshot(args.url, args.out, args.page)
         return
     sys.path.insert(0, str(ROOT))
     from benchmarks.harness import serve
@@ -88,7 +91,7 @@ def main() -> None:
         tempfile.TemporaryDirectory() as folder,
         serve(default_model_dir(), Path(folder) / "serve.log") as server,
     ):
-        screenshot(server.url, args.out)
+        screenshot(server.url, args.out, args.page)
 
 
 if __name__ == "__main__":
