@@ -14,6 +14,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from itnet import __version__
 from itnet.pose.runtime import LoadedModel
+from itnet.scene.warm_up import warm_up as warm_up_scenes
 from itnet.service.api.routes import align, estimate, examples, page, scene, stream, system
 from itnet.service.errors import ServiceError, describe_errors
 from itnet.service.gc_tuning import GcPauseRecorder, freeze_startup_objects
@@ -45,6 +46,11 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         state.load()
         log.info("models loaded: %s", ", ".join(state.models) or "none")
+        if settings.warm_up and state.ready and state.catalog.classifier is not None:
+            try:  # the first POST /v1/scene then costs what every later one does
+                await anyio.to_thread.run_sync(warm_up_scenes, state.catalog)
+            except Exception as err:  # a warm-up that fails must not stop the service
+                log.warning("the scene path's warm-up failed (the first scene pays): %s", err)
         # Every admitted estimate gets a worker thread at once: no hidden queue behind the gate.
         limiter = anyio.to_thread.current_default_thread_limiter()
         limiter.total_tokens = max(

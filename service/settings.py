@@ -163,7 +163,11 @@ class Settings(BaseSettings):
         description="steps of different requests one graph call may hold (1: no batching "
         "across requests; ITNET_BATCH_JOBS)",
     )
-    warm_up: bool = Field(default=True, description="run a few steps per model at start-up")
+    warm_up: bool = Field(
+        default=True,
+        description="run a few steps per model at start-up, and the scene path once where a "
+        "classifier is loaded",
+    )
     gc_freeze: bool = Field(
         default=True,
         description="after start-up, exclude the objects alive then from garbage collection "

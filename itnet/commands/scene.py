@@ -72,6 +72,7 @@ def scene(
     from itnet.scene import SceneFinishing, SceneInputError, find_objects, parse_intrinsics
     from itnet.scene.posing import ModelLoadError, scene_catalog
     from itnet.scene.segment import SegmentOptions
+    from itnet.scene.warm_up import warm_up
 
     if not 0 < budget_ms <= 60_000:
         raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
@@ -89,6 +90,7 @@ def scene(
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
+    warm_up(catalog)  # the first file's budget is not spent on one-time work
     finishing = SceneFinishing(floor_centre, along_floor, recheck)
     failed = False
     for path in files:
