@@ -8,8 +8,9 @@ shapes with objects that may stand so near the camera that their lower parts lie
 view (``make_scene(cut_off=True)``), rendered at 320x240 and segmented as served. Every
 cluster matched to a scene object gives its features (``cluster_features``: the classifier's
 log-probabilities as served, and the cluster's shape on the floor) and the object's category;
-a network of one hidden layer is fitted to them (full batch, Adam, weight decay). Its threshold (below it an answer is ``unsure``) is the
-lowest at which 95% of the validation scenes' clusters above it are named right::
+a network of one hidden layer is fitted to them (full batch, Adam, weight decay). Its
+threshold (below it an answer is ``unsure``) is the lowest at which 95% of the validation
+scenes' clusters above it are named right::
 
     python -m itnet.model.scene_classifier_fit                     # writes the shipped file
     python -m itnet.model.scene_classifier_fit --model-dir DIR --out FILE

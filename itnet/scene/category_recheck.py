@@ -60,19 +60,19 @@ def rechecked(
     viewpoint: NDArray,
     deadline: float,
     finish: Callable[[ObjectPose], ObjectPose],
-    base_out_of_view: Callable[[], bool] = lambda: False,
+    base_out_of_view: bool = False,
 ) -> ObjectPose:
     """A posed and finished object (``finish``: what the scene does to every pose, such as
     standing it on the floor) -> the same, or, where its verifier doubts it and the second
     category's verifier finds its own finished pose likelier by RECHECK_MARGIN, that one; the
     second pose, its finishing and its verifier's call must end by ``deadline``
     (``time.perf_counter()``). ``base_out_of_view``: whether the object's base lies below the
-    view (asked only of a doubted pose); such an object keeps its category."""
+    view; such an object, where doubted, keeps its category."""
     model = None if seen.result is None else catalog.models[seen.result["model"]]
     logit = None if model is None or seen.pose is None else pose_logit(model, points, seen.pose)
     if logit is None or logit >= RECHECK_BELOW or len(seen.candidates) < 2:
         return seen
-    if base_out_of_view():
+    if base_out_of_view:
         return _noted(seen, "base_out_of_view")
     second = seen.candidates[1]
     other_model = pose_model_for(second["category"], catalog.models)

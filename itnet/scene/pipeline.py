@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from functools import cache, partial
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -127,7 +127,7 @@ def find_objects(
         left_ms = budget_ms - (now - started) * 1e3
         share = max(left_ms, 0.0) / (len(found.objects) - k)
         height = None if found.floor is None else top_height(points, found.floor)
-        hidden = cache(partial(base_out_of_view, found.edges, points, found.floor, finishing))
+        hidden = base_out_of_view(found.edges, points, found.floor, finishing)
         try:
             seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
                                categories=categories, floor=found.floor, scene_classifier=namer,
@@ -144,7 +144,7 @@ def find_objects(
         box = object_box(points, found.up, found.floor, seen.pose)
         objects.append(SceneObject(
             given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
-            box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden(),
+            box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden,
         ))  # fmt: skip
     return SceneResult(
         objects, found.up if found.floor is not None else None, found.floor, found.walls,

@@ -10,7 +10,6 @@ classification restricted to the scene's categories, then the one pose pipeline
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -87,7 +86,7 @@ def pose_object(
     categories: frozenset[str] | None = None,
     floor: Plane | None = None,
     scene_classifier: SceneClassifier | None = None,
-    base_hidden: Callable[[], bool] = lambda: False,
+    base_hidden: bool = False,
     base_hidden_models: bool = True,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
@@ -95,15 +94,15 @@ def pose_object(
     ``started`` (``time.perf_counter()``; default now). ``categories``: the ones the object may
     be (default: any); ``floor``: the plane it stands on, whose height it is measured from;
     ``scene_classifier``: the one to name it by (see ``scene_category``); ``base_hidden``:
-    whether the object's base lies below the view (asked where ``base_hidden_models`` is on and
-    its category has a model for such views, ``BASE_HIDDEN_SUFFIX``, which then poses it). No
+    whether the object's base lies below the view (where ``base_hidden_models`` is on and its
+    category has a model for such views, ``BASE_HIDDEN_SUFFIX``, that model poses it). No
     run where less than ``min_run_ms`` is left after the classification. Raises BadCloudError
     (too few points, degenerate)."""
     started = time.perf_counter() if started is None else started
     seen = scene_category(catalog, points, up, viewpoint, started + budget_ms / 2e3, categories,
                           floor, scene_classifier)  # fmt: skip
     model = catalog.models.get(seen.category + BASE_HIDDEN_SUFFIX) if base_hidden_models else None
-    if model is None or model.card.category != seen.category or not base_hidden():
+    if model is None or model.card.category != seen.category or not base_hidden:
         model = None  # the category's own
     return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms, model)
 
