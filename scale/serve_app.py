@@ -5,7 +5,7 @@
     serve run deploy/ray/serve.yaml                          # the same, from a config file
 
 Same HTTP API as ``itnet serve`` on Serve's port (8000): ``POST /v1/estimate`` (JSON and
-binary), ``WS /v1/estimate/stream``, ``GET /v1/models``, ``/healthz``, ``/readyz``, ``/metrics``
+binary), ``WS /v1/estimate/stream``, ``POST /v1/align``, ``POST /v1/scene``, ``GET /v1/models``, ``/healthz``, ``/readyz``, ``/metrics``
 (that one per replica). Each reply names the replica that answered in ``X-Itnet-Replica``.
 docs/scale.md says when to use it and what to set.
 """

@@ -1,5 +1,5 @@
 """The Ray Serve application on a local Ray instance with 2 replicas: the service's API and
-answers, both replicas used, the budget held, and no request lost when a replica is killed."""
+answers (poses, streams, scenes, alignments), both replicas used, the budget held, and no request lost when a replica is killed."""
 
 from __future__ import annotations
 
@@ -17,9 +17,11 @@ import numpy as np
 import pytest
 
 from itnet.cloud_io import read_cloud
+from itnet.geometry import rotation_error_deg
 
 pytestmark = [pytest.mark.ray, pytest.mark.slow]
-EXAMPLE = Path(__file__).resolve().parents[2] / "itnet" / "examples" / "chair_a.ply"
+EXAMPLES = Path(__file__).resolve().parents[2] / "itnet" / "examples"
+EXAMPLE = EXAMPLES / "chair_a.ply"
 REPLICA = "x-itnet-replica"
 
 
@@ -144,6 +146,36 @@ def test_stream_through_the_gateway(url: str, points: list) -> None:
                 break
     assert [m["iteration"] for m in messages[:-1]] == [1, 2, 3, 4, 5, 6]
     assert messages[-1]["type"] == "result" and messages[-1]["stopped_by"] == "max_iterations"
+
+
+def test_scenes_and_alignments_through_the_gateway(url: str) -> None:
+    """The example scene (a 16-bit PNG body) and the example chair pair come back from the
+    replicas as the service answers them: the scene's three objects named as its truth, each
+    posed; the pair aligned within 5 degrees of its truth; bad scenes refused as the service
+    refuses them."""
+    truth = json.loads((EXAMPLES / "scene_truth.json").read_text())
+    camera = json.loads((EXAMPLES / "scene_camera.json").read_text())
+    query = {k: camera[k] for k in ("fx", "fy", "cx", "cy")} | {"budget_ms": 2000}
+    png = (EXAMPLES / "scene.png").read_bytes()
+    pair = {"points_a": read_cloud(EXAMPLES / "chair_a.ply").tolist(),
+            "points_b": read_cloud(EXAMPLES / "chair_b.ply").tolist(), "model": "chair",
+            "budget_ms": 5000}  # fmt: skip
+    with httpx.Client(base_url=url, timeout=60) as c:
+        scene = c.post("/v1/scene", params=query, content=png,
+                       headers={"content-type": "image/png"})  # fmt: skip
+        no_camera = c.post("/v1/scene", content=png, headers={"content-type": "image/png"})
+        aligned = c.post("/v1/align", json=pair)
+    assert scene.status_code == 200 and REPLICA in scene.headers, scene.text
+    objects = scene.json()["objects"]
+    assert sorted(o["category"] for o in objects) == sorted(
+        o["category"] for o in truth["objects"]
+    )
+    assert all(o["T_canonical_from_input"] is not None for o in objects)
+    assert no_camera.status_code == 422 and no_camera.json()["kind"] == "bad_scene"
+    assert aligned.status_code == 200, aligned.text
+    expected = np.array(json.loads((EXAMPLES / "chair_truth.json").read_text())["T_b_from_a"])
+    got = np.array(aligned.json()["T_b_from_a"])
+    assert rotation_error_deg(got[:3, :3], expected[:3, :3]) < 5.0
 
 
 def test_a_killed_replica_loses_no_request(url: str, points: list) -> None:
