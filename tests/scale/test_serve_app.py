@@ -167,9 +167,7 @@ def test_scenes_and_alignments_through_the_gateway(url: str) -> None:
         aligned = c.post("/v1/align", json=pair)
     assert scene.status_code == 200 and REPLICA in scene.headers, scene.text
     objects = scene.json()["objects"]
-    assert sorted(o["category"] for o in objects) == sorted(
-        o["category"] for o in truth["objects"]
-    )
+    assert sorted(o["category"] for o in objects) == sorted(o["category"] for o in truth["objects"])
     assert all(o["T_canonical_from_input"] is not None for o in objects)
     assert no_camera.status_code == 422 and no_camera.json()["kind"] == "bad_scene"
     assert aligned.status_code == 200, aligned.text
