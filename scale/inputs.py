@@ -1,4 +1,5 @@
-"""What a batch job works on: cloud files named by paths, folders or globs, and manifests of pairs.
+"""What a batch job works on: files (clouds, depth images) named by paths, folders or globs, and
+manifests of pairs.
 
 Pure Python (no Ray): the batch command expands its inputs here, in the driver, before any worker
 starts, so a typo fails at once and the job's size is known for the progress bar.
@@ -18,31 +19,37 @@ class InputError(ValueError):
     """An input path, glob or manifest that names nothing usable."""
 
 
-def expand_inputs(inputs: list[str]) -> list[str]:
-    """Files as given, folders -> their cloud files (recursive, sorted), globs -> their matches.
+def expand_inputs(
+    inputs: list[str], suffixes: tuple[str, ...] = SUFFIXES, what: str = "cloud files"
+) -> list[str]:
+    """Files as given, folders -> their files with one of ``suffixes`` (recursive, sorted),
+    globs -> their matches.
 
     A file is kept whatever its suffix (a bad one becomes an error row, not a silent skip); in a
-    folder or a glob only files with a cloud suffix (``itnet.cloud_io.SUFFIXES``) count. The
-    order is kept and duplicates are dropped. Raises InputError for an input matching nothing."""
+    folder or a glob only files with one of ``suffixes`` (default: the cloud suffixes,
+    ``itnet.cloud_io.SUFFIXES``) count. The order is kept and duplicates are dropped. Raises
+    InputError for an input matching nothing (``what``: how the message names the files)."""
     found: list[str] = []
     for item in inputs:
         path = Path(item)
         if path.is_dir():
-            matches = [str(p) for p in sorted(path.rglob("*")) if _is_cloud(p)]
+            matches = [str(p) for p in sorted(path.rglob("*")) if _matches(p, suffixes)]
         elif path.exists():
             matches = [item]
         elif glob.has_magic(item):
-            matches = [p for p in sorted(glob.glob(item, recursive=True)) if _is_cloud(Path(p))]
+            matches = [
+                p for p in sorted(glob.glob(item, recursive=True)) if _matches(Path(p), suffixes)
+            ]
         else:
             raise InputError(f"{item}: no such file or folder")
         if not matches:
-            raise InputError(f"{item}: no cloud files ({' '.join(SUFFIXES)})")
+            raise InputError(f"{item}: no {what} ({' '.join(suffixes)})")
         found.extend(matches)
     return list(dict.fromkeys(found))
 
 
-def _is_cloud(path: Path) -> bool:
-    return path.is_file() and path.suffix.lower() in SUFFIXES
+def _matches(path: Path, suffixes: tuple[str, ...]) -> bool:
+    return path.is_file() and path.suffix.lower() in suffixes
 
 
 def read_manifest(path: Path) -> list[tuple[str, str, str, str]]:

@@ -1,9 +1,9 @@
-"""The Ray Data workers of ``itnet batch``: actors that load the model once each, then turn
-batches of cloud files (or pairs) into rows, a bad file becoming a row with an ``error``.
+"""The Ray Data workers of ``itnet batch``: actors that load the models once each, then turn
+batches of cloud files (pairs, scenes) into rows, a bad file becoming a row with an ``error``.
 
 A batch goes in as a column of paths and comes out as a column of JSON rows (``row``): the rows
-are exactly what ``itnet pose --json`` / ``itnet align --json`` print, whatever their shape, and
-the driver writes them as they are. A ``worker`` column (the actor's process id) lets the driver
+are exactly what ``itnet pose --json`` / ``itnet align --json`` / ``itnet scene --json`` print,
+whatever their shape, and the driver writes them as they are. A ``worker`` column (the actor's process id) lets the driver
 tell when every worker is up; it is not written.
 """
 
@@ -114,5 +114,36 @@ class AlignWorker:
             except CloudEstimateError as err:
                 cloud = fields["cloud_a"] if err.cloud == "A" else fields["cloud_b"]
                 row = _error_row(fields, self.name, ValueError(f"{cloud}: {err.__cause__}"))
+            rows.append(json.dumps(row))
+        return _batch(rows)
+
+
+class SceneWorker:
+    """``{"file": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet scene --json`` row a depth
+    image or scene cloud (``arguments``: ``find_objects``' keywords, as
+    ``itnet.commands.scene.scene_arguments`` makes them); a file that cannot be used becomes a
+    row with ``file`` and ``error``."""
+
+    def __init__(
+        self, model_dir: str | None, threads: int, arguments: dict[str, Any], indices: bool
+    ) -> None:  # fmt: skip
+        from itnet.scene.posing import scene_catalog
+        from itnet.scene.warm_up import warm_up
+
+        self.catalog = scene_catalog(Path(model_dir) if model_dir else None, threads)
+        warm_up(self.catalog)  # no frame's budget is spent on one-time work
+        self.arguments, self.indices = arguments, indices
+
+    def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        from itnet.commands.scene import scene_row
+        from itnet.scene import SceneInputError, find_objects
+
+        rows = []
+        for file in batch["file"]:
+            try:
+                result = find_objects(Path(str(file)), catalog=self.catalog, **self.arguments)
+                row = scene_row(str(file), result, self.indices)
+            except SceneInputError as err:
+                row = {"file": str(file), "error": str(err)}
             rows.append(json.dumps(row))
         return _batch(rows)

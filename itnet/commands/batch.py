@@ -1,7 +1,7 @@
-"""``itnet batch pose|align``: poses (or alignments) of whole collections of clouds on Ray Data.
+"""``itnet batch pose|align|scene``: poses, alignments or scenes of whole collections on Ray Data.
 
-One table out (Parquet, or JSON Lines by the suffix), a row per cloud (pair) with the fields of
-``itnet pose --json`` (``itnet align --json``); a file that cannot be used becomes a row with an
+One table out (Parquet, or JSON Lines by the suffix), a row per cloud (pair, scene) with the
+fields of ``itnet pose --json`` (``itnet align --json``, ``itnet scene --json``); a file that cannot be used becomes a row with an
 ``error``. Resumable: run the same command again after a stop and it skips what is written
 (``itnet.scale.table``). Needs the ``ray`` extra: ``pip install 'itnet[ray]'``.
 """
@@ -13,8 +13,10 @@ from typing import Any, NoReturn
 
 import typer
 
+from itnet.commands import scene as scene_options
+
 app = typer.Typer(
-    help="Poses or alignments of many clouds on Ray Data (needs the 'ray' extra).",
+    help="Poses, alignments or scenes of many files on Ray Data (needs the 'ray' extra).",
     no_args_is_help=True,
     add_completion=False,
 )
@@ -131,6 +133,59 @@ def align(
          batch_size, progress, "pairs")  # fmt: skip
 
 
+@app.command("scene")
+def scene(
+    inputs: list[str] = typer.Argument(
+        ..., help="Depth images (.png, .npy) or scene clouds: files, folders (recursive), globs."
+    ),
+    output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
+    workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
+    ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
+    model_dir: Path | None = scene_options.MODEL_DIR,
+    intrinsics: str | None = scene_options.INTRINSICS,
+    depth_scale: float | None = scene_options.DEPTH_SCALE,
+    budget_ms: float = scene_options.BUDGET_MS,
+    indices: bool = typer.Option(
+        False,
+        "--indices/--no-indices",
+        help="Each object's point indices (thousands an object: off unless asked for).",
+    ),
+    floor_centre: bool = scene_options.FLOOR_CENTRE,
+    along_floor: bool = scene_options.ALONG_FLOOR,
+    recheck: bool = scene_options.RECHECK,
+    scene_classifier: bool = scene_options.SCENE_CLASSIFIER,
+    split_touching: bool = scene_options.SPLIT_TOUCHING,
+    up: str | None = scene_options.UP,
+    threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
+    batch_size: int = typer.Option(8, min=1, help="Scenes per worker call."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """Every object of every depth image or scene cloud, as `itnet scene --json` gives it: a row
+    a file, its objects in one column."""
+    _require_ray()
+    from itnet.cloud_io import SUFFIXES
+    from itnet.scale.inputs import InputError, expand_inputs
+    from itnet.scale.workers import SceneWorker
+    from itnet.scene.inputs import IMAGE_SUFFIXES
+    from itnet.scene.posing import ModelLoadError, scene_catalog
+
+    arguments = scene_options.scene_arguments(intrinsics, depth_scale, budget_ms, up,  # type: ignore[arg-type]
+                                              floor_centre, along_floor, recheck,
+                                              scene_classifier, split_touching)  # fmt: skip
+    try:
+        files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES, "depth images or clouds")
+    except InputError as err:
+        _fail(str(err))
+    try:  # in the driver, before Ray starts: a folder the workers could not load
+        scene_catalog(model_dir, threads=1)
+    except ModelLoadError as err:
+        _fail(str(err))
+    args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices}
+    items = [{"file": f} for f in files]
+    _run(SceneWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
+         progress, "scenes")  # fmt: skip
+
+
 def _dir(path: Path | None) -> str | None:
     return None if path is None else str(path.resolve())
 
@@ -144,7 +199,8 @@ def _run(worker: type, args: dict[str, Any], items: list[dict[str, str]], key: t
     from itnet.scale.table import BatchTable, OutputError
 
     model_dir = args["model_dir"]
-    get_model(args["model"], None if model_dir is None else Path(model_dir))  # exit 2 if unknown
+    if "model" in args:  # exit 2 if unknown
+        get_model(args["model"], None if model_dir is None else Path(model_dir))
     try:
         table = BatchTable(output, key)
         stats = run_batch(worker, args, items, table, key, workers, address,

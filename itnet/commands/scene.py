@@ -1,67 +1,131 @@
-"""``itnet scene FILE...``: every object of a depth image or a scene cloud, its category and pose."""
+"""``itnet scene FILE...``: every object of a depth image or a scene cloud, its category and pose.
+
+The options that say how a scene is read and finished are declared once here and shared with
+``itnet batch scene``; ``scene_arguments`` checks them and turns them into ``find_objects``'
+keywords, and ``scene_row`` is the JSON row both print.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from itnet.commands import check_xyz
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, up_direction
 
+if TYPE_CHECKING:
+    from itnet.scene import SceneResult
+
+FILES_HELP = "Depth images (.png 16-bit, .npy) or scene clouds (.ply .pcd .xyz .npy)"
+INTRINSICS = typer.Option(
+    None,
+    help="The depth camera's 'fx,fy,cx,cy' in pixels, or a JSON file of them (fx/fy/cx/cy, "
+    "ROS CameraInfo's K, or Open3D's intrinsic_matrix). Needed for depth images.",
+)
+DEPTH_SCALE = typer.Option(
+    None,
+    help="Depth units per metre of a depth image (default: 1000 for 16-bit images, "
+    "millimetres; 1 for float .npy, metres).",
+)
+BUDGET_MS = typer.Option(
+    DEFAULT_BUDGET_MS, help="Time budget per scene in ms, shared among its objects."
+)
+MODEL_DIR = typer.Option(None, help="Folder of .onnx models (default: shipped).")
+FLOOR_CENTRE = typer.Option(
+    True, "--floor-centre/--no-floor-centre", help="Each object's height from the floor."
+)
+ALONG_FLOOR = typer.Option(
+    True,
+    "--along-floor/--no-along-floor",
+    help="Each object's place along the floor by its pose model's scene correction.",
+)
+RECHECK = typer.Option(
+    True,
+    "--recheck/--no-recheck",
+    help="A pose its category's verifier doubts weighed against the second category's.",
+)
+SCENE_CLASSIFIER = typer.Option(
+    True,
+    "--scene-classifier/--no-scene-classifier",
+    help="Name each object by its shape on the floor too (else the classifier and height).",
+)
+SPLIT_TOUCHING = typer.Option(
+    True,
+    "--split-touching/--no-split-touching",
+    help="Cut a cluster where the cut judge finds two objects standing against each other.",
+)
+UP = typer.Option(
+    None,
+    help="Which way is up in the camera's frame, 'x,y,z' (e.g. from an IMU's gravity); the "
+    "floor is searched within 45 degrees of it (default 0,-1,0: a camera held about level).",
+    callback=check_xyz,
+)
+
+
+def scene_arguments(
+    intrinsics: str | None,
+    depth_scale: float | None,
+    budget_ms: float,
+    up: list[float] | None,
+    floor_centre: bool = True,
+    along_floor: bool = True,
+    recheck: bool = True,
+    scene_classifier: bool = True,
+    split_touching: bool = True,
+) -> dict[str, Any]:
+    """The scene options as ``find_objects``' keywords (plain values, picklable), or a usage
+    error (typer.BadParameter) saying which one is wrong."""
+    import numpy as np
+
+    from itnet.scene import SceneFinishing, SceneInputError, parse_intrinsics
+    from itnet.scene.segment import SegmentOptions
+
+    if not 0 < budget_ms <= 60_000:
+        raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
+    if up is not None:
+        try:
+            up_direction(np.asarray(up, dtype=np.float64))
+        except ValueError as err:
+            raise typer.BadParameter(f"--up: {err}") from None
+    try:
+        camera = None if intrinsics is None else parse_intrinsics(intrinsics)
+    except SceneInputError as err:
+        raise typer.BadParameter(str(err)) from None
+    return {
+        "intrinsics": camera,
+        "budget_ms": budget_ms,
+        "depth_scale": depth_scale,
+        "finishing": SceneFinishing(floor_centre, along_floor, recheck),
+        "scene_classifier": scene_classifier,
+        "options": SegmentOptions(split_touching=split_touching),
+        **({} if up is None else {"expected_up": tuple(up)}),
+    }
+
+
+def scene_row(path: Path | str, result: SceneResult, indices: bool) -> dict[str, Any]:
+    """What ``itnet scene --json`` prints for a file: ``file`` and the result's JSON form."""
+    return {"file": str(path), **result.as_dict(indices)}
+
 
 def scene(
-    files: list[Path] = typer.Argument(
-        ..., help="Depth images (.png 16-bit, .npy) or scene clouds (.ply .pcd .xyz .npy)"
-    ),
-    intrinsics: str | None = typer.Option(
-        None,
-        help="The depth camera's 'fx,fy,cx,cy' in pixels, or a JSON file of them (fx/fy/cx/cy, "
-        "ROS CameraInfo's K, or Open3D's intrinsic_matrix). Needed for depth images.",
-    ),
-    depth_scale: float | None = typer.Option(
-        None,
-        help="Depth units per metre of a depth image (default: 1000 for 16-bit images, "
-        "millimetres; 1 for float .npy, metres).",
-    ),
-    budget_ms: float = typer.Option(
-        DEFAULT_BUDGET_MS, help="Time budget per scene in ms, shared among its objects."
-    ),
-    model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
+    files: list[Path] = typer.Argument(..., help=FILES_HELP),
+    intrinsics: str | None = INTRINSICS,
+    depth_scale: float | None = DEPTH_SCALE,
+    budget_ms: float = BUDGET_MS,
+    model_dir: Path | None = MODEL_DIR,
     indices: bool = typer.Option(
         True, "--indices/--no-indices", help="With --json: each object's point indices."
     ),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per file, per line."),
-    floor_centre: bool = typer.Option(
-        True, "--floor-centre/--no-floor-centre", help="Each object's height from the floor."
-    ),
-    along_floor: bool = typer.Option(
-        True,
-        "--along-floor/--no-along-floor",
-        help="Each object's place along the floor by its pose model's scene correction.",
-    ),
-    recheck: bool = typer.Option(
-        True,
-        "--recheck/--no-recheck",
-        help="A pose its category's verifier doubts weighed against the second category's.",
-    ),
-    scene_classifier: bool = typer.Option(
-        True,
-        "--scene-classifier/--no-scene-classifier",
-        help="Name each object by its shape on the floor too (else the classifier and height).",
-    ),
-    split_touching: bool = typer.Option(
-        True,
-        "--split-touching/--no-split-touching",
-        help="Cut a cluster where the cut judge finds two objects standing against each other.",
-    ),
-    up: str | None = typer.Option(
-        None,
-        help="Which way is up in the camera's frame, 'x,y,z' (e.g. from an IMU's gravity); the "
-        "floor is searched within 45 degrees of it (default 0,-1,0: a camera held about level).",
-        callback=check_xyz,
-    ),
+    floor_centre: bool = FLOOR_CENTRE,
+    along_floor: bool = ALONG_FLOOR,
+    recheck: bool = RECHECK,
+    scene_classifier: bool = SCENE_CLASSIFIER,
+    split_touching: bool = SPLIT_TOUCHING,
+    up: str | None = UP,
 ) -> None:
     """Find the objects standing on the floor of each scene (camera frame: x right, y down, z
     ahead, metres): category, probability, T_canonical_from_input, box, points. Bad files are
@@ -69,43 +133,28 @@ def scene(
     import numpy as np
 
     from itnet.geometry import rotation_angle_deg
-    from itnet.scene import SceneFinishing, SceneInputError, find_objects, parse_intrinsics
+    from itnet.scene import SceneInputError, find_objects
     from itnet.scene.posing import ModelLoadError, scene_catalog
-    from itnet.scene.segment import SegmentOptions
     from itnet.scene.warm_up import warm_up
 
-    if not 0 < budget_ms <= 60_000:
-        raise typer.BadParameter(f"--budget-ms must be in (0, 60000], got {budget_ms:g}")
-    if up is not None:
-        try:
-            up_direction(up)
-        except ValueError as err:
-            raise typer.BadParameter(f"--up: {err}") from None
-    try:
-        camera = None if intrinsics is None else parse_intrinsics(intrinsics)
-    except SceneInputError as err:
-        raise typer.BadParameter(str(err)) from None
+    arguments = scene_arguments(intrinsics, depth_scale, budget_ms, up, floor_centre,  # type: ignore[arg-type]
+                                along_floor, recheck, scene_classifier, split_touching)  # fmt: skip
     try:
         catalog = scene_catalog(model_dir)
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
     warm_up(catalog)  # the first file's budget is not spent on one-time work
-    finishing = SceneFinishing(floor_centre, along_floor, recheck)
     failed = False
     for path in files:
         try:
-            result = find_objects(path, camera, budget_ms=budget_ms, catalog=catalog,
-                                  depth_scale=depth_scale, finishing=finishing,
-                                  scene_classifier=scene_classifier,
-                                  options=SegmentOptions(split_touching=split_touching),
-                                  **({} if up is None else {"expected_up": tuple(up)}))  # fmt: skip
+            result = find_objects(path, catalog=catalog, **arguments)
         except SceneInputError as err:
             typer.echo(f"error: {path}: {err}", err=True)
             failed = True
             continue
         if as_json:
-            typer.echo(json.dumps({"file": str(path), **result.as_dict(indices)}))
+            typer.echo(json.dumps(scene_row(path, result, indices)))
             continue
         typer.echo(f"{path}: {len(result.objects)} object(s) in {result.elapsed_ms:.0f} ms")
         for obj in result.objects:

@@ -1,5 +1,5 @@
-"""``itnet batch pose|align`` on a local Ray (2 CPUs): the rows of ``itnet pose --json`` /
-``itnet align --json``, bad files as error rows, inputs as files, folders and globs, resuming."""
+"""``itnet batch pose|align|scene`` on a local Ray (2 CPUs): the rows of ``itnet pose --json`` /
+``itnet align --json`` / ``itnet scene --json``, bad files as error rows, inputs as files, folders and globs, resuming."""
 
 from __future__ import annotations
 
@@ -92,6 +92,48 @@ def test_batch_pose_resumes(local_ray: None, clouds: Path, tmp_path: Path) -> No
     assert [row for row in rows if row["file"] == files[4]] == [marker]
 
 
+def test_batch_scene_gives_itnet_scenes_answers(local_ray: None, tmp_path: Path) -> None:
+    """A folder of depth frames and a scene cloud: a row a file with the objects ``itnet scene
+    --json`` finds there (named alike, each posed), a broken image as a row with the CLI's error,
+    and a second run that finds everything done."""
+    from itnet.scene import parse_intrinsics
+    from itnet.scene.inputs import from_png
+
+    camera = str(EXAMPLES / "scene_camera.json")
+    frames = tmp_path / "frames"
+    (frames / "later").mkdir(parents=True)
+    png = (EXAMPLES / "scene.png").read_bytes()
+    (frames / "frame_0.png").write_bytes(png)
+    (frames / "later" / "frame_1.png").write_bytes(png)
+    cloud = from_png(png, parse_intrinsics(camera)).points.astype(np.float32)
+    np.save(frames / "room.npy", cloud)  # (N, 3): a scene cloud, camera frame
+    (frames / "broken.png").write_bytes(b"not a png")
+    (frames / "notes.md").write_text("not a scene")  # no scene suffix in a folder: not taken
+    out = tmp_path / "scenes.parquet"
+    run = ["batch", "scene", str(frames), "--intrinsics", camera, "--budget-ms", "2000",
+           "-o", str(out), "--no-progress"]  # fmt: skip
+    result = runner.invoke(app, run)
+    assert result.exit_code == 0, result.output
+    rows = {row["file"]: row for row in read_rows(out)}
+    files = sorted(str(p) for p in frames.rglob("*") if p.suffix in (".png", ".npy"))
+    assert sorted(rows) == files
+    cli = runner.invoke(app, ["scene", *files, "--intrinsics", camera, "--budget-ms", "2000",
+                              "--json", "--no-indices"])  # fmt: skip
+    assert cli.exit_code == 2  # the broken image
+    expected = {r["file"]: r for r in map(json.loads, cli.stdout.splitlines()) if r}
+    for file, row in rows.items():
+        if file.endswith("broken.png"):
+            assert "objects" not in row and row["error"] in cli.output
+            continue
+        names = [o["category"] for o in row["objects"]]
+        assert names == [o["category"] for o in expected[file]["objects"]]
+        assert sorted(names) == ["chair", "night_stand", "toilet"]
+        assert all(o["T_canonical_from_input"] is not None for o in row["objects"])
+        assert all("indices" not in o or o["indices"] is None for o in row["objects"])
+    again = runner.invoke(app, run)
+    assert again.exit_code == 0 and "(0 new, 4 already there, 0 errors)" in again.output
+
+
 def test_batch_align_gives_itnet_aligns_answers(local_ray: None, tmp_path: Path) -> None:
     """A CSV manifest of the shipped pair, the pair reversed, and a pair with a missing file:
     the same T_b_from_a as ``itnet align --json``, the missing file as an error row."""
@@ -171,6 +213,12 @@ def test_batch_refuses_what_it_cannot_do(tmp_path: Path) -> None:
          "unknown model"),
         (["batch", "align", str(tmp_path / "none.csv"), "-o", str(tmp_path / "p.jsonl")],
          "no such manifest"),
+        (["batch", "scene", str(tmp_path), "-o", str(tmp_path / "s.jsonl")],
+         "no depth images or clouds"),
+        (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--model-dir", str(tmp_path)],
+         "no .onnx models found"),
+        (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--budget-ms", "0"],
+         "--budget-ms must be in"),
     ]  # fmt: skip
     for args, message in cases:
         result = runner.invoke(app, args)
