@@ -11,7 +11,7 @@ first. Every request is a JSON cloud of ``--points`` points with ``budget_ms``. 
 in processes of their own, ``--per-process`` to a process (one process's event loop driving 64
 clients on the server's cores counted its own queueing as the server's), keep their
 connections (``--fresh``: a new one per request) and honour ``Retry-After`` after a 503
-(``--retry-s 0.01``: retry after 10 ms, as before). The machine's busy share and the CPU cores
+(``--retry-s 0.01``: retry after 10 ms instead). The machine's busy share and the CPU cores
 the server and the clients used are printed with each row.
 
 Per row: replies by status (200, 503 = refused by the concurrency gate), throughput, client

@@ -11,7 +11,7 @@ validation carve-out of ModelNet10's training split): ``python -m itnet.model.sc
 
 It names the categories of its fitting scenes: furniture that stands on the floor. The monitor,
 which stands on a desk, is not among them; a request restricted to categories it does not name
-is classified as before (the classifier with the object's height, ``height_prior``).
+is classified without it (by the classifier with the object's height, ``height_prior``).
 
 The file (``scene_classifier.json``) names the classifier's graphs by their SHA-256: another
 model folder, or a classifier trained again, gets no scene classifier until it is refitted.
