@@ -1,9 +1,9 @@
 """``itnet batch pose|align|scene``: poses, alignments or scenes of whole collections on Ray Data.
 
 One table out (Parquet, or JSON Lines by the suffix), a row per cloud (pair, scene) with the
-fields of ``itnet pose --json`` (``itnet align --json``, ``itnet scene --json``); a file that cannot be used becomes a row with an
-``error``. Resumable: run the same command again after a stop and it skips what is written
-(``itnet.scale.table``). Needs the ``ray`` extra: ``pip install 'itnet[ray]'``.
+fields of ``itnet pose --json`` (``itnet align --json``, ``itnet scene --json``); a file that
+cannot be used becomes a row with an ``error``. Resumable: run the same command again after a
+stop and it skips what is written (``itnet.scale.table``). Needs the ``ray`` extra: ``pip install 'itnet[ray]'``.
 """
 
 from __future__ import annotations
