@@ -3,7 +3,8 @@
 One table out (Parquet, or JSON Lines by the suffix), a row per cloud (pair, scene) with the
 fields of ``itnet pose --json`` (``itnet align --json``, ``itnet scene --json``); a file that
 cannot be used becomes a row with an ``error``. Resumable: run the same command again after a
-stop and it skips what is written (``itnet.scale.table``). Needs the ``ray`` extra: ``pip install 'itnet[ray]'``.
+stop and it skips what is written (``itnet.scale.table``). Needs the ``ray`` extra:
+``pip install 'itnet[ray]'``.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ def pose(
 ) -> None:
     """The canonical pose of every cloud, as `itnet pose --json` gives it, in one table."""
     _require_ray()
+    from itnet.commands.in_process import get_model
     from itnet.scale.inputs import InputError, expand_inputs
     from itnet.scale.workers import PoseWorker
 
@@ -66,6 +68,7 @@ def pose(
     request = {"budget_ms": budget_ms, "max_iterations": max_iterations}
     args = {"model": model, "model_dir": _dir(model_dir), "request": request}
     items = [{"file": f} for f in files]
+    get_model(model, model_dir)  # exit 2 if unknown
     _run(PoseWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
          progress, "clouds")  # fmt: skip
 
@@ -105,6 +108,7 @@ def align(
     _require_ray()
     from itnet.alignment.refine import RefineUnavailable, require_open3d
     from itnet.commands.align import SYMMETRY_CHOICES
+    from itnet.commands.in_process import get_model
     from itnet.scale.inputs import InputError, read_manifest
     from itnet.scale.workers import AlignWorker
 
@@ -129,6 +133,7 @@ def align(
     args = {"model": model, "model_dir": _dir(model_dir), "request": request,
             "options": options}  # fmt: skip
     items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
+    get_model(model, model_dir)  # exit 2 if unknown
     _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,
          batch_size, progress, "pairs")  # fmt: skip
 
@@ -164,10 +169,10 @@ def scene(
     a file, its objects in one column."""
     _require_ray()
     from itnet.cloud_io import SUFFIXES
+    from itnet.commands.in_process import get_classifier
     from itnet.scale.inputs import InputError, expand_inputs
     from itnet.scale.workers import SceneWorker
     from itnet.scene.inputs import IMAGE_SUFFIXES
-    from itnet.scene.posing import ModelLoadError, scene_catalog
 
     arguments = scene_options.scene_arguments(intrinsics, depth_scale, budget_ms, up,  # type: ignore[arg-type]
                                               floor_centre, along_floor, recheck,
@@ -176,10 +181,7 @@ def scene(
         files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES, "depth images or clouds")
     except InputError as err:
         _fail(str(err))
-    try:  # in the driver, before Ray starts: a folder the workers could not load
-        scene_catalog(model_dir, threads=1)
-    except ModelLoadError as err:
-        _fail(str(err))
+    get_classifier(model_dir)  # exit 2 for a folder the workers could not name objects with
     args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices}
     items = [{"file": f} for f in files]
     _run(SceneWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
@@ -193,14 +195,10 @@ def _dir(path: Path | None) -> str | None:
 def _run(worker: type, args: dict[str, Any], items: list[dict[str, str]], key: tuple[str, ...],
          output: Path, workers: int, address: str | None, threads: int | None, batch_size: int,
          progress: bool, what: str) -> None:  # fmt: skip
-    from itnet.commands.in_process import get_model
     from itnet.pose.runtime import ModelLoadError
     from itnet.scale.batch import run_batch, worker_threads
     from itnet.scale.table import BatchTable, OutputError
 
-    model_dir = args["model_dir"]
-    if "model" in args:  # exit 2 if unknown
-        get_model(args["model"], None if model_dir is None else Path(model_dir))
     try:
         table = BatchTable(output, key)
         stats = run_batch(worker, args, items, table, key, workers, address,

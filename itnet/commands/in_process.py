@@ -53,7 +53,7 @@ def get_classifier(model_dir: Path | None = None) -> LoadedClassifier:
     if classifier is None:
         typer.echo(
             f"error: no category classifier in {model_dir or default_model_dir()} "
-            "(model 'auto' and itnet classify need classifier.onnx)",
+            "(model 'auto', itnet classify and itnet scene need classifier.onnx)",
             err=True,
         )
         raise typer.Exit(2)

@@ -1,5 +1,6 @@
 """``itnet batch pose|align|scene`` on a local Ray (2 CPUs): the rows of ``itnet pose --json`` /
-``itnet align --json`` / ``itnet scene --json``, bad files as error rows, inputs as files, folders and globs, resuming."""
+``itnet align --json`` / ``itnet scene --json``, bad files as error rows, inputs as files, folders
+and globs, resuming."""
 
 from __future__ import annotations
 
