@@ -120,26 +120,34 @@ class AlignWorker:
 
 class SceneWorker:
     """``{"file": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet scene --json`` row a depth
-    image or scene cloud (``arguments``: ``find_objects``' keywords, as
-    ``itnet.commands.scene.scene_arguments`` makes them); a file that cannot be used becomes a
-    row with ``file`` and ``error``."""
+    image or scene cloud, and one a frame of a recording (with its ``topic``, ``frame`` and
+    ``header``; ``selection``: ``itnet.recordings.Selection``'s fields) (``arguments``:
+    ``find_objects``' keywords, as ``itnet.commands.scene.scene_arguments`` makes them); a file
+    or frame that cannot be used becomes a row with ``file`` and ``error``."""
 
     def __init__(
-        self, model_dir: str | None, threads: int, arguments: dict[str, Any], indices: bool
+        self, model_dir: str | None, threads: int, arguments: dict[str, Any], indices: bool,
+        selection: dict[str, Any] | None = None,
     ) -> None:  # fmt: skip
+        from itnet.recordings import Selection
         from itnet.scene.posing import scene_catalog
         from itnet.scene.warm_up import warm_up
 
         self.catalog = scene_catalog(Path(model_dir) if model_dir else None, threads)
         warm_up(self.catalog)  # no frame's budget is spent on one-time work
         self.arguments, self.indices = arguments, indices
+        self.selection = Selection(**(selection or {}))
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         from itnet.commands.scene import scene_row
+        from itnet.recordings import is_recording
         from itnet.scene import SceneInputError, find_objects
 
         rows = []
         for file in batch["file"]:
+            if is_recording(Path(str(file))):
+                rows.extend(json.dumps(row) for row in self._recording(Path(str(file))))
+                continue
             try:
                 result = find_objects(Path(str(file)), catalog=self.catalog, **self.arguments)
                 row = scene_row(str(file), result, self.indices)
@@ -147,3 +155,29 @@ class SceneWorker:
                 row = {"file": str(file), "error": str(err)}
             rows.append(json.dumps(row))
         return _batch(rows)
+
+    def _recording(self, path: Path) -> list[dict[str, Any]]:
+        """A row a frame of the recording (a row with the error for a frame that cannot be used,
+        or for the whole recording where it cannot be read)."""
+        from itnet.recordings import RecordingError, SceneAnswer, scene_answers
+        from itnet.scene import find_objects
+
+        keywords = {
+            k: v for k, v in self.arguments.items() if k not in ("intrinsics", "depth_scale")
+        }
+
+        def find(scene: Any, started: float) -> Any:
+            return find_objects(scene, catalog=self.catalog, started=started, **keywords)
+
+        rows: list[dict[str, Any]] = []
+        try:
+            for item in scene_answers(path, self.selection, find, self.arguments["intrinsics"],
+                                      self.arguments["depth_scale"]):  # fmt: skip
+                if isinstance(item, SceneAnswer):
+                    rows.append(item.row(self.indices))
+                else:
+                    rows.append({"file": str(path), "topic": item.topic, "frame": item.index,
+                                 "error": item.reason})  # fmt: skip
+        except RecordingError as err:
+            rows.append({"file": str(path), "error": str(err)})
+        return rows

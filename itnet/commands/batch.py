@@ -14,6 +14,7 @@ from typing import Any, NoReturn
 
 import typer
 
+from itnet.commands import recordings as rec
 from itnet.commands import scene as scene_options
 
 app = typer.Typer(
@@ -141,7 +142,9 @@ def align(
 @app.command("scene")
 def scene(
     inputs: list[str] = typer.Argument(
-        ..., help="Depth images (.png, .npy) or scene clouds: files, folders (recursive), globs."
+        ...,
+        help="Depth images (.png, .npy), scene clouds or recordings (ROS bags: .bag, .db3, .mcap, "
+        "a ROS 2 bag folder): files, folders (recursive), globs.",
     ),
     output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
     workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
@@ -161,28 +164,46 @@ def scene(
     scene_classifier: bool = scene_options.SCENE_CLASSIFIER,
     split_touching: bool = scene_options.SPLIT_TOUCHING,
     up: str | None = scene_options.UP,
+    topic: str | None = rec.TOPIC,
+    camera_info: str | None = rec.CAMERA_INFO,
+    every: int = rec.EVERY,
+    start: float | None = rec.START,
+    end: float | None = rec.END,
     threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
-    batch_size: int = typer.Option(8, min=1, help="Scenes per worker call."),
+    batch_size: int = typer.Option(8, min=1, help="Scenes (recordings) per worker call."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Every object of every depth image or scene cloud, as `itnet scene --json` gives it: a row
-    a file, its objects in one column."""
+    a file (a recording: a row a frame, with its topic and header), its objects in one column."""
     _require_ray()
+    import dataclasses
+
     from itnet.cloud_io import SUFFIXES
     from itnet.commands.in_process import get_classifier
+    from itnet.recordings import is_recording
+    from itnet.recordings.bag import RECORDING_SUFFIXES, bag_root
     from itnet.scale.inputs import InputError, expand_inputs
     from itnet.scale.workers import SceneWorker
     from itnet.scene.inputs import IMAGE_SUFFIXES
 
+    chosen = rec.selection(topic, camera_info, every, start, end)
     arguments = scene_options.scene_arguments(intrinsics, depth_scale, budget_ms, up,  # type: ignore[arg-type]
                                               floor_centre, along_floor, recheck,
                                               scene_classifier, split_touching)  # fmt: skip
     try:
-        files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES, "depth images or clouds")
+        files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES + RECORDING_SUFFIXES,
+                              "depth images, clouds or recordings")  # fmt: skip
     except InputError as err:
         _fail(str(err))
     get_classifier(model_dir)  # exit 2 for a folder the workers could not name objects with
-    args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices}
+    if any(is_recording(Path(f)) for f in files):
+        rec.require_rosbags()
+    # a ROS 2 bag is its folder, however many storage files it has
+    files = list(
+        dict.fromkeys(str(bag_root(Path(f))) if is_recording(Path(f)) else f for f in files)
+    )
+    args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices,
+            "selection": dataclasses.asdict(chosen)}  # fmt: skip
     items = [{"file": f} for f in files]
     _run(SceneWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
          progress, "scenes")  # fmt: skip

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.commands import recordings as rec
 from itnet.pose.request import field_help
 
 if TYPE_CHECKING:
@@ -21,7 +22,11 @@ if TYPE_CHECKING:
 
 
 def pose(
-    files: list[Path] = typer.Argument(..., help="Cloud files: .ply .pcd .xyz .pts .txt .npy"),
+    files: list[Path] = typer.Argument(
+        ...,
+        help="Cloud files (.ply .pcd .xyz .pts .txt .npy), or recordings (ROS bags: .bag, "
+        "a ROS 2 folder, .db3, .mcap) of an object's sensor_msgs/PointCloud2",
+    ),
     model: str = typer.Option(
         "chair",
         help="Model name (a shipped one, or one in --model-dir); 'auto': classify each cloud, "
@@ -40,6 +45,12 @@ def pose(
     units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     runs: bool = typer.Option(False, "--runs", help=field_help("runs")),
     as_json: bool = typer.Option(False, "--json", help="One JSON object per line."),
+    topic: str | None = typer.Option(
+        None, help="A bag's sensor_msgs/PointCloud2 topic (default: its only one)."
+    ),
+    every: int = rec.EVERY,
+    start_s: float | None = rec.START,
+    end_s: float | None = rec.END,
 ) -> None:
     """Estimate T_canonical_from_input for each file. Bad files are reported and skipped (exit 2)."""
     import numpy as np
@@ -48,7 +59,11 @@ def pose(
     from itnet.commands.in_process import get_catalog, get_classifier, get_model
     from itnet.geometry import rotation_angle_deg
     from itnet.pose.errors import PoseError
+    from itnet.recordings import is_recording
 
+    chosen = rec.selection(topic, None, every, start_s, end_s)
+    if any(is_recording(path) for path in files):
+        rec.require_rosbags()
     catalog = get_catalog(model_dir)
     if catalog.is_auto(model):
         get_classifier(model_dir)  # a folder without a classifier: one clear error, exit 2
@@ -65,6 +80,9 @@ def pose(
 
     failed = False
     for path in files:
+        if is_recording(path):
+            failed |= not rec.pose_recording(path, chosen, start, as_json)
+            continue
         try:
             result = pose_row(path, start)
         except (CloudReadError, PoseError) as err:
