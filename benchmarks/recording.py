@@ -4,6 +4,9 @@ ROS 1 bag or a ROS 2 bag (sqlite3 or MCAP). The tests and the recording benchmar
 here from the shipped example scene.
 
     write_recording(Path("scene.bag"), "ros1", [depth] * 30, intrinsics)
+
+``python -m benchmarks.recording`` writes the example recording ``itnet/examples/scene.bag``:
+the example scene as a camera turning slowly to its left sees it, 5 frames at 5 frames/s.
 """
 
 from __future__ import annotations
@@ -37,10 +40,12 @@ class Layout:
 
 
 def write_recording(path: Path, kind: str, frames: list[NDArray], intrinsics: Intrinsics,
-                    layout: Layout = Layout(), stamps_ns: list[int] | None = None) -> Path:  # fmt: skip
+                    layout: Layout = Layout(), stamps_ns: list[int] | None = None,
+                    compressed: bool = False) -> Path:  # fmt: skip
     """Write ``frames`` (each (H, W) uint16 millimetres) as a recording of ``kind`` (ros1,
     sqlite3, mcap) at ``path`` (a .bag file for ROS 1, a folder for ROS 2); ``stamps_ns``: each
-    frame's header stamp (default: the log time). The frames are logged ``layout``'s period apart."""
+    frame's header stamp (default: the log time). The frames are logged ``layout``'s period apart;
+    ``compressed``: bz2 chunks (ROS 1)."""
     store = _store(kind)
     logged = [layout.start_ns + i * layout.period_ns for i in range(len(frames))]
     stamps = stamps_ns or logged
@@ -156,3 +161,36 @@ def point_cloud(store, header, points: NDArray):  # type: ignore[no-untyped-def]
         header=header, height=1, width=len(data), fields=fields, is_bigendian=False,
         point_step=12, row_step=12 * len(data), data=data.view(np.uint8).ravel(), is_dense=True,
     )  # fmt: skip
+
+
+def example_frames(count: int = 5, step_px: int = 8) -> list[NDArray]:
+    """The example scene as a camera turning to its left sees it: each frame the depth image
+    moved ``step_px`` pixels further right (the new columns without a reading)."""
+    from itnet.scene.depth_io import png_to_depth
+
+    depth = png_to_depth((EXAMPLES / "scene.png").read_bytes())
+    frames = []
+    for i in range(count):
+        shifted = np.zeros_like(depth)
+        shift = i * step_px
+        shifted[:, shift:] = depth[:, : depth.shape[1] - shift]
+        frames.append(shifted)
+    return frames
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "itnet" / "examples"
+
+
+def main() -> None:
+    from itnet.scene.camera import parse_intrinsics
+
+    path = EXAMPLES / "scene.bag"
+    path.unlink(missing_ok=True)
+    camera = parse_intrinsics(str(EXAMPLES / "scene_camera.json"))
+    write_recording(path, "ros1", example_frames(), camera, Layout(period_ns=200_000_000),
+                    compressed=True)  # fmt: skip
+    print(f"{path}: {path.stat().st_size / 1e3:.0f} kB")
+
+
+if __name__ == "__main__":
+    main()

@@ -11,7 +11,7 @@ fi
   itnet/alignment/hypotheses.py itnet/symmetry.py itnet/fusion.py itnet/cpu.py itnet/size_prior.py itnet/atomic_write.py \
   itnet/pose/request.py itnet/pose/plan.py itnet/pose/stages.py itnet/pose/loop.py itnet/pose/step_batcher.py \
   itnet/pose/admission.py itnet/pose/catalog.py \
-  itnet/scene
+  itnet/scene itnet/recordings
 .venv/bin/itnet --version
 # Three processes. tests/hardening resizes process-wide thread pools and handles signals (one
 # of its timing tests fails when tests/align ran first in the same process). The Ray tests

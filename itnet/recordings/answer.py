@@ -106,7 +106,8 @@ def pose_answers(
             if isinstance(frame, FrameError):
                 yield frame
                 continue
-            points = frame.points[np.isfinite(frame.points).all(axis=1)]  # type: ignore[index]
+            assert frame.points is not None  # a cloud topic's frames are clouds
+            points = frame.points[np.isfinite(frame.points).all(axis=1)]
             try:
                 reply = pose(points)
             except ValueError as err:

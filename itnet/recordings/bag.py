@@ -283,7 +283,7 @@ def _unindexed(path: Path, store: Any, problem: str) -> tuple[Any, str]:
 
     reader = AnyReader([path], default_typestore=store)
     scanned = UnindexedRos1Reader(path)
-    reader.readers = [scanned]  # type: ignore[list-item]
+    reader.readers = [scanned]  # type: ignore[assignment]
     try:
         reader.open()
     except Exception as err:

@@ -7,7 +7,7 @@ or ROS 2: ``K`` or ``k``); no bag is read here. Each raises DecodeError with a o
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,7 +53,7 @@ def depth_image(message: Any) -> NDArray:
             f"(at least {width * item}), got {len(data)} bytes"
         )
     rows = data[: height * step].reshape(height, step)[:, : width * item]
-    order = ">" if message.is_bigendian else "<"
+    order: Literal["<", ">"] = ">" if message.is_bigendian else "<"
     return np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).astype(dtype)
 
 
@@ -72,7 +72,7 @@ def cloud_points(message: Any) -> NDArray[np.float64]:
         raise DecodeError(
             f"{count} points of {point_step} bytes need {count * point_step} bytes, got {len(data)}"
         )
-    order = ">" if message.is_bigendian else "<"
+    order: Literal["<", ">"] = ">" if message.is_bigendian else "<"
     names, formats, offsets = [], [], []
     for name in "xyz":
         field = fields[name]

@@ -46,9 +46,9 @@ class RerunLog:
         self.rr = rr
         self.stream = rr.RecordingStream(name)
         if path is None:
-            self.stream.spawn()
+            self.stream.spawn(default_blueprint=camera_view())
         else:
-            self.stream.save(path)
+            self.stream.save(path, default_blueprint=camera_view())
         self.stream.log("camera", rr.ViewCoordinates.RDF, static=True)
 
     def log_frame(self, index: int, stamp_ns: int, points: NDArray,
@@ -94,6 +94,18 @@ class RerunLog:
     def close(self) -> None:
         self.stream.flush()
         self.stream.disconnect()
+
+
+def camera_view() -> Any:
+    """The viewer's layout: one 3D view seen from just behind and above the camera, looking
+    where it looks, the side panels folded away and the timeline open."""
+    import rerun.blueprint as rrb
+
+    eye = rrb.EyeControls3D(position=[0.0, -0.9, -0.6], look_target=[0.0, 0.45, 3.2],
+                            eye_up=[0.0, -1.0, 0.0])  # fmt: skip
+    view = rrb.Spatial3DView(origin="/", name="camera", eye_controls=eye)
+    return rrb.Blueprint(view, rrb.BlueprintPanel(state="collapsed"),
+                         rrb.SelectionPanel(state="collapsed"), rrb.TimePanel(state="expanded"))  # fmt: skip
 
 
 def label(obj: dict[str, Any]) -> str:

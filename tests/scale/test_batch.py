@@ -94,10 +94,13 @@ def test_batch_pose_resumes(local_ray: None, clouds: Path, tmp_path: Path) -> No
 
 
 def test_batch_scene_gives_itnet_scenes_answers(local_ray: None, tmp_path: Path) -> None:
-    """A folder of depth frames and a scene cloud: a row a file with the objects ``itnet scene
-    --json`` finds there (named alike, each posed), a broken image as a row with the CLI's error,
-    and a second run that finds everything done."""
+    """A folder of depth frames, a scene cloud and a recording: a row a file (a recording, a row
+    a frame, with its header) with the objects ``itnet scene --json`` finds there (named alike,
+    each posed), a broken image as a row with the CLI's error, and a second run that finds
+    everything done."""
+    from benchmarks.recording import write_recording
     from itnet.scene import parse_intrinsics
+    from itnet.scene.depth_io import png_to_depth
     from itnet.scene.inputs import from_png
 
     camera = str(EXAMPLES / "scene_camera.json")
@@ -110,29 +113,36 @@ def test_batch_scene_gives_itnet_scenes_answers(local_ray: None, tmp_path: Path)
     np.save(frames / "room.npy", cloud)  # (N, 3): a scene cloud, camera frame
     (frames / "broken.png").write_bytes(b"not a png")
     (frames / "notes.md").write_text("not a scene")  # no scene suffix in a folder: not taken
+    bag = write_recording(frames / "rec", "mcap", [png_to_depth(png)] * 2, parse_intrinsics(camera))
     out = tmp_path / "scenes.parquet"
     run = ["batch", "scene", str(frames), "--intrinsics", camera, "--budget-ms", "2000",
            "-o", str(out), "--no-progress"]  # fmt: skip
     result = runner.invoke(app, run)
     assert result.exit_code == 0, result.output
-    rows = {row["file"]: row for row in read_rows(out)}
+    rows = {(row["file"], row.get("frame")): row for row in read_rows(out)}
     files = sorted(str(p) for p in frames.rglob("*") if p.suffix in (".png", ".npy"))
-    assert sorted(rows) == files
-    cli = runner.invoke(app, ["scene", *files, "--intrinsics", camera, "--budget-ms", "2000",
-                              "--json", "--no-indices"])  # fmt: skip
+    assert sorted(rows) == sorted([(f, None) for f in files] + [(str(bag), 0), (str(bag), 1)])
+    cli = runner.invoke(app, ["scene", *files, str(bag), "--intrinsics", camera, "--budget-ms",
+                              "2000", "--json", "--no-indices"])  # fmt: skip
     assert cli.exit_code == 2  # the broken image
-    expected = {r["file"]: r for r in map(json.loads, cli.stdout.splitlines()) if r}
-    for file, row in rows.items():
-        if file.endswith("broken.png"):
+    expected = {
+        (r["file"], r.get("frame")): r for r in map(json.loads, cli.stdout.splitlines()) if r
+    }
+    for key, row in rows.items():
+        if key[0].endswith("broken.png"):
             assert "objects" not in row and row["error"] in cli.output
             continue
         names = [o["category"] for o in row["objects"]]
-        assert names == [o["category"] for o in expected[file]["objects"]]
+        assert names == [o["category"] for o in expected[key]["objects"]]
         assert sorted(names) == ["chair", "night_stand", "toilet"]
         assert all(o["T_canonical_from_input"] is not None for o in row["objects"])
         assert all("indices" not in o or o["indices"] is None for o in row["objects"])
+        if key[0] == str(bag):
+            assert (
+                row["header"] == expected[key]["header"] and row["topic"] == expected[key]["topic"]
+            )
     again = runner.invoke(app, run)
-    assert again.exit_code == 0 and "(0 new, 4 already there, 0 errors)" in again.output
+    assert again.exit_code == 0 and "(0 new, 5 already there, 0 errors)" in again.output
 
 
 def test_batch_align_gives_itnet_aligns_answers(local_ray: None, tmp_path: Path) -> None:
