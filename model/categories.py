@@ -73,6 +73,29 @@ MODELNET10: dict[str, Category] = {
 }
 
 
+REAL_RADIUS_M: dict[str, tuple[float, float]] = {
+    "bathtub": (0.55, 1.05),  # 0.9 x 0.5 x 0.6 m (a small tub) to 1.8 x 0.6 x 0.9 m
+    "bed": (1.1, 1.6),  # single 0.9 x 1.0 x 2.0 m (with headboard) to king 1.9 x 1.2 x 2.2 m
+    "chair": (0.48, 0.75),  # 0.42 x 0.78 x 0.45 m to an armchair's 0.65 x 1.1 x 0.7 m
+    "desk": (0.65, 1.1),  # 1.0 x 0.72 x 0.5 m to 1.8 x 0.76 x 0.9 m
+    "dresser": (0.58, 1.0),  # 0.8 x 0.75 x 0.45 m to 1.6 x 1.1 x 0.55 m
+    "monitor": (0.28, 0.55),  # 0.45 x 0.35 x 0.18 m to 0.85 x 0.6 x 0.25 m, stand included
+    "night_stand": (0.35, 0.55),  # 0.4 x 0.5 x 0.35 m to 0.6 x 0.75 x 0.5 m
+    "sofa": (0.85, 1.45),  # a two-seater 1.4 x 0.8 x 0.8 m to 2.5 x 0.95 x 1.0 m
+    "table": (0.55, 1.2),  # a coffee table 0.9 x 0.45 x 0.5 m to a dining table 2.0 x 0.76 x 1.0 m
+    "toilet": (0.48, 0.62),  # 0.36 x 0.7 x 0.6 m to 0.45 x 0.85 x 0.75 m
+}
+"""Per category, the bounding radius (half the box's diagonal) of small and large real pieces,
+width x height x depth as furniture is made (Neufert, Architects' Data, 4th ed., 2012; Panero
+and Zelnik, Human Dimension and Interior Space, 1979; docs/training.md#real-sizes). A user's
+category without an entry is taken as 0.5 m."""
+
+
+def real_radius_m(name: str) -> tuple[float, float]:
+    """The range of real bounding radii of a category's pieces, in metres."""
+    return REAL_RADIUS_M.get(name, (0.5, 0.5))
+
+
 def category(name: str, symmetry: str | None = None) -> Category:
     """The ModelNet10 entry for ``name``, or a user's category (no turn) with ``symmetry``."""
     known = MODELNET10.get(name, Category(name))

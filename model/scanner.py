@@ -18,6 +18,12 @@ Two scanners:
   discs exactly (``model/surface.py``): the point set behaves like the surface it was sampled
   from, as a depth camera sees a mesh.
 * ``raycast_scan``: for meshes, open3d ray casting through a pinhole camera.
+
+Real cameras (``ScanConfig.sensor``, ``model/sensor.py``): the object is given a real size
+(``radius_m``, drawn per scan: ``model.categories.REAL_RADIUS_M`` for each category), the camera
+stands ``distance_m`` metres from it, and the camera's effects (noise, quantisation, dropouts,
+holes, flying pixels) are applied in metres before the scan goes back to object radii. The
+generic noise (``depth_noise``, ``jitter``) is then left out: the sensor model is the noise.
 """
 
 from __future__ import annotations
@@ -65,6 +71,11 @@ class ScanConfig:
     # through the camera and through the object's centre line at this height over its centre.
     # Left out of the repr, as ``elevation``.
     cut_below: tuple[float, float] | None = field(default=None, repr=False)
+    # a depth camera's effects (``model.sensor.SENSORS``), in metres: the object ``radius_m``
+    # metres in bounding radius (drawn per scan), the camera ``distance_m`` metres away
+    sensor: str = "clean"
+    radius_m: tuple[float, float] = (0.5, 0.5)
+    distance_m: tuple[float, float] = (1.0, 6.0)
 
 
 PAPER_VIEWS: dict[str, object] = {
@@ -90,6 +101,16 @@ VIEW_RULES: dict[str, dict[str, object]] = {
     "base_hidden": BASE_HIDDEN,
 }
 """The named view rules (``--scanner``) and their ScanConfig overrides."""
+
+
+def sensor_views(sensor: str, radius_m: tuple[float, float]) -> dict[str, object]:
+    """ScanConfig overrides for views by the camera ``sensor`` (``model.sensor.SENSORS``) of an
+    object ``radius_m`` metres in bounding radius."""
+    from itnet.model.sensor import SENSORS
+
+    if sensor not in SENSORS:
+        raise ValueError(f"unknown sensor {sensor!r} (known: {', '.join(SENSORS)})")
+    return {"sensor": sensor, "radius_m": tuple(radius_m)}
 
 
 def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
@@ -160,12 +181,14 @@ def zbuffer_visible(
 def add_sensor_effects(
     camera_points: NDArray, rng: np.random.Generator, config: ScanConfig
 ) -> NDArray[np.float64]:
-    """Depth noise along each ray, isotropic jitter, and a few outliers near the object."""
+    """Depth noise along each ray, isotropic jitter (both left out under a sensor model, which
+    is the noise), and a few outliers near the object."""
     p = camera_points.copy()
-    depth = np.linalg.norm(p, axis=1, keepdims=True)
-    sigma = rng.uniform(*config.depth_noise) * depth
-    p *= 1 + sigma * rng.normal(size=(len(p), 1)) / depth
-    p += rng.normal(scale=rng.uniform(*config.jitter), size=p.shape)
+    if config.sensor == "clean":
+        depth = np.linalg.norm(p, axis=1, keepdims=True)
+        sigma = rng.uniform(*config.depth_noise) * depth
+        p *= 1 + sigma * rng.normal(size=(len(p), 1)) / depth
+        p += rng.normal(scale=rng.uniform(*config.jitter), size=p.shape)
     n_out = int(rng.uniform(*config.outlier_fraction) * len(p))
     if n_out:
         lo, hi = p.min(0), p.max(0)
@@ -240,6 +263,11 @@ def scan_shape(
         discs = None
     elif discs is None:
         discs = surface_discs(points)
+    radius_m = 1.0
+    if config.sensor != "clean":  # a real size and distance: the camera's effects are in metres
+        radius_m = rng.uniform(*config.radius_m)
+        distance = (config.distance_m[0] / radius_m, config.distance_m[1] / radius_m)
+        config = replace(config, distance=(max(distance[0], 1.3), max(distance[1], 1.4)))
     for _ in range(20):
         camera_from_canonical = random_camera_pose(rng, config)
         if triangles is not None:
@@ -261,9 +289,20 @@ def scan_shape(
         if config.cut_below is not None:
             height = rng.uniform(*config.cut_below)
             seen = seen[below_view_edge(seen, camera_from_canonical, height)]
+        if config.sensor != "clean" and len(seen) >= config.min_points:
+            seen = sensed(seen, rng, config, radius_m)
         if len(seen) >= config.min_points:
             return add_sensor_effects(seen, rng, config), invert_rigid(camera_from_canonical)
     raise ValueError("no viewpoint saw enough of the shape")
+
+
+def sensed(seen: NDArray, rng: np.random.Generator, config: ScanConfig,
+           radius_m: float) -> NDArray[np.float64]:  # fmt: skip
+    """A scan (K, 3) in object radii, camera frame -> what ``config.sensor`` returns of it, in
+    object radii (the object ``radius_m`` metres in radius)."""
+    from itnet.model.sensor import SENSORS
+
+    return SENSORS[config.sensor].apply(seen * radius_m, rng) / radius_m
 
 
 def below_view_edge(

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from benchmarks.recording import DEPTH_TOPIC, INFO_TOPIC, Layout, write_recording
 from itnet.cli import app
+from itnet.recordings import FrameError, RecordingError, Selection, open_recording
 from itnet.scene.camera import parse_intrinsics
 from itnet.scene.depth_io import png_to_depth
 
@@ -52,9 +53,14 @@ def test_a_ros2_bag_cut_short_is_one_line(kind: str, tmp_path: Path) -> None:
     folder = write_recording(tmp_path / "rec", kind, [depth()] * 2, CAMERA)
     storage = next(p for p in folder.iterdir() if p.suffix in (".mcap", ".db3"))
     storage.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
-    code, rows, errors = run(str(folder))
-    assert code == 2 and rows == []
-    assert len(errors) == 1 and "not a readable ROS bag" in errors[0]
+    with pytest.raises(RecordingError, match="not a readable ROS bag"), open_recording(folder):
+        pass
+
+
+def frames(bag: Path, **selection: object) -> list:
+    """Every item ``Recording.frames`` gives (frames and frame errors)."""
+    with open_recording(bag) as recording:
+        return list(recording.frames(Selection(**selection)))  # type: ignore[arg-type]
 
 
 def test_no_camera_info_asks_for_intrinsics_and_takes_them(tmp_path: Path) -> None:
@@ -71,24 +77,25 @@ def test_no_camera_info_asks_for_intrinsics_and_takes_them(tmp_path: Path) -> No
 
 def test_an_uncalibrated_camera_is_named(tmp_path: Path) -> None:
     bag = write_recording(tmp_path / "rec.bag", "ros1", [depth()], CAMERA, Layout(calibrated=False))
-    code, rows, errors = run(str(bag))
-    assert code == 2 and rows == []
-    assert len(errors) == 1 and INFO_TOPIC in errors[0] and "uncalibrated" in errors[0]
+    with pytest.raises(RecordingError, match=f"{INFO_TOPIC}: no intrinsics: .*uncalibrated"):
+        frames(bag)
 
 
 def test_no_depth_topic_and_an_encoding_we_do_not_read(tmp_path: Path) -> None:
     bag = write_recording(tmp_path / "rec.bag", "ros1", [depth()], CAMERA, Layout(encoding="mono8"))
-    code, rows, errors = run(str(bag))
-    assert code == 2 and rows == []
-    assert len(errors) == 1 and "no depth image" in errors[0] and DEPTH_TOPIC in errors[0]
-    code, rows, errors = run(str(bag), "--topic", DEPTH_TOPIC)
-    assert code == 2 and rows == []
-    assert errors == [f"error: {bag}: {DEPTH_TOPIC} frame 0: encoding 'mono8' is not a depth "
-                      "encoding (16UC1, mono16, 32FC1, 64FC1)"]  # fmt: skip
-    code, _, errors = run(str(bag), "--topic", INFO_TOPIC)
-    assert code == 2 and f"{INFO_TOPIC}: a sensor_msgs/CameraInfo topic" in errors[0]
-    code, _, errors = run(str(bag), "--topic", "/nowhere")
-    assert code == 2 and "/nowhere: no such topic" in errors[0]
+    with pytest.raises(
+        RecordingError, match=f"no depth image .*its images are {DEPTH_TOPIC}, none"
+    ):
+        frames(bag)
+    (error,) = frames(bag, topic=DEPTH_TOPIC)
+    assert isinstance(error, FrameError) and (error.topic, error.index) == (DEPTH_TOPIC, 0)
+    assert error.reason == "encoding 'mono8' is not a depth encoding (16UC1, mono16, 32FC1, 64FC1)"
+    with pytest.raises(RecordingError, match=f"{INFO_TOPIC}: a sensor_msgs/CameraInfo topic"):
+        frames(bag, topic=INFO_TOPIC)
+    with pytest.raises(RecordingError, match="/nowhere: no such topic"):
+        frames(bag, topic="/nowhere")
+    with pytest.raises(RecordingError, match="/nowhere: no sensor_msgs/CameraInfo topic"):
+        frames(bag, topic=DEPTH_TOPIC, camera_info="/nowhere")
 
 
 def test_stamps_out_of_order_are_reported_and_the_rest_answered(tmp_path: Path) -> None:

@@ -225,7 +225,7 @@ def test_batch_refuses_what_it_cannot_do(tmp_path: Path) -> None:
         (["batch", "align", str(tmp_path / "none.csv"), "-o", str(tmp_path / "p.jsonl")],
          "no such manifest"),
         (["batch", "scene", str(tmp_path), "-o", str(tmp_path / "s.jsonl")],
-         "no depth images or clouds"),
+         "no depth images, clouds or recordings"),
         (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--model-dir", str(tmp_path)],
          "no .onnx models found"),
         (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--budget-ms", "0"],
