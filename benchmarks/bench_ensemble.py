@@ -50,7 +50,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
-    from itnet.model.scanner import VIEW_RULES, scan_config
+    from itnet.model.scanner import named_views
     from itnet.pose.loop import AnytimeRun
     from itnet.pose.plan import plan
     from itnet.pose.request import PoseRequest
@@ -70,7 +70,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
         model.verifier = load_any(Path(verifier))
         assert isinstance(model.verifier, LoadedVerifier), f"{verifier}: not a verifier"
     cat = category(model.card.category, model.card.symmetry)
-    config = scan_config(VIEW_RULES[scanner])
+    config = named_views(scanner, cat.name)
     if split == "val":  # where a choice is made; the test split measures it once
         scans = validation_scans(data, cat, views, scan=config, cache=cache)
     else:
@@ -171,7 +171,13 @@ def main() -> None:
         default="test",
         help="val: itnet train's validation views (held-out training shapes)",
     )
-    parser.add_argument("--scanners", nargs="+", default=["occluded", "surface", "paper"])
+    parser.add_argument(
+        "--scanners",
+        nargs="+",
+        default=["occluded", "surface", "paper"],
+        help="view rules, each RULE or RULE+SENSOR: seen by a depth camera (model.sensor.SENSORS: "
+        "kinect_v1, kinect_v2, realsense_d435) at the category's real sizes",
+    )
     add_switch(
         parser,
         "--mirror",

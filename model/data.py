@@ -178,6 +178,10 @@ def cached_scan_set(
     viewpoints = [] if config.elevation is None else [list(config.elevation)]  # not in its repr
     if config.cut_below is not None:  # nor this
         viewpoints.append(["cut_below", *config.cut_below])
+    if config.sensor != "clean":  # the camera's parameters, not only its name
+        from itnet.model.sensor import SENSORS
+
+        viewpoints.append(repr(SENSORS[config.sensor]))
     key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint, *viewpoints)
     path = cache / f"scans-{key}.npz"
     if path.exists():

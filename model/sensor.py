@@ -19,7 +19,7 @@ the camera frame (x right, y down, z ahead), into what a given camera would retu
 * **misregistration**: the whole scan shifted a little (depth-to-body calibration).
 
 The presets (``SENSORS``) take their numbers from the cameras' published characterisations
-(docs/training.md#sensor-models cites them): ``kinect_v1`` (structured light),
+(docs/training.md, "Sensor models", cites them): ``kinect_v1`` (structured light),
 ``kinect_v2`` (time of flight), ``realsense_d435`` (active stereo), and ``clean`` (an exact
 render: nothing done). Pure numpy and scipy.
 """
@@ -52,7 +52,9 @@ class SensorModel:
     holes: tuple[int, int] = (0, 0)  # how many missing patches (uniform, inclusive)
     hole_radius_m: tuple[float, float] = (0.03, 0.12)
     flying_share: float = 0.0  # share of the silhouette's points that fly
-    flying_depth_m: tuple[float, float] = (0.05, 0.6)  # ... pushed back this far along the ray
+    # ... pushed back this far along the ray: the ones a segmenter leaves on the object (those
+    # further back part from it, with the background)
+    flying_depth_m: tuple[float, float] = (0.02, 0.25)
     misregistration_m: float = 0.0  # sigma of the whole scan's shift
 
     @property
@@ -72,18 +74,19 @@ class SensorModel:
 
     def apply(self, points: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:
         """A scan (K, 3), camera frame, metres -> what the camera returns of it (K', 3), K' <= K
-        (+ the flying pixels, moved, not added). Fewer than 8 points come back as they are."""
+        (the flying pixels moved, not added; possibly none). Fewer than 8 points come back as
+        they are."""
         p = np.asarray(points, dtype=np.float64)
         if self.clean or len(p) < 8:
             return p.copy()
         tree = cKDTree(p)
         theta = incidence(p, tree)
         keep = self._returns(p, theta, rng) & ~self._holes(p, tree, rng)
-        if keep.sum() < 8:  # the camera returns almost nothing: leave the holes out
+        if keep.sum() < 8:  # the holes took almost everything: leave them out
             keep = self._returns(p, theta, rng)
-        if keep.sum() < 8:
-            keep[:] = True
         p, theta = p[keep], theta[keep]
+        if len(p) == 0:  # nothing returns (all grazing or too far)
+            return p
         z = p[:, 2]
         ray = p / np.linalg.norm(p, axis=1, keepdims=True)
         depth = z + self.sigma_z(z, theta) * rng.normal(size=len(p))
@@ -146,7 +149,7 @@ def incidence(points: NDArray, tree: cKDTree | None = None, k: int = 8) -> NDArr
     return np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", normals, rays)), 0.0, 1.0))
 
 
-def silhouette(points: NDArray, k: int = 10) -> NDArray[np.bool_]:
+def silhouette(points: NDArray, k: int = 16) -> NDArray[np.bool_]:
     """Which points (K,) lie on the scan's outline as the camera sees it: in the image plane,
     the mean of a point's ``k`` neighbours lies well off the point (an edge has them on one
     side only)."""
@@ -155,7 +158,7 @@ def silhouette(points: NDArray, k: int = 10) -> NDArray[np.bool_]:
     distances, index = cKDTree(uv).query(uv, k=k)
     shift = np.linalg.norm(uv[index].mean(axis=1) - uv, axis=1)
     spread = distances[:, 1:].mean(axis=1) + 1e-12
-    return np.asarray(shift > 0.4 * spread)
+    return np.asarray(shift > 0.45 * spread)  # uniform samples of a patch: 5% inside, half the rim
 
 
 SENSORS: dict[str, SensorModel] = {
@@ -168,14 +171,14 @@ SENSORS: dict[str, SensorModel] = {
             "kinect_v1", focal_px=580.0, axial=(0.0012, 0.0019, 0.4), angle_term=0.0001,
             baseline_m=0.075, lateral_px=0.8, disparity_step_px=0.125, depth_unit_m=0.001,
             max_angle_deg=75.0, fade_m=(4.0, 6.0), holes=(0, 3), flying_share=0.05,
-            misregistration_m=0.005,
+            flying_depth_m=(0.02, 0.15), misregistration_m=0.005,
         ),
         # Time of flight, 512x424 (f 365 px): ~1.5 mm at 1 m growing slowly with depth and
         # fast with angle, strong flying pixels at edges: Fankhauser et al. 2015; Yang et al. 2015.
         SensorModel(
             "kinect_v2", focal_px=365.0, axial=(0.0015, 0.0004, 0.5), angle_term=0.0002,
             lateral_px=0.5, depth_unit_m=0.001, max_angle_deg=78.0, fade_m=(4.5, 8.0),
-            holes=(0, 2), flying_share=0.3, misregistration_m=0.005,
+            holes=(0, 2), flying_share=0.15, misregistration_m=0.005,
         ),
         # Active stereo, 848x480 (f 430 px, baseline 5 cm, 0.08 px RMS subpixel, 1/32 px
         # disparity steps): Intel's D400 datasheet and depth-quality white paper; Ahn et al. 2019.
@@ -183,7 +186,7 @@ SENSORS: dict[str, SensorModel] = {
             "realsense_d435", focal_px=430.0, axial=(0.0005, 0.0, 0.0), stereo_subpixel=0.08,
             baseline_m=0.05, lateral_px=0.6, disparity_step_px=1 / 32, depth_unit_m=0.001,
             max_angle_deg=72.0, fade_m=(3.5, 7.0), holes=(0, 4), hole_radius_m=(0.03, 0.15),
-            flying_share=0.1, misregistration_m=0.005,
+            flying_share=0.1, flying_depth_m=(0.02, 0.2), misregistration_m=0.005,
         ),
     )
 }  # fmt: skip
