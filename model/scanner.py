@@ -113,17 +113,22 @@ def sensor_views(sensor: str, radius_m: tuple[float, float]) -> dict[str, object
     return {"sensor": sensor, "radius_m": tuple(radius_m)}
 
 
-def named_views(name: str, category: str) -> ScanConfig:
-    """The ScanConfig of a named view rule, seen by a named camera where the name says so:
-    ``RULE`` or ``RULE+SENSOR`` (``occluded+kinect_v2``: occluded views of a real-sized piece of
-    ``category`` by a Kinect v2)."""
+def named_overrides(name: str, category: str) -> dict[str, object]:
+    """The ScanConfig overrides of a named view rule, seen by a named camera where the name says
+    so: ``RULE`` or ``RULE+SENSOR`` (``occluded+kinect_v2``: occluded views of a real-sized
+    piece of ``category`` by a Kinect v2)."""
     from itnet.model.categories import real_radius_m
 
     rule, _, sensor = name.partition("+")
     if rule not in VIEW_RULES:
         raise ValueError(f"unknown view rule {rule!r} (known: {', '.join(VIEW_RULES)})")
     camera = sensor_views(sensor, real_radius_m(category)) if sensor else {}
-    return scan_config(VIEW_RULES[rule], camera)
+    return {**VIEW_RULES[rule], **camera}
+
+
+def named_views(name: str, category: str) -> ScanConfig:
+    """The ScanConfig of ``named_overrides``."""
+    return scan_config(named_overrides(name, category))
 
 
 def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:

@@ -92,3 +92,21 @@ def test_scans_of_real_sized_objects_are_seeded_and_in_object_radii() -> None:
 def test_every_category_has_real_sizes() -> None:
     assert set(REAL_RADIUS_M) == set(MODELNET10)
     assert all(0.2 < lo <= hi < 2.0 for lo, hi in REAL_RADIUS_M.values())
+
+
+def test_the_commands_take_a_camera_by_name_and_refuse_unknown_ones(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
+    from itnet.model.scanner import named_overrides
+
+    assert named_overrides("paper+kinect_v1", "bed")["radius_m"] == REAL_RADIUS_M["bed"]
+    assert "sensor" not in named_overrides("occluded", "bed")
+    runner = CliRunner()
+    result = runner.invoke(app, ["train", "--sensors", "kinect_v9", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "unknown sensor 'kinect_v9'" in result.output
+    result = runner.invoke(app, ["train", "--val-scanner", "sideways", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "unknown view rule 'sideways'" in result.output
+    result = runner.invoke(app, ["eval", "--onnx", "itnet/models/chair.onnx", "--scanner",
+                                 "occluded+kinect_v9", "--out", str(tmp_path)])  # fmt: skip
+    assert result.exit_code == 2 and "unknown sensor" in result.output

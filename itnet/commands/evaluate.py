@@ -30,7 +30,8 @@ def evaluate(
         "occluded",
         help="Test views: 'occluded' (z-buffer with the 3x3 occlusion test, the product's "
         "benchmark), 'paper' (the paper's nearest point per pixel) or 'surface' (each point a disc, "
-        "as a camera sees a mesh); see model/scanner.py.",
+        "as a camera sees a mesh), or RULE+SENSOR (occluded+kinect_v2: by that depth camera, at "
+        "the category's real sizes); see model/scanner.py.",
     ),
     out: Path = typer.Option(Path("runs/eval"), help="Folder for report.json and anytime.png."),
     dump_scans: Path | None = typer.Option(
@@ -57,14 +58,11 @@ def evaluate(
     from itnet.model.category_set import test_scans
     from itnet.model.evaluate import anytime_poses, report
     from itnet.model.plots import plot_anytime
-    from itnet.model.scanner import VIEW_RULES, scan_config
+    from itnet.model.scanner import named_views
 
     batch = 50  # clouds per network call
     if (checkpoint is None) == (onnx is None):
         raise typer.BadParameter("give exactly one of --checkpoint or --onnx")
-    if scanner not in VIEW_RULES:
-        raise typer.BadParameter(f"--scanner must be one of {', '.join(VIEW_RULES)}")
-    config = scan_config(VIEW_RULES[scanner])
     if checkpoint is not None:
         from itnet.model.evaluate import torch_step
         from itnet.model.train import load_checkpoint
@@ -91,6 +89,10 @@ def evaluate(
         cat = model_category(category, trained_on, symmetry)
     except ValueError as err:
         raise typer.BadParameter(str(err)) from None
+    try:
+        config = named_views(scanner, cat.name)
+    except ValueError as err:
+        raise typer.BadParameter(f"--scanner: {err}") from None
     scans, orientation = test_scans(data, cat, views, seed, config, cache, frame, check_orientation)
     ups, free = None, 0
     if up is not None:  # each scan's true up, tilted as a gravity sensor's would be

@@ -85,7 +85,14 @@ def train(
     ),
     val_scanner: str = typer.Option(
         "occluded",
-        help="Validation views (model selection): 'occluded', 'paper' or 'surface'.",
+        help="Validation views (model selection): 'occluded', 'paper' or 'surface', or RULE+SENSOR "
+        "(occluded+kinect_v2: by that depth camera, at the category's real sizes).",
+    ),
+    sensors: str = typer.Option(
+        "",
+        help="Depth cameras to train on too, a comma list of model.sensor presets (kinect_v1, "
+        "kinect_v2, realsense_d435): each kind of view also by each camera, at the category's "
+        "real sizes; the scans are split evenly.",
     ),
     val_views: int = typer.Option(
         4, min=1, help="Validation views per held-out shape (more for a category of few shapes)."
@@ -139,8 +146,15 @@ def train(
     --device cuda --batch 100 --steps 20000 --decay-every 2000 --data-workers 2 --no-compile
     (35 steps/s on an H200).
     """
+    from itnet.model.categories import real_radius_m
     from itnet.model.network import POINT_LOSSES, ROTATIONS
-    from itnet.model.scanner import BASE_HIDDEN, PAPER_VIEWS, SURFACE_VIEWS, VIEW_RULES
+    from itnet.model.scanner import (
+        BASE_HIDDEN,
+        PAPER_VIEWS,
+        SURFACE_VIEWS,
+        named_overrides,
+        sensor_views,
+    )
     from itnet.model.train import TrainConfig
     from itnet.symmetry import SYMMETRY_NAMES
 
@@ -152,11 +166,19 @@ def train(
     parsed = {name: _widths(name, text) for name, text in widths.items()}
     if loss not in POINT_LOSSES:
         raise typer.BadParameter(f"--loss must be one of {', '.join(POINT_LOSSES)}")
-    if val_scanner not in VIEW_RULES:
-        raise typer.BadParameter(f"--val-scanner must be one of {', '.join(VIEW_RULES)}")
+    try:
+        val_scan = named_overrides(val_scanner, category)
+        cameras = [
+            sensor_views(s.strip(), real_radius_m(category))
+            for s in sensors.split(",")
+            if s.strip()
+        ]
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from None
     from itnet.model.train import train as run_training
 
     views = [{}, *([PAPER_VIEWS] * paper_views), *([SURFACE_VIEWS] * surface_views)]
+    views += [{**view, **camera} for camera in cameras for view in views]
     hidden = BASE_HIDDEN if base_hidden else {}
 
     config = TrainConfig(
@@ -192,7 +214,7 @@ def train(
         init_from=init_from,
         bn_momentum=(bn_momentum, 0.01),
         scan_mix=[{**rule, **hidden} for rule in views],
-        val_scan={**VIEW_RULES[val_scanner], **hidden},
+        val_scan={**val_scan, **hidden},
         val_views=val_views,
         stretch=stretch,
         upright=upright,
