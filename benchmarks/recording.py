@@ -33,7 +33,8 @@ class Layout:
     depth: bool = True
     camera_info: bool = True
     cloud: bool = False
-    encoding: str = "16UC1"  # or 32FC1 (metres); mono8 (no depth encoding)
+    encoding: str = "16UC1"  # or 32FC1 (metres); mono8 (no depth encoding); compressedDepth
+    # (a CompressedImage of image_transport's compressedDepth, 16UC1 in a PNG)
     calibrated: bool = True  # False: CameraInfo's K all zeros, as before calibration
     period_ns: int = 33_333_333  # 30 frames a second
     start_ns: int = 1_700_000_000 * 10**9
@@ -54,7 +55,9 @@ def write_recording(path: Path, kind: str, frames: list[NDArray], intrinsics: In
         def connection(wanted: bool, topic: str, msgtype: str):  # type: ignore[no-untyped-def]
             return writer.add_connection(topic, msgtype, typestore=store) if wanted else None
 
-        image_c = connection(layout.depth, DEPTH_TOPIC, "sensor_msgs/msg/Image")
+        compressed = layout.encoding == "compressedDepth"
+        image_c = connection(layout.depth, DEPTH_TOPIC + ("/compressedDepth" if compressed else ""),
+                             "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image")  # fmt: skip
         info_c = connection(layout.camera_info, INFO_TOPIC, "sensor_msgs/msg/CameraInfo")
         cloud_c = connection(layout.cloud, CLOUD_TOPIC, "sensor_msgs/msg/PointCloud2")
         serialise = store.serialize_ros1 if kind == "ros1" else store.serialize_cdr
@@ -119,7 +122,17 @@ def _header(store, stamp_ns: int, seq: int, kind: str):  # type: ignore[no-untyp
 
 def depth_image(store, header, depth: NDArray, encoding: str):  # type: ignore[no-untyped-def]
     """A sensor_msgs/Image of the depth (uint16 millimetres): 16UC1 as it is, 32FC1 in metres,
-    mono8 a grey picture of it."""
+    mono8 a grey picture of it; compressedDepth: a sensor_msgs/CompressedImage of it."""
+    if encoding == "compressedDepth":
+        import struct
+
+        from itnet.scene.depth_io import depth_to_png
+
+        data = struct.pack("<iff", 0, 0.0, 0.0) + depth_to_png(depth.astype(np.uint16))
+        return store.types["sensor_msgs/msg/CompressedImage"](
+            header=header, format="16UC1; compressedDepth png",
+            data=np.frombuffer(data, dtype=np.uint8),
+        )  # fmt: skip
     data = {
         "16UC1": lambda: depth.astype(np.uint16),
         "32FC1": lambda: (depth / 1000.0).astype(np.float32),

@@ -8,7 +8,8 @@ sqlite3 or MCAP storage, each with its header and its camera's intrinsics.
 
 Read with ``rosbags`` (pure Python, no ROS installation). The topics are found by type: the
 ``sensor_msgs/Image`` topic of a depth encoding (``16UC1``/``mono16`` depth units, ``32FC1``
-metres) and the ``sensor_msgs/CameraInfo`` beside it, else a ``sensor_msgs/PointCloud2`` topic;
+metres), or the ``sensor_msgs/CompressedImage`` of image_transport's ``compressedDepth``, and
+the ``sensor_msgs/CameraInfo`` beside it, else a ``sensor_msgs/PointCloud2`` topic;
 ``Selection.topic`` / ``camera_info`` choose where there are several. A frame takes the last
 camera info logged before it (the first of the recording where none came before: RealSense
 recordings log it once). Problems with the recording as a whole raise RecordingError; problems
@@ -30,15 +31,18 @@ from itnet.recordings.decode import (
     DecodeError,
     camera_intrinsics,
     cloud_points,
+    compressed_depth,
     depth_image,
     header_of,
+    is_compressed_depth,
 )
 from itnet.scene.camera import Intrinsics
 
 IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
-FRAME_TYPES = (IMAGE, POINT_CLOUD)
+FRAME_TYPES = (IMAGE, COMPRESSED, POINT_CLOUD)
 ROS1_SUFFIX = ".bag"
 ROS2_FILE_SUFFIXES = (".db3", ".mcap")
 RECORDING_SUFFIXES = (ROS1_SUFFIX, *ROS2_FILE_SUFFIXES)
@@ -123,7 +127,7 @@ class Recording:
         """Every selected frame in the order it was logged. ``intrinsics``: the camera's, where
         the recording has no camera info (else the camera info's are used)."""
         topic = self.frame_topic(selection)
-        is_image = self.topics[topic] == IMAGE
+        is_image = self.topics[topic] in (IMAGE, COMPRESSED)
         info_topic = self.info_topic(topic, selection) if is_image and intrinsics is None else None
         camera = self._first_intrinsics(info_topic) if info_topic else intrinsics
         wanted = [c for c in self.reader.connections if c.topic in (topic, info_topic)]
@@ -168,9 +172,8 @@ class Recording:
                     f"{' or '.join(t.replace('/msg/', '/') for t in types)}"
                 )
             return selection.topic
-        images = (
-            [t for t, k in self.topics.items() if k == IMAGE] if not selection.clouds_only else []
-        )
+        kinds = () if selection.clouds_only else (IMAGE, COMPRESSED)
+        images = [t for t, k in self.topics.items() if k in kinds]
         depth = [t for t in images if self._first_encoding(t) in DEPTH_ENCODINGS]
         clouds = [t for t, k in self.topics.items() if k == POINT_CLOUD]
         for found in (depth, clouds):
@@ -181,7 +184,7 @@ class Recording:
                     f"several frame topics ({', '.join(found)}): choose one with --topic"
                 )
         what = "sensor_msgs/PointCloud2" if selection.clouds_only else (
-            "depth image (sensor_msgs/Image, " + "/".join(DEPTH_ENCODINGS) + ") or PointCloud2")  # fmt: skip
+            "depth image (sensor_msgs/Image, " + "/".join(DEPTH_ENCODINGS) + "; compressedDepth) or PointCloud2")  # fmt: skip
         others = f"; its images are {', '.join(images)}, none of a depth encoding" if images else ""
         raise RecordingError(f"no {what} topic (topics: {self._listed()}){others}")
 
@@ -213,9 +216,16 @@ class Recording:
         connections = [c for c in self.reader.connections if c.topic == topic]
         for connection, _, raw in self.reader.messages(connections=connections):
             try:
-                return str(self._message(raw, connection).encoding)
+                message = self._message(raw, connection)
             except Exception:  # a message that does not deserialise has no encoding
                 return None
+            if connection.msgtype == COMPRESSED:  # compressedDepth: '16UC1; compressedDepth png'
+                return (
+                    str(message.format).split(";")[0].strip()
+                    if is_compressed_depth(message)
+                    else None
+                )
+            return str(message.encoding)
         return None
 
     def _frame(self, topic: str, index: int, log_time: int, raw: bytes, connection: Any,
@@ -226,7 +236,12 @@ class Recording:
             where = (topic, index, stamp, frame_id, log_time)
             if not is_image:
                 return Frame(*where, points=cloud_points(message))
-            return Frame(*where, depth=depth_image(message), intrinsics=camera)
+            depth = (
+                compressed_depth(message)
+                if connection.msgtype == COMPRESSED
+                else depth_image(message)
+            )
+            return Frame(*where, depth=depth, intrinsics=camera)
         except DecodeError as err:
             return FrameError(topic, index, str(err))
         except Exception as err:  # a message its own type does not describe

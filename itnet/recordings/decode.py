@@ -1,5 +1,6 @@
-"""ROS messages -> arrays: a depth ``Image`` -> (H, W) depth, a ``PointCloud2`` -> (N, 3) points,
-a ``CameraInfo`` -> Intrinsics, a ``Header`` -> (stamp in ns, frame_id).
+"""ROS messages -> arrays: a depth ``Image`` (or a ``CompressedImage`` of image_transport's
+``compressedDepth``) -> (H, W) depth, a ``PointCloud2`` -> (N, 3) points, a ``CameraInfo`` ->
+Intrinsics, a ``Header`` -> (stamp in ns, frame_id).
 
 Pure functions of the deserialised messages (any object with the messages' field names, ROS 1
 or ROS 2: ``K`` or ``k``); no bag is read here. Each raises DecodeError with a one-line reason.
@@ -7,12 +8,14 @@ or ROS 2: ``K`` or ``k``); no bag is read here. Each raises DecodeError with a o
 
 from __future__ import annotations
 
+import struct
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from itnet.scene.camera import Intrinsics, SceneInputError
+from itnet.scene.depth_io import png_to_depth
 
 # Depth encodings (REP 118, sensor_msgs/image_encodings): integer depth units (millimetres
 # unless told otherwise), or float metres.
@@ -55,6 +58,41 @@ def depth_image(message: Any) -> NDArray:
     rows = data[: height * step].reshape(height, step)[:, : width * item]
     order: Literal["<", ">"] = ">" if message.is_bigendian else "<"
     return np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).astype(dtype)
+
+
+COMPRESSED_DEPTH = "compressedDepth"
+CONFIG_HEADER = struct.Struct("<iff")  # compressed_depth_image_transport's: format, quantisation
+
+
+def is_compressed_depth(message: Any) -> bool:
+    """Whether a ``sensor_msgs/CompressedImage`` holds depth (image_transport's compressedDepth)."""
+    return COMPRESSED_DEPTH in str(message.format)
+
+
+def compressed_depth(message: Any) -> NDArray:
+    """A ``sensor_msgs/CompressedImage`` of ``compressedDepth`` (its ``format`` '16UC1;
+    compressedDepth png' or '32FC1; compressedDepth png') -> (H, W): uint16 depth units for
+    16UC1, float metres for 32FC1 (stored as quantised inverse depth, ``A / (v - B)``)."""
+    text = str(message.format)
+    if not is_compressed_depth(message):
+        raise DecodeError(f"format {text!r} is not a compressedDepth image")
+    encoding = text.split(";")[0].strip()
+    if encoding not in ("16UC1", "32FC1"):
+        raise DecodeError(f"compressedDepth of {encoding!r}: only 16UC1 and 32FC1 are read")
+    data = bytes(np.asarray(message.data, dtype=np.uint8))
+    if len(data) <= CONFIG_HEADER.size:
+        raise DecodeError("compressedDepth data shorter than its header")
+    _, quant_a, quant_b = CONFIG_HEADER.unpack_from(data)
+    try:
+        image = png_to_depth(data[CONFIG_HEADER.size :])
+    except SceneInputError as err:
+        raise DecodeError(f"compressedDepth: {err}") from None
+    if encoding == "16UC1":
+        return image
+    values = image.astype(np.float64)
+    with np.errstate(divide="ignore"):
+        depth = np.where(values > 0, quant_a / (values - quant_b), 0.0)
+    return np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
 
 
 def cloud_points(message: Any) -> NDArray[np.float64]:

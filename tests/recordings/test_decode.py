@@ -89,3 +89,26 @@ def test_camera_info_and_header() -> None:
 def test_the_camera_info_beside_an_image_is_the_one_sharing_its_namespace() -> None:
     assert shared_prefix("/camera/depth/camera_info", "/camera/depth/image_rect_raw") == 3
     assert shared_prefix("/camera/color/camera_info", "/camera/depth/image_rect_raw") == 2
+
+
+def test_compressed_depth_of_millimetres_and_of_inverse_metres() -> None:
+    import struct
+
+    from itnet.recordings.decode import compressed_depth
+    from itnet.scene.depth_io import depth_to_png
+
+    depth = (np.arange(12, dtype=np.uint16).reshape(3, 4) + 1) * 250
+    packed = struct.pack("<iff", 0, 0.0, 0.0) + depth_to_png(depth)
+    message = Msg(format="16UC1; compressedDepth png", data=np.frombuffer(packed, np.uint8))
+    np.testing.assert_array_equal(compressed_depth(message), depth)
+    # 32FC1: the PNG holds A / (z - B) per pixel, 0 where there is no depth
+    quant_a, quant_b = 100.0, -10.0
+    metres = np.array([[0.5, 1.0], [2.0, 0.0]])
+    values = np.where(metres > 0, np.round(quant_a / np.where(metres > 0, metres, 1) + quant_b), 0)
+    packed = struct.pack("<iff", 0, quant_a, quant_b) + depth_to_png(values.astype(np.uint16))
+    got = compressed_depth(
+        Msg(format="32FC1; compressedDepth png", data=np.frombuffer(packed, np.uint8))
+    )
+    np.testing.assert_allclose(got, metres, atol=0.02)
+    with pytest.raises(DecodeError, match="not a compressedDepth image"):
+        compressed_depth(Msg(format="png", data=np.zeros(20, np.uint8)))

@@ -93,17 +93,26 @@ def test_a_bag_s_frames_are_answered_as_itnet_scene_answers_them(
         assert_same_objects(row["objects"], png_answer["objects"])
 
 
-def test_float_metres_and_a_cloud_topic_give_the_same_objects(
+def test_float_metres_compressed_depth_and_a_cloud_topic_give_the_same_objects(
     tmp_path: Path, png_answer: dict
 ) -> None:
-    """A 32FC1 depth topic (metres) answers as 16UC1 does; a PointCloud2 topic of the frame's
-    points answers as ``itnet scene`` on the same cloud file."""
+    """A 32FC1 depth topic (metres) and a compressedDepth one answer as 16UC1 does; a
+    PointCloud2 topic of the frame's points answers as ``itnet scene`` on the same cloud file."""
     camera = parse_intrinsics(str(CAMERA))
     depth = example_depth()
     floats = write_recording(tmp_path / "f.bag", "ros1", [depth], camera, Layout(encoding="32FC1"))
     result = runner.invoke(app, ["scene", str(floats), *BUDGET, "--json", "--no-indices"])
     assert result.exit_code == 0, result.output
     assert_same_objects(lines(result.stdout)[0]["objects"], png_answer["objects"], exact=False)
+
+    packed = write_recording(
+        tmp_path / "p.bag", "ros1", [depth], camera, Layout(encoding="compressedDepth")
+    )
+    result = runner.invoke(app, ["scene", str(packed), *BUDGET, "--json", "--no-indices"])
+    assert result.exit_code == 0, result.output
+    row = lines(result.stdout)[0]
+    assert row["topic"] == DEPTH_TOPIC + "/compressedDepth"
+    assert_same_objects(row["objects"], png_answer["objects"])
 
     clouds = write_recording(
         tmp_path / "c", "mcap", [depth], camera, Layout(depth=False, cloud=True)
