@@ -160,15 +160,9 @@ class SceneWorker:
         """A row a frame of the recording (a row with the error for a frame that cannot be used,
         or for the whole recording where it cannot be read)."""
         from itnet.recordings import RecordingError, SceneAnswer, scene_answers
-        from itnet.scene import find_objects
+        from itnet.recordings.answer import scene_finder
 
-        keywords = {
-            k: v for k, v in self.arguments.items() if k not in ("intrinsics", "depth_scale")
-        }
-
-        def find(scene: Any, started: float) -> Any:
-            return find_objects(scene, catalog=self.catalog, started=started, **keywords)
-
+        find = scene_finder(self.catalog, self.arguments)
         rows: list[dict[str, Any]] = []
         try:
             for item in scene_answers(path, self.selection, find, self.arguments["intrinsics"],

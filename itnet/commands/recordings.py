@@ -79,14 +79,9 @@ def scene_recording(path: Path, chosen: Selection, arguments: dict[str, Any], ca
     """Answer, print and write every selected frame of one recording; False where a frame (or
     the recording) could not be used, each such problem printed as one line."""
     from itnet.recordings import RecordingError, describe, scene_answers, write_answers
-    from itnet.recordings.answer import SceneAnswer
-    from itnet.scene import find_objects
+    from itnet.recordings.answer import SceneAnswer, scene_finder
 
-    keywords = {k: v for k, v in arguments.items() if k not in ("intrinsics", "depth_scale")}
-
-    def find(scene: Any, started: float) -> Any:
-        return find_objects(scene, catalog=catalog, started=started, **keywords)
-
+    find = scene_finder(catalog, arguments)
     ok, answers = True, []
     try:
         for item in scene_answers(path, chosen, find, arguments["intrinsics"],

@@ -31,6 +31,20 @@ from itnet.scene.result import SceneResult
 FindObjects = Callable[[SceneInput, float], SceneResult]
 
 
+def scene_finder(catalog: Any, arguments: dict[str, Any]) -> FindObjects:
+    """``find_objects`` with ``catalog`` and the scene options bound (``arguments``: its keywords
+    as ``itnet.commands.scene.scene_arguments`` makes them; the intrinsics and depth scale are
+    the recording's, and are left out)."""
+    from itnet.scene import find_objects
+
+    keywords = {k: v for k, v in arguments.items() if k not in ("intrinsics", "depth_scale")}
+
+    def find(scene: SceneInput, started: float) -> SceneResult:
+        return find_objects(scene, catalog=catalog, started=started, **keywords)
+
+    return find
+
+
 @dataclass
 class SceneAnswer:
     """One frame and what was found in it: the scene's points (SceneInput) and its result."""

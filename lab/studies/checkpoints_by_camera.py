@@ -50,7 +50,7 @@ def main() -> None:
         scans = validation_scans(args.data, cat, args.per_shape, scan=named_views(name, cat.name),
                                  cache=args.cache)  # fmt: skip
         a, b = (correct(c, scans, cat.symmetry) for c in (args.first, args.second))
-        out[name] = {"first": round(100 * a.mean(), 1), **paired_accuracy(b, a)}
+        out[name] = {"first": round(100 * float(a.mean()), 1), **paired_accuracy(b, a)}
         print(name, out[name], flush=True)
     if args.json:
         args.json.write_text(json.dumps(out, indent=1) + "\n")
