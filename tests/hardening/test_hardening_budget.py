@@ -137,8 +137,9 @@ def test_a_live_server_under_load_keeps_the_budget(
     with live_server(settings.model_copy(update={"server": relaxed}), {"tiny": model}) as server:
         for _ in range(3):
             replies += asyncio.run(load(server.url))
-            if sum(body.get("iterations", 0) for status, body in replies if status == 200) > 20:
-                break
+            answered = [body for status, body in replies if status == 200]
+            if len(answered) > 20 and sum(body["iterations"] for body in answered) > 20:
+                break  # enough answers, and enough steps among them, to judge by
     statuses = {status for status, _ in replies}
     assert statuses <= {200, 503}, statuses
     elapsed = np.array([body["elapsed_ms"] for status, body in replies if status == 200])
