@@ -50,15 +50,13 @@ def read_rate(path: Path) -> dict:
 def answer_rate(path: Path, count: int, budget_ms: float) -> dict:
     """The first ``count`` frames answered in turn: frames/s, each reply's time, objects posed."""
     from itnet.recordings import Selection, scene_answers
-    from itnet.recordings.answer import SceneAnswer
-    from itnet.scene import find_objects, scene_catalog
+    from itnet.recordings.answer import SceneAnswer, scene_finder
+    from itnet.scene import scene_catalog
     from itnet.scene.warm_up import warm_up
 
     catalog = scene_catalog()
     warm_up(catalog)
-
-    def find(scene, started):  # type: ignore[no-untyped-def]
-        return find_objects(scene, catalog=catalog, started=started, budget_ms=budget_ms)
+    find = scene_finder(catalog, {"budget_ms": budget_ms})
 
     period_s = 1 / 30
     started = time.perf_counter()

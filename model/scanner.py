@@ -285,6 +285,7 @@ def scan_shape(
     if config.sensor != "clean":  # a real size and distance: the camera's effects are in metres
         radius_m = rng.uniform(*config.radius_m)
         distance = (config.distance_m[0] / radius_m, config.distance_m[1] / radius_m)
+        # in object radii; a camera closer than 1.3 radii would stand inside the piece's box
         config = replace(config, distance=(max(distance[0], 1.3), max(distance[1], 1.4)))
     for _ in range(20):
         camera_from_canonical = random_camera_pose(rng, config)

@@ -93,7 +93,7 @@ def scene_recording(path: Path, chosen: Selection, arguments: dict[str, Any], ca
             print_scene(item, fmt, indices)
             if outputs.rerun is not None:
                 outputs.rerun.log_frame(item.frame.index, item.frame.stamp_ns, item.scene.points,
-                                        item.objects(False), item.object_rows())  # fmt: skip
+                                        item.objects, item.object_rows())  # fmt: skip
             if outputs.output_bag is not None:
                 answers.append(item.answer())
         if outputs.output_bag is not None:

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -54,28 +55,25 @@ class SceneAnswer:
     scene: SceneInput
     result: SceneResult
 
-    def objects(self, indices: bool = True) -> list[dict[str, Any]]:
-        return [o.as_dict(indices) for o in self.result.objects]
+    @cached_property
+    def objects(self) -> list[dict[str, Any]]:
+        """Each object's JSON form without its indices, made once for every output."""
+        return [o.as_dict(False) for o in self.result.objects]
 
     def row(self, indices: bool = True) -> dict[str, Any]:
         """The JSON row: ``file``, ``topic``, ``frame`` (its place on the topic), ``header``, and
         the scene's answer as ``itnet scene --json`` gives it."""
-        return {**self.where(), **self.result.as_dict(indices)}
-
-    def where(self) -> dict[str, Any]:
-        return {"file": str(self.path), "topic": self.frame.topic, "frame": self.frame.index,
-                "header": self.frame.header()}  # fmt: skip
+        return {**self.frame.where(self.path), **self.result.as_dict(indices)}
 
     def detections(self) -> dict[str, Any]:
         """The frame's vision_msgs/Detection3DArray (as a dict)."""
-        return detection_array(self.frame.header(), self.objects(False))
+        return detection_array(self.frame.header(), self.objects)
 
     def answer(self) -> Answer:
         """What ``--output-bag`` writes for the frame."""
-        objects = self.objects(False)
         header = self.frame.header()
-        return Answer(self.frame.log_time_ns, detection_array(header, objects),
-                      poses_stamped(header, objects))  # fmt: skip
+        return Answer(self.frame.log_time_ns, detection_array(header, self.objects),
+                      poses_stamped(header, self.objects))  # fmt: skip
 
     def object_rows(self) -> list[NDArray[np.int64]]:
         """Each object's rows into ``scene.points`` (its indices are pixels or cloud rows)."""
@@ -88,23 +86,20 @@ def scene_answers(
 ) -> Iterator[SceneAnswer | FrameError]:  # fmt: skip
     """Every selected frame of the recording, answered. ``intrinsics``: the camera's where the
     recording has no camera info. RecordingError where the recording cannot be read at all."""
-    with open_recording(path) as recording:
-        if recording.recovered:
-            yield FrameError("", -1, recording.recovered)
-        for frame in recording.frames(selection, intrinsics):
-            if isinstance(frame, FrameError):
-                yield frame
-                continue
-            started = time.perf_counter()
-            try:
-                scene = (
-                    from_cloud(frame.points, limits)
-                    if frame.points is not None
-                    else from_depth(frame.depth, frame.intrinsics, depth_scale, limits)  # type: ignore[arg-type]
-                )
-                yield SceneAnswer(path, frame, scene, find(scene, started))
-            except SceneInputError as err:
-                yield FrameError(frame.topic, frame.index, str(err))
+    for frame in _frames(path, selection, intrinsics):
+        if isinstance(frame, FrameError):
+            yield frame
+            continue
+        started = time.perf_counter()
+        try:
+            scene = (
+                from_cloud(frame.points, limits)
+                if frame.points is not None
+                else from_depth(frame.depth, frame.intrinsics, depth_scale, limits)  # type: ignore[arg-type]
+            )
+            yield SceneAnswer(path, frame, scene, find(scene, started))
+        except SceneInputError as err:
+            yield FrameError(frame.topic, frame.index, str(err))
 
 
 def pose_answers(
@@ -113,23 +108,28 @@ def pose_answers(
     """Every selected PointCloud2 of the recording (an object's cloud), posed: (frame, its
     ``itnet pose --json`` row with ``topic``, ``frame`` and ``header``). ``pose``: a cloud
     (N, 3) -> its pose reply; its ValueError (a cloud that cannot be posed) becomes a FrameError."""
+    for frame in _frames(path, replace(selection, clouds_only=True)):
+        if isinstance(frame, FrameError):
+            yield frame
+            continue
+        assert frame.points is not None  # a cloud topic's frames are clouds
+        points = frame.points[np.isfinite(frame.points).all(axis=1)]
+        try:
+            reply = pose(points)
+        except ValueError as err:
+            yield FrameError(frame.topic, frame.index, str(err))
+            continue
+        yield frame, {**frame.where(path), **reply}
+
+
+def _frames(path: Path, selection: Selection,
+            intrinsics: Intrinsics | None = None) -> Iterator[Frame | FrameError]:  # fmt: skip
+    """The recording's selected frames, after a FrameError without a topic where it was read
+    without its index."""
     with open_recording(path) as recording:
         if recording.recovered:
             yield FrameError("", -1, recording.recovered)
-        for frame in recording.frames(Selection(**{**selection.__dict__, "clouds_only": True})):
-            if isinstance(frame, FrameError):
-                yield frame
-                continue
-            assert frame.points is not None  # a cloud topic's frames are clouds
-            points = frame.points[np.isfinite(frame.points).all(axis=1)]
-            try:
-                reply = pose(points)
-            except ValueError as err:
-                yield FrameError(frame.topic, frame.index, str(err))
-                continue
-            where = {"file": str(path), "topic": frame.topic, "frame": frame.index,
-                     "header": frame.header()}  # fmt: skip
-            yield frame, {**where, **reply}
+        yield from recording.frames(selection, intrinsics)
 
 
 def describe(path: Path, error: FrameError) -> str:

@@ -102,6 +102,15 @@ class Frame:
         sec, nanosec = divmod(self.stamp_ns, 1_000_000_000)
         return {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": self.frame_id}
 
+    def where(self, path: Path) -> dict[str, Any]:
+        """The fields that place the frame's row: ``file``, ``topic``, ``frame``, ``header``."""
+        return {
+            "file": str(path),
+            "topic": self.topic,
+            "frame": self.index,
+            "header": self.header(),
+        }
+
 
 @dataclass(frozen=True)
 class FrameError:
@@ -116,11 +125,11 @@ class FrameError:
 class Recording:
     """An open recording (``open_recording``): its topics, and its frames one at a time."""
 
-    def __init__(self, path: Path, reader: Any) -> None:
+    def __init__(self, path: Path, reader: Any, recovered: str = "") -> None:
         self.path = path
         self.reader = reader
         self.topics: dict[str, str] = {c.topic: c.msgtype for c in reader.connections}
-        self.recovered = ""  # why the recording was read without its index, where it was
+        self.recovered = recovered  # why the recording was read without its index, where it was
 
     def frames(self, selection: Selection = Selection(),
                intrinsics: Intrinsics | None = None) -> Iterator[Frame | FrameError]:  # fmt: skip
@@ -283,9 +292,7 @@ def open_recording(path: Path) -> Iterator[Recording]:
             raise RecordingError(f"not a readable ROS bag: {problem}") from None
         reader, recovered = _unindexed(path, store, problem)
     try:
-        recording = Recording(path, reader)
-        recording.recovered = recovered
-        yield recording
+        yield Recording(path, reader, recovered)
     finally:
         reader.close()
 
