@@ -11,8 +11,10 @@ decoding included. Scoring:
 
 * a returned object matches the scene's object whose pixels it overlaps most, where their
   intersection over union is at least 0.5 (each scene object matched once, best first);
-* found: scene objects matched; false: returned objects matched to none (wall pieces, floor
-  fragments, halves of objects, two objects as one);
+* found: scene objects matched; false: returned objects named by a category and matched to none
+  (wall pieces, floor fragments, halves of objects, two objects as one); such objects answered
+  as unknown are counted apart (``unknown_unmatched``), as are scene objects found but answered
+  as unknown (``unknown_objects``);
 * right: matched, the category right, and the pose within (10 degrees, 0.1 radius) of the truth
   with the category's symmetry (SPEC.md); counted over the scene objects that are visible
   (at least ``--min-pixels`` pixels at 320x240, four times as many at 640x480).
@@ -63,7 +65,8 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
         taken_truth.add(k)
         truth, obj = scene.objects[k - 1], result.objects[i]
         row = {"kind": "object", "category": truth.category, "found": True,
-               "predicted": obj.category, "visible": bool(sizes[k] >= min_pixels)}  # fmt: skip
+               "predicted": obj.category, "probability": obj.probability,
+               "unknown": obj.unknown, "visible": bool(sizes[k] >= min_pixels)}  # fmt: skip
         if obj.pose is not None and obj.category == truth.category:
             symmetry = MODELNET10[truth.category].symmetry
             rot = float(
@@ -78,7 +81,9 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
         if k not in taken_truth:
             rows.append({"kind": "object", "category": scene.objects[k - 1].category,
                          "found": False, "right": False, "visible": bool(sizes[k] >= min_pixels)})  # fmt: skip
-    rows += [{"kind": "false", "predicted": result.objects[i].category}
+    rows += [{"kind": "false" if result.objects[i].category is not None else "unknown",
+              "predicted": result.objects[i].category,
+              "probability": result.objects[i].probability, "unknown": result.objects[i].unknown}
              for i in range(len(result.objects)) if i not in taken_obj]  # fmt: skip
     return rows
 
@@ -101,6 +106,7 @@ def summary(rows: list[dict], returned: int) -> dict:
     """Percentages with binomial standard errors."""
     objects = [r for r in rows if r["kind"] == "object" and r["visible"]]
     false = sum(r["kind"] == "false" for r in rows)
+    unknown = sum(r["kind"] == "unknown" for r in rows)
 
     def pct(k: int, n: int) -> dict:
         p = k / max(n, 1)
@@ -118,6 +124,10 @@ def summary(rows: list[dict], returned: int) -> dict:
             sum(r.get("predicted") == r["category"] for r in objects), len(objects)
         ),
         "false": pct(false, returned),
+        # answered as unknown, matched to no object (a piece of one, a wall's strip)
+        "unknown_unmatched": pct(unknown, returned),
+        "unknown_objects": pct(sum(r.get("found", False) and r.get("predicted") is None
+                                   for r in objects), len(objects)),  # fmt: skip
         "by_category": by_category,
     }
 

@@ -164,11 +164,14 @@ class AsyncItnetClient:
         recheck: bool = True,
         scene_classifier: bool = True,
         split_touching: bool = True,
+        unknown: bool = True,
+        named_split: bool = True,
         up: tuple[float, float, float] | None = None,
     ) -> Any:
         """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
+                    "scene_classifier": scene_classifier, "split_touching": split_touching,
+                    "unknown": unknown, "named_split": named_split}  # fmt: skip
         body, query, headers = scene_request(
             scene, intrinsics, budget_ms, depth_scale, indices, switches, up
         )

@@ -170,6 +170,8 @@ class ItnetClient:
         recheck: bool = True,
         scene_classifier: bool = True,
         split_touching: bool = True,
+        unknown: bool = True,
+        named_split: bool = True,
         up: tuple[float, float, float] | None = None,
     ) -> Any:
         """``POST /v1/scene``: every object of a depth image or a scene cloud -> the reply (a
@@ -179,11 +181,13 @@ class ItnetClient:
         (N, 3) in the camera's frame (metres); ``intrinsics`` (fx, fy, cx, cy) for an image.
         ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default);
         ``scene_classifier``: objects named by their shape on the floor too; ``split_touching``:
-        a cluster cut where it holds two objects standing against each other (both on by
-        default); ``up``: which way is up in the camera's frame (default: the service's −y, a
+        a cluster cut where it holds two objects standing against each other; ``unknown``: a
+        cluster no category fits answered with category None; ``named_split``: such a cluster
+        parted where the recognition finds two objects (all on by default); ``up``: which way is up in the camera's frame (default: the service's −y, a
         camera held about level). Raises ItnetRequestError (refused), ItnetConnectionError."""
         switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier, "split_touching": split_touching}  # fmt: skip
+                    "scene_classifier": scene_classifier, "split_touching": split_touching,
+                    "unknown": unknown, "named_split": named_split}  # fmt: skip
         body, query, headers = scene_request(
             scene, intrinsics, budget_ms, depth_scale, indices, switches, up
         )

@@ -163,6 +163,8 @@ def scene(
     recheck: bool = scene_options.RECHECK,
     scene_classifier: bool = scene_options.SCENE_CLASSIFIER,
     split_touching: bool = scene_options.SPLIT_TOUCHING,
+    unknown: bool = scene_options.UNKNOWN,
+    named_split: bool = scene_options.NAMED_SPLIT,
     up: str | None = scene_options.UP,
     topic: str | None = rec.TOPIC,
     camera_info: str | None = rec.CAMERA_INFO,
@@ -189,7 +191,8 @@ def scene(
     chosen = rec.selection(topic, camera_info, every, start, end)
     arguments = scene_options.scene_arguments(intrinsics, depth_scale, budget_ms, up,  # type: ignore[arg-type]
                                               floor_centre, along_floor, recheck,
-                                              scene_classifier, split_touching)  # fmt: skip
+                                              scene_classifier, split_touching, unknown,
+                                              named_split)  # fmt: skip
     try:
         files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES + RECORDING_SUFFIXES,
                               "depth images, clouds or recordings")  # fmt: skip

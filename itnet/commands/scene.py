@@ -61,6 +61,16 @@ SPLIT_TOUCHING = typer.Option(
     "--split-touching/--no-split-touching",
     help="Cut a cluster where the cut judge finds two objects standing against each other.",
 )
+UNKNOWN = typer.Option(
+    True,
+    "--unknown/--no-unknown",
+    help="A cluster no category fits answered as unknown (category null), not named.",
+)
+NAMED_SPLIT = typer.Option(
+    True,
+    "--named-split/--no-named-split",
+    help="An unknown cluster parted where the recognition finds two objects in it.",
+)
 UP = typer.Option(
     None,
     help="Which way is up in the camera's frame, 'x,y,z' (e.g. from an IMU's gravity); the "
@@ -79,6 +89,8 @@ def scene_arguments(
     recheck: bool = True,
     scene_classifier: bool = True,
     split_touching: bool = True,
+    unknown: bool = True,
+    named_split: bool = True,
 ) -> dict[str, Any]:
     """The scene options as ``find_objects``' keywords (plain values, picklable), or a usage
     error (typer.BadParameter) saying which one is wrong."""
@@ -102,7 +114,8 @@ def scene_arguments(
         "intrinsics": camera,
         "budget_ms": budget_ms,
         "depth_scale": depth_scale,
-        "finishing": SceneFinishing(floor_centre, along_floor, recheck),
+        "finishing": SceneFinishing(floor_centre, along_floor, recheck, unknown=unknown,
+                                    named_split=named_split),
         "scene_classifier": scene_classifier,
         "options": SegmentOptions(split_touching=split_touching),
         **({} if up is None else {"expected_up": tuple(up)}),
@@ -135,6 +148,8 @@ def scene(
     recheck: bool = RECHECK,
     scene_classifier: bool = SCENE_CLASSIFIER,
     split_touching: bool = SPLIT_TOUCHING,
+    unknown: bool = UNKNOWN,
+    named_split: bool = NAMED_SPLIT,
     up: str | None = UP,
     topic: str | None = rec.TOPIC,
     camera_info: str | None = rec.CAMERA_INFO,
@@ -163,7 +178,8 @@ def scene(
     from itnet.scene.warm_up import warm_up
 
     arguments = scene_arguments(intrinsics, depth_scale, budget_ms, up, floor_centre,  # type: ignore[arg-type]
-                                along_floor, recheck, scene_classifier, split_touching)  # fmt: skip
+                                along_floor, recheck, scene_classifier, split_touching, unknown,
+                                named_split)  # fmt: skip
     fmt = "json" if as_json else fmt
     if fmt not in rec.FORMATS:
         raise typer.BadParameter(f"--format must be one of {', '.join(rec.FORMATS)}, got {fmt!r}")
@@ -220,6 +236,7 @@ def scene_file(
             if obj.pose is None
             else f"rotation {float(rotation_angle_deg(obj.pose[:3, :3])):.1f} deg"
         )
-        typer.echo(f"  {obj.category} ({obj.probability:.2f}), {len(obj.indices)} points, "
+        name = obj.category or f"unknown: {obj.unknown}"
+        typer.echo(f"  {name} ({obj.probability:.2f}), {len(obj.indices)} points, "
                    f"box centre {centre} m, {pose}")  # fmt: skip
     return True

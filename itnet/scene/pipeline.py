@@ -24,18 +24,20 @@ classifier where it applies (``scene_classifier``), else by the classifier and t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.columns import column_max, column_mean, column_min
 from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics
 from itnet.scene.category_recheck import rechecked
 from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
+from itnet.scene.named_split import Namer, named_parts
 from itnet.scene.planes import Plane
 from itnet.scene.posing import (
     BadCloudError,
@@ -47,7 +49,14 @@ from itnet.scene.posing import (
 )
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
-from itnet.scene.segment import CAMERA_UP, Segmentation, SegmentOptions, segment
+from itnet.scene.segment import (
+    CAMERA_UP,
+    Segmentation,
+    SegmentOptions,
+    segment,
+    working_points,
+)
+from itnet.scene.touching import load_cut_judge
 from itnet.scene.view_edges import ViewEdges
 
 DEFAULT_BUDGET_MS = 140.0
@@ -68,6 +77,10 @@ class SceneFinishing:
     # an object whose base is out of view posed by its category's network for such views
     # (``<category>_base_hidden``) where the models have one
     base_hidden_models: bool = True
+    # a cluster no category fits answered as unknown (``itnet.scene.unknown``), not named ...
+    unknown: bool = True
+    # ... unless the recognition parts it into two objects that categories fit (``named_split``)
+    named_split: bool = True
 
 
 VIEWPOINT = np.zeros(3)  # the camera, in its own frame
@@ -114,6 +127,8 @@ def find_objects(
     else:
         given = from_array(np.asarray(scene), intrinsics, depth_scale, limits)
     catalog = catalog or shipped_catalog()
+    if options.work_points is None:
+        options = replace(options, work_points=working_points(budget_ms))
     found = segment(given.points, options, expected)
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
@@ -121,36 +136,89 @@ def find_objects(
     if not finishing.along_floor:
         table = CentreTable({})
     namer = serving_scene_classifier(catalog, scene_classifier)
+    context = _Context(catalog, found, table, namer, finishing, categories)
+    rng = np.random.default_rng(0)
     for k, rows in enumerate(found.objects):
-        points = given.points[rows]
-        now = time.perf_counter()
-        left_ms = budget_ms - (now - started) * 1e3
-        share = max(left_ms, 0.0) / (len(found.objects) - k)
-        height = None if found.floor is None else top_height(points, found.floor)
-        hidden = base_out_of_view(found.edges, points, found.floor, finishing)
-        try:
-            seen = pose_object(catalog, points, found.up, VIEWPOINT, max(share, 1e-3),
-                               categories=categories, floor=found.floor, scene_classifier=namer,
-                               base_hidden=hidden,
-                               base_hidden_models=finishing.base_hidden_models)  # fmt: skip
-        except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
-            continue
-        finish = partial(stood_on_floor, catalog=catalog, points=points, height=height,
-                         found=found, table=table, floor_centre=finishing.floor_centre)  # fmt: skip
-        seen = finish(seen)
-        if finishing.recheck:
-            seen = rechecked(catalog, seen, points, found.up, VIEWPOINT, now + share / 1e3, finish,
-                             hidden)  # fmt: skip
-        box = object_box(points, found.up, found.floor, seen.pose)
-        objects.append(SceneObject(
-            given.indices[rows], seen.category, seen.probability, seen.candidates, seen.unsure,
-            box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden,
-        ))  # fmt: skip
+        left_ms = budget_ms - (time.perf_counter() - started) * 1e3
+        objects += _answered(context, given.points[rows], given.indices[rows],
+                             left_ms / (len(found.objects) - k), rng)  # fmt: skip
     return SceneResult(
         objects, found.up if found.floor is not None else None, found.floor, found.walls,
         len(given.points), given.image_shape, budget_ms, segment_ms,
         (time.perf_counter() - started) * 1e3,
     )  # fmt: skip
+
+
+# an object's category, pose and finishing see at most this many of its points, drawn at
+# random (the pose networks read fewer; a near dresser of a 640x480 frame has 60,000)
+OBJECT_POINTS = 4096
+# an object reached with less than this left of the scene's budget is not classified: its box
+# and points are answered, with category null and ``no_pose: budget``
+CLASSIFY_MS = 3.0
+
+
+@dataclass(frozen=True)
+class _Context:
+    """What every object of one scene is answered with."""
+
+    catalog: Catalog
+    found: Segmentation
+    table: CentreTable
+    namer: SceneClassifier | None
+    finishing: SceneFinishing
+    categories: frozenset[str] | None
+
+
+def _answered(
+    context: _Context, points: NDArray, indices: NDArray[np.int64], share_ms: float,
+    rng: np.random.Generator, split: bool = True,
+) -> list[SceneObject]:  # fmt: skip
+    """One cluster (K, 3), its points' ``indices`` (K,) and its share of the budget (ms) -> its
+    SceneObject; the objects of its parts where no category fits it and the recognition
+    parts it in two (``named_split``, where ``split``); none for a cluster the classifier
+    cannot use."""
+    found, finishing, catalog = context.found, context.finishing, context.catalog
+    now = time.perf_counter()
+    seen_points = points if len(points) <= OBJECT_POINTS else points[
+        rng.choice(len(points), OBJECT_POINTS, replace=False)]  # fmt: skip
+    hidden = base_out_of_view(found.edges, seen_points, found.floor, finishing)
+    if share_ms < CLASSIFY_MS:
+        box = object_box(points, found.up, found.floor, None)
+        return [SceneObject(indices, None, 0.0, [], True, box, no_pose="budget",
+                            base_out_of_view=hidden)]  # fmt: skip
+    height = None if found.floor is None else top_height(seen_points, found.floor)
+    try:
+        seen = pose_object(catalog, seen_points, found.up, VIEWPOINT, share_ms,
+                           categories=context.categories, floor=found.floor,
+                           scene_classifier=context.namer, base_hidden=hidden,
+                           base_hidden_models=finishing.base_hidden_models,
+                           unknown=finishing.unknown)  # fmt: skip
+    except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
+        return []
+    if seen.unknown is not None and split and finishing.named_split and found.floor is not None:
+        parts = _parts(context, points, now + share_ms / 2e3)
+        if len(parts) > 1:
+            left_ms = share_ms - (time.perf_counter() - now) * 1e3
+            return [o for part in parts for o in _answered(
+                context, points[part], indices[part], left_ms / len(parts), rng, split=False)]
+    finish = partial(stood_on_floor, catalog=catalog, points=seen_points, height=height,
+                     found=found, table=context.table, floor_centre=finishing.floor_centre)  # fmt: skip
+    seen = finish(seen)
+    if finishing.recheck:
+        seen = rechecked(catalog, seen, seen_points, found.up, VIEWPOINT, now + share_ms / 1e3,
+                         finish, hidden)  # fmt: skip
+    box = object_box(points, found.up, found.floor, seen.pose)
+    return [SceneObject(indices, seen.category, seen.probability, seen.candidates, seen.unsure,
+                        box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden,
+                        seen.unknown)]  # fmt: skip
+
+
+def _parts(context: _Context, points: NDArray, deadline: float) -> list[NDArray[np.int64]]:
+    """An unknown cluster's (K, 3) objects, as the recognition parts it (``named_parts``)."""
+    assert context.found.floor is not None
+    namer = Namer(context.catalog, context.namer, context.categories, context.found.floor,
+                  VIEWPOINT)  # fmt: skip
+    return named_parts(points, namer, load_cut_judge(), deadline)
 
 
 def up_direction(value: NDArray | tuple[float, float, float] | str) -> NDArray[np.float64]:
@@ -252,14 +320,15 @@ def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray 
     if pose is not None:
         rotation = pose[:3, :3].T  # R_camera_from_canonical: the canonical axes
     else:
-        flat = points - points.mean(0)
+        sample = points[:: max(1, len(points) // 4096)]
+        flat = sample - column_mean(sample)
         flat -= np.outer(flat @ up, up)
         _, _, vt = np.linalg.svd(flat, full_matrices=False)
         x = vt[0] - (vt[0] @ up) * up
         x /= np.linalg.norm(x)
         rotation = np.stack([x, up, np.cross(x, up)], axis=1)
     local = points @ rotation
-    lo, hi = local.min(0), local.max(0)
+    lo, hi = column_min(local), column_max(local)
     if floor is not None:  # the floor under the box's centre, along the box's y (up)
         height = float(floor.distance(rotation @ ((lo + hi) / 2)))
         lo[1] = min(lo[1], (lo[1] + hi[1]) / 2 - height)

@@ -18,6 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from itnet.columns import column_mean
+
 
 @dataclass(frozen=True)
 class Plane:
@@ -42,7 +44,7 @@ def floor_axes(up: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
 def fit_plane(points: NDArray) -> Plane:
     """Least-squares plane through points (N >= 3, 3): through their centroid, normal to the
     direction of least variance."""
-    centre = points.mean(axis=0)
+    centre = column_mean(points)
     _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
     normal = vt[2]
     return Plane(normal, float(-normal @ centre))

@@ -32,6 +32,7 @@ from itnet.pose.runtime import (
 from itnet.scene.height_prior import with_height
 from itnet.scene.planes import Plane
 from itnet.scene.scene_classifier import SceneClassifier, cluster_features
+from itnet.scene.unknown import unknown_reason
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 # A scene's object is posed by at least this many fused runs, their starts turned about up (a
@@ -57,18 +58,19 @@ def scene_catalog(model_dir: Path | None = None, threads: int = 2) -> Catalog:
 
 @dataclass
 class ObjectPose:
-    """One cluster's category and, where its category has a pose model and the budget held a
-    run, its pose: ``result`` is the anytime run's reply (``T_canonical_from_input``, both
+    """One cluster's category (None: unknown) and, where its category has a pose model and the
+    budget held a run, its pose: ``result`` is the anytime run's reply (``T_canonical_from_input``, both
     quaternions, iterations, ...) without the recognition's fields; ``pose`` (4, 4)."""
 
-    category: str
+    category: str | None  # None: unknown (``unknown`` says why)
     probability: float
     candidates: list[dict[str, Any]]
     unsure: bool
     pose: NDArray[np.float64] | None = None
     result: dict[str, Any] | None = None
-    no_pose: str | None = None  # why there is no pose: 'no_pose_model' or 'budget'
+    no_pose: str | None = None  # why there is no pose: 'no_pose_model', 'budget' or 'unknown'
     named_by: str = "classifier"  # or 'scene_classifier': what named the category
+    unknown: str | None = None  # 'unsure' or 'too_large' (``itnet.scene.unknown``)
 
 
 class NoClassifierError(RuntimeError):
@@ -88,6 +90,7 @@ def pose_object(
     scene_classifier: SceneClassifier | None = None,
     base_hidden: bool = False,
     base_hidden_models: bool = True,
+    unknown: bool = True,
 ) -> ObjectPose:
     """A cluster (K, 3) in metres, its up (3,, unit) and the sensor's position (3,) -> its
     ObjectPose, the classification (``scene_category``) and the run within ``budget_ms`` from
@@ -95,14 +98,22 @@ def pose_object(
     be (default: any); ``floor``: the plane it stands on, whose height it is measured from;
     ``scene_classifier``: the one to name it by (see ``scene_category``); ``base_hidden``:
     whether the object's base lies below the view (where ``base_hidden_models`` is on and its
-    category has a model for such views, ``BASE_HIDDEN_SUFFIX``, that model poses it). No
-    run where less than ``min_run_ms`` is left after the classification. Raises BadCloudError
-    (too few points, degenerate)."""
+    category has a model for such views, ``BASE_HIDDEN_SUFFIX``, that model poses it);
+    ``unknown``: a cluster that no category fits is unknown (``itnet.scene.unknown``: category
+    None, no pose). No run where less than ``min_run_ms`` is left after the classification.
+    Raises BadCloudError (too few points, degenerate)."""
     started = time.perf_counter() if started is None else started
     seen = scene_category(catalog, points, up, viewpoint, started + budget_ms / 2e3, categories,
                           floor, scene_classifier)  # fmt: skip
-    model = catalog.models.get(seen.category + BASE_HIDDEN_SUFFIX) if base_hidden_models else None
-    if model is None or model.card.category != seen.category or not base_hidden:
+    named = seen.category
+    assert named is not None  # scene_category names one
+    if unknown:
+        seen.unknown = unknown_reason(named, seen.probability, points, up)
+        if seen.unknown is not None:
+            seen.category, seen.no_pose = None, "unknown"
+            return seen
+    model = catalog.models.get(named + BASE_HIDDEN_SUFFIX) if base_hidden_models else None
+    if model is None or model.card.category != named or not base_hidden:
         model = None  # the category's own
     return posed_as(catalog, seen, points, up, viewpoint, budget_ms, started, min_run_ms, model)
 
@@ -189,10 +200,11 @@ def posed_as(
     model: LoadedModel | None = None,
 ) -> ObjectPose:
     """``seen`` (its category) with its pose: the category's anytime pipeline (or ``model``'s)
-    run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs),
-    within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model
+    run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs,
+    or one where the budget holds no more), within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model
     for the category, or the budget)."""
-    model = model or pose_model_for(seen.category, catalog.models)
+    model = model or (None if seen.category is None else pose_model_for(seen.category,
+                                                                        catalog.models))
     if model is None:
         seen.no_pose = "no_pose_model"
         return seen
@@ -201,11 +213,16 @@ def posed_as(
         seen.no_pose = "budget"
         return seen
     runs = SCENE_LEAST_RUNS if model.card.recommended_ensemble < SCENE_LEAST_RUNS else None
-    request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
-                          viewpoint=[float(v) for v in viewpoint], ensemble=runs)  # fmt: skip
-    try:
-        run = AnytimeRun(plan(model, request, catalog.limits), points, started)
-    except BudgetTooSmallError:
+    run = None
+    for ensemble in (runs, 1):  # a share too small for the fused runs gets one run
+        request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
+                              viewpoint=[float(v) for v in viewpoint], ensemble=ensemble)  # fmt: skip
+        try:
+            run = AnytimeRun(plan(model, request, catalog.limits), points, started)
+            break
+        except BudgetTooSmallError:
+            continue
+    if run is None:
         seen.no_pose = "budget"
         return seen
     run.run_to_end()

@@ -41,7 +41,7 @@ class SceneObject:
     category has a pose model (else ``pose`` is None and ``no_pose`` says why)."""
 
     indices: NDArray[np.int64]
-    category: str
+    category: str | None  # None: unknown (``unknown`` says why: itnet.scene.unknown)
     probability: float
     candidates: list[dict[str, Any]]
     unsure: bool
@@ -53,10 +53,12 @@ class SceneObject:
     # its base lies below the view: seen from part of its height up (its box still reaches the
     # floor; itnet.scene.pipeline.base_out_of_view)
     base_out_of_view: bool = False
+    unknown: str | None = None  # 'unsure' or 'too_large'
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
-        """The JSON form: ``category``, ``category_probability``, ``candidates``, ``unsure``,
-        ``named_by``, ``base_out_of_view``, the run's fields (``T_canonical_from_input``,
+        """The JSON form: ``category`` (null: unknown), ``category_probability``,
+        ``candidates``, ``unsure``, ``named_by``, ``base_out_of_view``, ``unknown`` (why it is
+        unknown: 'unsure' or 'too_large'; null where named), the run's fields (``T_canonical_from_input``,
         ``quat_wxyz``, ``quat_xyzw``, ``translation``, ``iterations``, ``stopped_by``, ``model``,
         ...; null pose where none, with ``no_pose``), ``box``, ``points`` (how many) and
         ``indices``."""
@@ -67,6 +69,7 @@ class SceneObject:
             "unsure": self.unsure,
             "named_by": self.named_by,
             "base_out_of_view": self.base_out_of_view,
+            "unknown": self.unknown,
         }
         if self.run is not None:
             out.update(self.run)

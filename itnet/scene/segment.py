@@ -16,7 +16,7 @@ stands on the floor, filtered by size.
    (3-D) or their footprints on the floor within ``footprint_m`` (so the parts of one object that
    occlusion cut apart, a chair's back above a table, stay one object): the connected components
    (scipy's KD-tree and csgraph).
-4. Filters: at least ``min_points`` points, a top at least ``min_height_m`` above the floor (no
+4. Filters: at least ``min_points`` working voxels (``least_voxels``), a top at least ``min_height_m`` above the floor (no
    floor fragments), at most ``max_size_m`` across and tall (no room-sized leftovers), its
    median point farther than ``wall_piece_m`` from every wall (a wall's noise, in front of the
    plane by more than its threshold, is a thin sheet that would otherwise pass).
@@ -45,7 +45,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from itnet.scene.planes import Plane, floor_axes, ransac_plane
+from itnet.columns import column_max, column_min
+from itnet.scene.planes import Plane, fit_plane, floor_axes, ransac_plane
 from itnet.scene.touching import load_cut_judge, split_touching
 from itnet.scene.view_edges import ViewEdges
 
@@ -66,28 +67,46 @@ class SegmentOptions:
     wall_threshold_m: float = 0.04
     max_walls: int = 3
     wall_min_width_m: float = 2.5
-    wall_min_top_m: float = 1.6
+    wall_min_top_m: float = 2.1  # taller than furniture (a wardrobe is 2.0 m), lower than rooms
     # ... or seen up to within this of the view's top edge (a camera pitched down sees only a
     # wall's lower part)
     wall_view_top_deg: float = 1.0
     wall_min_share: float = 0.03  # of the points left after the floor
     wall_behind_m: float = 0.25  # a point this far beyond a plane is seen behind it ...
-    wall_max_behind: float = 0.02  # ... and a wall has at most this share of the points so
+    # ... and a wall shows at most this share of what is seen on it or through it (windows,
+    # mirrors and doorways show what is behind a real wall; the plane of a large piece of
+    # furniture has the room behind it) ...
+    wall_max_through: float = 0.25
+    # ... or at most this share of the points where it is smaller than a wall and passes only by
+    # reaching the view's top (the front of a tall chest beside the camera does too)
+    wall_edge_max_behind: float = 0.02
     voxel_m: float = 0.03
     link_m: float = 0.07
+    link_voxels: float = 1.6  # ... or this many of the working cloud's voxels, if farther
     footprint_m: float = 0.04
     wall_piece_m: float = 0.15  # a cluster whose median point lies this near a wall is of it
     max_base_m: float = 0.15  # a cluster whose lowest point is higher floats: a piece ...
     min_object_m: float = 0.35  # ... as is one whose top is lower (a leg seen below a seat) ...
-    attach_m: float = 0.3  # ... of the object within this, else no object
+    attach_m: float = 0.3  # ... of the object within this, else no object ...
+    low_object_m: float = 0.5  # ... unless it stands on the floor and is this wide
     sliver_m: float = 0.10  # a standing cluster this near an object ...
     sliver_share: float = 0.3  # ... with at most this share of its points is a piece of it
     far_sliver_m: float = 0.20  # so is one this near an object ...
     far_sliver_share: float = 0.2  # ... with at most this share of its points
-    min_points: int = 80
+    # a cluster covers at least this much surface: this many of the working cloud's voxels
+    # of 3 cm (more of smaller voxels, fewer of larger: ``least_voxels``)
+    min_points: int = 12
     min_height_m: float = 0.2
     max_size_m: float = 3.0
-    max_points: int = 80_000  # a larger cloud is segmented on a random subset (see ``segment``)
+    # the working cloud: the centroids of voxels of this size, or larger where there would be
+    # more than work_points (None: as many as the scene's budget affords, ``working_points``),
+    # from at most max_input of the scene's points (``working_cloud``)
+    work_voxel_m: float = 0.03
+    work_points: int | None = None
+    # the planes are found among voxels of this size of this many of the points
+    plane_voxel_m: float = 0.05
+    plane_points: int = 30_000
+    max_input: int = 100_000
     split_touching: bool = True  # a cluster cut where the cut judge finds two objects (step 6)
 
 
@@ -129,6 +148,22 @@ def find_floor(
     return plane
 
 
+def refitted(
+    plane: Plane, points: NDArray, threshold: float, rng: np.random.Generator, sample: int = 20000
+) -> Plane:
+    """A plane found on the working cloud refitted twice to the scene's own points (N, 3) within
+    ``threshold`` of it (a random ``sample`` of them; voxel centroids where the plane meets an
+    object lean toward the object), its normal on the same side."""
+    fitted = points if len(points) <= sample else points[rng.integers(0, len(points), sample)]
+    for _ in range(2):
+        inliers = np.abs(plane.distance(fitted)) < threshold
+        if inliers.sum() < 3:
+            break
+        refit = fit_plane(fitted[inliers])
+        plane = refit if refit.normal @ plane.normal >= 0 else Plane(-refit.normal, -refit.offset)
+    return plane
+
+
 def find_walls(
     points: NDArray, up: NDArray, floor: Plane, options: SegmentOptions, rng: np.random.Generator,
     edges: ViewEdges | None,
@@ -160,8 +195,12 @@ def find_walls(
             left = left[~inliers]
             continue
         facing = plane if plane.offset >= 0 else Plane(-plane.normal, -plane.offset)
-        behind = np.mean(facing.distance(points) < -options.wall_behind_m)
-        if behind <= options.wall_max_behind:
+        behind = int(np.sum(facing.distance(points) < -options.wall_behind_m))
+        if (
+            behind <= options.wall_edge_max_behind * len(points)
+            if small
+            else behind <= options.wall_max_through * (behind + int(inliers.sum()))
+        ):
             walls.append(facing)
             left = left[facing.distance(left) > options.wall_behind_m]
         else:  # a large flat side of furniture, with the room seen behind it
@@ -169,18 +208,28 @@ def find_walls(
     return walls
 
 
-def clusters(points: NDArray, up: NDArray, options: SegmentOptions) -> list[NDArray[np.int64]]:
+def clusters(
+    points: NDArray, up: NDArray, options: SegmentOptions, voxel_m: float | None = None
+) -> list[NDArray[np.int64]]:
     """Points (N, 3) standing on the floor -> connected groups of them (indices into
-    ``points``), linked in 3-D and by footprint (see the module)."""
+    ``points``), linked in 3-D and by footprint (see the module). ``voxel_m``: the points are
+    already the centroids of voxels this large (``working_cloud``), linked within ``link_m`` or
+    ``link_voxels`` voxels (neighbours' centroids lie up to two voxels apart), whichever is
+    farther."""
     if len(points) == 0:
         return []
-    voxel_of, centres = _voxels(points, options.voxel_m)
+    if voxel_m is None:
+        voxel_of, centres = _voxels(points, options.voxel_m)
+        link = options.link_m
+    else:  # voxelised again on another grid, centroids of neighbours would leave gaps
+        voxel_of, centres = np.arange(len(points)), np.asarray(points, dtype=np.float64)
+        link = max(options.link_m, options.link_voxels * voxel_m)
     # the footprint: voxels over one cell of the floor are one object's (a star per cell)
     cell_of, _ = _voxels(_footprint(centres, up), options.footprint_m)
     first = np.full(cell_of.max() + 1, -1)
     first[cell_of[::-1]] = np.arange(len(cell_of))[::-1]  # each cell's first voxel
     stars = np.stack([np.arange(len(cell_of)), first[cell_of]], axis=1)
-    links = cKDTree(centres).query_pairs(options.link_m, output_type="ndarray")
+    links = cKDTree(centres).query_pairs(link, output_type="ndarray")
     pairs = np.concatenate([links.reshape(-1, 2), stars])
     n = len(centres)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -195,8 +244,8 @@ def _voxels(points: NDArray, size: float) -> tuple[NDArray[np.int64], NDArray[np
     """Points (N, D) -> (each point's voxel (N,), the voxels' centroids (V, D)) on a grid of
     ``size``."""
     keys = np.floor(points / size).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
+    keys -= column_min(keys)
+    span = column_max(keys) + 1
     flat = np.ravel_multi_index(keys.T, span)
     _, voxel_of, counts = np.unique(flat, return_inverse=True, return_counts=True)
     centres = np.stack(
@@ -205,13 +254,20 @@ def _voxels(points: NDArray, size: float) -> tuple[NDArray[np.int64], NDArray[np
     return voxel_of, centres
 
 
+def least_voxels(options: SegmentOptions, voxel_m: float) -> int:
+    """The fewest working voxels of ``voxel_m`` a cluster has (``min_points`` at 3 cm, the
+    same surface in voxels of another size)."""
+    return max(3, round(options.min_points * (0.03 / voxel_m) ** 2))
+
+
 def standing(
-    points: NDArray, heights: NDArray, up: NDArray, walls: list[Plane], options: SegmentOptions
-) -> bool:
+    points: NDArray, heights: NDArray, up: NDArray, walls: list[Plane], options: SegmentOptions,
+    least: int | None = None,
+) -> bool:  # fmt: skip
     """Whether a cluster (K, 3), its points' heights above the floor (K,), is an object's
-    size and not a piece of a wall: enough points, tall enough, not larger than a room's
-    furniture, not lying along a wall."""
-    if len(points) < options.min_points:
+    size and not a piece of a wall: enough points (``least``, default ``min_points``), tall
+    enough, not larger than a room's furniture, not lying along a wall."""
+    if len(points) < (options.min_points if least is None else least):
         return False
     if any(np.median(np.abs(w.distance(points))) < options.wall_piece_m for w in walls):
         return False
@@ -225,16 +281,17 @@ def standing(
 
 def attach_pieces(
     points: NDArray, heights: NDArray, groups: list[NDArray[np.int64]], up: NDArray,
-    options: SegmentOptions,
+    options: SegmentOptions, weights: NDArray | None = None, floor_from: float | None = None,
 ) -> list[NDArray[np.int64]]:  # fmt: skip
     """Clusters (indices into points (N, 3), heights (N,)) -> the ones standing on the floor,
     each with the pieces whose nearest point lies within ``attach_m`` of it. A cluster whose
     base is high stands all the same where it is nearer the camera (the origin), along the
     floor, than any floor the camera sees: its base is below the view (a level camera at head
-    height sees the floor only from a few metres on)."""
-    floor = np.abs(heights) <= options.floor_threshold_m
-    reach = np.linalg.norm(_footprint(points[floor][::4], up), axis=1)  # the camera: 0, 0
-    nearest_floor = float(np.percentile(reach, 1)) if len(reach) else np.inf
+    height sees the floor only from a few metres on): ``floor_from`` says how near, along the
+    floor, the floor is seen (``nearest_floor``; default: from the points on the floor among
+    ``points``). ``weights`` (N,): how many of the camera's points each point stands for."""
+    if floor_from is None:  # the floor among the points
+        floor_from = nearest_floor(points[np.abs(heights) <= options.floor_threshold_m], up)
 
     def whole(g: NDArray) -> bool:
         top = float(np.percentile(heights[g], 98))
@@ -244,41 +301,52 @@ def attach_pieces(
             return True
         lowest = g[np.argsort(heights[g])[: max(1, len(g) // 10)]]
         return float(np.median(np.linalg.norm(_footprint(points[lowest], up), axis=1))) < (
-            nearest_floor
+            floor_from
         )
 
-    based = slivers_joined(points, [g for g in groups if whole(g)], options)
-    if not based:
-        return []
-    trees = [cKDTree(points[g]) for g in based]
+    based = slivers_joined(points, [g for g in groups if whole(g)], options, weights)
+    near = _Near(points, based)
     joined = [[g] for g in based]
+    low = []
     for piece in (g for g in groups if not whole(g)):
-        gaps = [_gap(points, piece, tree) for tree in trees]
-        nearest = int(np.argmin(gaps))
-        if gaps[nearest] <= options.attach_m:
+        gaps = [near.gap(piece, j, options.attach_m) for j in range(len(based))]
+        nearest = int(np.argmin(gaps)) if gaps else -1
+        if nearest >= 0 and gaps[nearest] <= options.attach_m:
             joined[nearest].append(piece)
-    return [np.sort(np.concatenate(parts)) for parts in joined]
+        elif heights[piece].min() <= options.max_base_m and _width(points[piece], up) >= (
+            options.low_object_m
+        ):
+            low.append(piece)  # a low object of its own on the floor (a small tub, a low table)
+    return [np.sort(np.concatenate(parts)) for parts in joined] + low
+
+
+def _width(points: NDArray, up: NDArray) -> float:
+    """A cluster's (K, 3) widest extent along the floor, metres (1st to 99th percentile)."""
+    flat = _footprint(points, up)
+    lo, hi = np.percentile(flat, [1, 99], axis=0)
+    return float(np.linalg.norm(hi - lo))
 
 
 def slivers_joined(
-    points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions
-) -> list[NDArray[np.int64]]:
+    points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions,
+    weights: NDArray | None = None,
+) -> list[NDArray[np.int64]]:  # fmt: skip
     """Standing clusters (indices into points (N, 3)) -> the same, each small one that lies
     within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points, or
     within ``far_sliver_m`` of one with at least 1 / ``far_sliver_share`` times, joined to the
-    nearest such (smallest first, so a chain of pieces ends in its object)."""
+    nearest such (smallest first, so a chain of pieces ends in its object). ``weights`` (N,):
+    how many of the camera's points each point stands for (a voxel's), else one each."""
     parts: list[list[NDArray[np.int64]] | None] = [[g] for g in groups]
-    sizes = [len(g) for g in groups]
-    trees: dict[int, cKDTree] = {}
+    sizes = [len(g) if weights is None else float(weights[g].sum()) for g in groups]
+    apart = _Near(points, groups)
+    reach = max(options.sliver_m, options.far_sliver_m)
     for i in sorted(range(len(groups)), key=lambda k: sizes[k]):
         larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]]
         if not larger:
             continue
         gaps = []
         for j in larger:
-            if j not in trees:
-                trees[j] = cKDTree(points[groups[j]])
-            gap = _gap(points, groups[i], trees[j])
+            gap = apart.gap(groups[i], j, reach)
             near = gap <= options.sliver_m or (
                 gap <= options.far_sliver_m and sizes[i] <= options.far_sliver_share * sizes[j]
             )
@@ -290,6 +358,27 @@ def slivers_joined(
             owner.extend(mine)
             parts[i] = None
     return [np.sort(np.concatenate(p)) for p in parts if p is not None]
+
+
+class _Near:
+    """How near clusters come to some clusters (indices into points (N, 3)): their boxes first,
+    and a KD-tree of a cluster's points only where its box is near enough."""
+
+    def __init__(self, points: NDArray, groups: list[NDArray[np.int64]]) -> None:
+        self.points, self.groups = points, groups
+        self.boxes = [(column_min(points[g]), column_max(points[g])) for g in groups]
+        self.trees: dict[int, cKDTree] = {}
+
+    def gap(self, piece: NDArray[np.int64], j: int, beyond: float) -> float:
+        """How near ``piece`` comes to cluster ``j``; infinite where their boxes lie farther
+        than ``beyond`` apart."""
+        lo, hi = column_min(self.points[piece]), column_max(self.points[piece])
+        apart = np.maximum(0.0, np.maximum(self.boxes[j][0] - hi, lo - self.boxes[j][1]))
+        if float(np.linalg.norm(apart)) > beyond:
+            return math.inf
+        if j not in self.trees:
+            self.trees[j] = cKDTree(self.points[self.groups[j]])
+        return _gap(self.points, piece, self.trees[j])
 
 
 def _gap(points: NDArray, piece: NDArray[np.int64], tree: cKDTree) -> float:
@@ -314,56 +403,143 @@ def segment(
 ) -> Segmentation:
     """A scene cloud (N, 3) in the camera's frame, metres -> its Segmentation (see the
     module). ``expected_up``: roughly which way is up in the cloud (the floor is searched
-    within ``max_tilt_deg`` of it)."""
+    within ``max_tilt_deg`` of it).
+
+    The planes are found among voxels of ``plane_points`` of the points, the objects on a
+    working cloud of
+    what is neither floor nor wall (``VoxelCloud``, at most ``work_points`` voxels, from at
+    most ``max_input`` points): the cost follows the room and the budget, not the camera's
+    resolution; each object then gets every point of its voxels."""
     rng = np.random.default_rng(seed)
     edges = ViewEdges.of_points(points)
     prior = np.asarray(expected_up, dtype=np.float64)
     prior = prior / np.linalg.norm(prior)
-    subset = None
-    if len(points) > options.max_points:  # a 640x480 frame: the planes and clusters on a subset
-        subset = np.sort(rng.choice(len(points), options.max_points, replace=False))
-    work = points if subset is None else points[subset]
-    floor = find_floor(work, prior, options, rng)
+    thinned = points[:: max(1, -(-len(points) // options.max_input))]
+    # the planes on voxels of a sample: each stands for a piece of surface, not for the pixels
+    # a near surface fills and a far one does not
+    sample = thinned[:: max(1, -(-len(thinned) // options.plane_points))]
+    planar = VoxelCloud.of(sample, options.plane_voxel_m, len(sample)).points
+    floor = find_floor(planar, prior, options, rng)
     if floor is None:
         return Segmentation(None, prior, edges=edges)
+    floor = refitted(floor, points, options.floor_threshold_m, rng)
     up = floor.normal
+    above = floor.distance(planar) > options.floor_threshold_m
+    walls = find_walls(planar[above], up, floor, options, rng, edges)
+    rest = thinned[off_planes(thinned, floor, walls, options)]
+    if len(rest) == 0:
+        return Segmentation(floor, up, walls, [], edges)
+    cloud = VoxelCloud.of(rest, options.work_voxel_m, working_points_of(options))
+    work = cloud.points
     heights = floor.distance(work)
-    keep = heights > options.floor_threshold_m
-    walls = find_walls(work[keep], up, floor, options, rng, edges)
-    for wall in walls:
-        keep &= wall.distance(work) > options.wall_threshold_m
-    index = np.flatnonzero(keep)
-    groups = [index[g] for g in clusters(work[index], up, options)]
-    objects = [g for g in groups if standing(work[g], heights[g], up, walls, options)]
-    objects = attach_pieces(work, heights, objects, up, options)
+    groups = clusters(work, up, options, cloud.voxel_m)
+    least = least_voxels(options, cloud.voxel_m)
+    objects = [g for g in groups if standing(work[g], heights[g], up, walls, options, least)]
+    floor_seen = planar[np.abs(floor.distance(planar)) <= options.floor_threshold_m]
+    objects = attach_pieces(work, heights, objects, up, options, cloud.weights,
+                            nearest_floor(floor_seen, up))  # fmt: skip
     judge = load_cut_judge() if options.split_touching else None
     if judge is not None:
         objects = split_touching(work, objects, floor, judge)
-    if subset is not None:
-        objects = spread(points, floor, walls, [subset[g] for g in objects], options)
+    objects = [rows[off_planes(points[rows], floor, walls, options)]
+               for rows in cloud.spread(points, objects)]  # fmt: skip
     objects.sort(key=len, reverse=True)
     return Segmentation(floor, up, walls, objects, edges)
 
 
-def spread(
-    points: NDArray, floor: Plane, walls: list[Plane], objects: list[NDArray[np.int64]],
-    options: SegmentOptions,
-) -> list[NDArray[np.int64]]:  # fmt: skip
-    """Objects found on a subset of ``points`` (N, 3) (indices into it) -> every point that is
-    neither floor nor wall joins the object whose subset points share its voxel (indices)."""
-    if not objects:
-        return []
+def off_planes(
+    points: NDArray, floor: Plane, walls: list[Plane], options: SegmentOptions
+) -> NDArray[np.bool_]:
+    """Which points (N, 3) are neither floor nor wall (N,)."""
     keep = floor.distance(points) > options.floor_threshold_m
     for wall in walls:
         keep &= wall.distance(points) > options.wall_threshold_m
-    index = np.flatnonzero(keep)
-    cells = np.floor(points[index] / options.voxel_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    keys = np.asarray(np.ravel_multi_index(cells.T, cells.max(axis=0) + 1), dtype=np.int64)
-    owned = np.concatenate([keys[np.searchsorted(index, rows)] for rows in objects])
-    owner = np.concatenate([np.full(len(rows), k) for k, rows in enumerate(objects)])
-    owned, first = np.unique(owned, return_index=True)
-    where = np.minimum(np.searchsorted(owned, keys), len(owned) - 1)
-    hit = owned[where] == keys
-    label = owner[first][where]
-    return [index[hit & (label == k)] for k in range(len(objects))]
+    return keep
+
+
+def nearest_floor(floor_points: NDArray, up: NDArray) -> float:
+    """How near the camera (the origin), along the floor, the floor is seen: the 1st
+    percentile of its points' (F, 3) distances; infinite where none is seen."""
+    reach = np.linalg.norm(_footprint(floor_points, up), axis=1)
+    return float(np.percentile(reach, 1)) if len(reach) else math.inf
+
+
+# The working clouds' sizes: the planes' voxels, and the objects' per ms of a scene's budget
+# within bounds. Segmenting a real room costs about 3-4 ms per thousand object voxels on 2
+# cores (docs/scenes.md, "Cost"); about a third of the budget is left to it, the rest to
+# posing the objects.
+PLANE_POINTS = 8_000
+WORK_POINTS_PER_MS = 75
+WORK_POINTS_RANGE = (4_000, 30_000)
+
+
+def working_points(budget_ms: float = 140.0) -> int:
+    """How many voxels the objects of a scene of ``budget_ms`` are found in
+    (``WORK_POINTS_PER_MS``)."""
+    low, high = WORK_POINTS_RANGE
+    return int(min(max(WORK_POINTS_PER_MS * budget_ms, low), high))
+
+
+def working_points_of(options: SegmentOptions) -> int:
+    """``options.work_points``, or the default budget's where it is None."""
+    return working_points() if options.work_points is None else options.work_points
+
+
+@dataclass(frozen=True)
+class VoxelCloud:
+    """Points as the segmentation sees them: the centroids (V, 3) of voxels of ``voxel_m`` on
+    a grid from ``origin``, their keys (V,) sorted, and how many points each holds (V,)."""
+
+    points: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    keys: NDArray[np.int64]
+    origin: NDArray[np.float64]
+    voxel_m: float
+
+    @classmethod
+    def of(cls, points: NDArray, voxel_m: float, most: int) -> VoxelCloud:
+        """Points (N >= 1, 3) in voxels of ``voxel_m``, or larger ones where there would be
+        more than ``most`` (a large room)."""
+        origin = column_min(points)
+        size = voxel_m
+        keys, voxel_of = np.unique(_keys(points, size, origin), return_inverse=True)
+        for _ in range(3):
+            if len(keys) <= most:
+                break
+            size *= math.sqrt(len(keys) / most) * 1.05
+            keys, voxel_of = np.unique(_keys(points, size, origin), return_inverse=True)
+        counts = np.bincount(voxel_of, minlength=len(keys)).astype(np.float64)
+        centres = np.stack([np.bincount(voxel_of, points[:, k], len(keys)) / counts
+                            for k in range(3)], axis=1)  # fmt: skip
+        return cls(centres, counts, keys, origin, size)
+
+    def voxel_of(self, points: NDArray) -> NDArray[np.int64]:
+        """Each point's (N, 3) voxel (N,), -1 where it falls in none."""
+        every = _keys(points, self.voxel_m, self.origin)
+        where = np.minimum(np.searchsorted(self.keys, every), len(self.keys) - 1)
+        inside = self.keys[where] == every
+        for k in range(3):
+            inside &= points[:, k] >= self.origin[k]
+        return np.where(inside, where, -1)
+
+    def spread(self, points: NDArray, objects: list[NDArray[np.int64]]) -> list[NDArray[np.int64]]:
+        """Objects found on the voxels (their indices) -> the indices of the ``points`` (N, 3)
+        that fall in their voxels."""
+        label = np.full(len(self.keys) + 1, -1)
+        for k, rows in enumerate(objects):
+            label[rows] = k
+        owner = label[self.voxel_of(points)]  # no voxel (-1): the last entry, -1
+        index = np.flatnonzero(owner >= 0)
+        owner = owner[index]
+        return [index[owner == k] for k in range(len(objects))]
+
+
+def _keys(points: NDArray, size: float, origin: NDArray) -> NDArray[np.int64]:
+    """Points (N, 3) -> one integer key (N,) per voxel of ``size`` on a grid from ``origin``
+    (21 bits a coordinate: 60 km at 3 cm; a point below ``origin`` gets a key of its own
+    that no voxel has), a column at a time."""
+    keys = np.zeros(len(points), dtype=np.int64)
+    for k, shift in enumerate((42, 21, 0)):
+        cells = np.floor((points[:, k] - origin[k]) * (1.0 / size)).astype(np.int64)
+        keys |= (cells & 0x1FFFFF) << shift
+    return keys

@@ -56,8 +56,11 @@ export function describeObjects(list, reply) {
       ? `posed in ${o.iterations} iterations (${o.model})`
       : `no pose (${o.no_pose})`;
     const centre = o.box.center.map((v) => v.toFixed(2)).join(', ');
-    const named = o.unsure ? ' (unsure)' : '';
-    item.textContent = `${o.category} ${(100 * o.category_probability).toFixed(0)}%${named}, `
+    const name = o.category ?? `unknown (${o.unknown}; ${o.candidates[0]?.category ?? '?'}`
+      + ` ${(100 * o.category_probability).toFixed(0)}%)`;
+    const named = o.category === null ? '' : ` ${(100 * o.category_probability).toFixed(0)}%`
+      + (o.unsure ? ' (unsure)' : '');
+    item.textContent = `${name}${named}, `
       + `${o.points} points, box centre [${centre}] m, ${pose}`;
     return item;
   }));

@@ -66,7 +66,7 @@ def test_pose_object_weighs_the_height_into_the_category(monkeypatch) -> None:
     )
     monkeypatch.setattr(posing, "classify", lambda *args, **kwargs: fake)
     box = boxes_shape([((0, 0, 0), (0.5, 1.1, 0.4))])
-    points = box.points[:800] + np.array([0.0, 0.0, 3.0])
+    points = 0.45 * box.points[:800] + np.array([0.0, 0.0, 3.0])  # night-stand sized
     up, viewpoint = np.array([0.0, -1.0, 0.0]), np.zeros(3)
     catalog = shipped_catalog()
 

@@ -195,6 +195,39 @@ def test_the_touching_cut_switches_off_on_the_cli_http_and_clients(
     assert len(sync.scene(png, intrinsics=camera, budget_ms=300)["objects"]) >= 2
 
 
+def test_unknown_objects_switch_off_on_the_cli_http_and_clients(
+    client: TestClient, files: Path, chair_scene: Scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where no probability is high enough, the chair is unknown: category null, why, no pose,
+    its box and points; with ``--no-unknown`` / ``unknown=false`` it is named and posed."""
+    from itnet.clients import ItnetClient
+    from itnet.scene import unknown as unknown_module
+
+    monkeypatch.setattr(unknown_module, "UNKNOWN_BELOW", 1.01)
+    args = ["scene", str(files / "chair.png"), "--intrinsics", camera_arg(chair_scene), "--json",
+            "--budget-ms", "300"]  # fmt: skip
+    (unsure,), (named,) = (json.loads(runner.invoke(app, args + extra).output)["objects"]
+                           for extra in ([], ["--no-unknown"]))  # fmt: skip
+    assert unsure["category"] is None and unsure["unknown"] == "unsure"
+    assert unsure["T_canonical_from_input"] is None and unsure["no_pose"] == "unknown"
+    assert unsure["points"] == named["points"] > 0 and unsure["box"]["size"]
+    assert named["category"] is not None and named["T_canonical_from_input"] is not None
+    text = runner.invoke(app, args[:4]).output
+    assert "unknown: unsure" in text
+    i = chair_scene.intrinsics
+    png = (files / "chair.png").read_bytes()
+    query = f"fx={i.fx}&fy={i.fy}&cx={i.cx}&cy={i.cy}&budget_ms=300&unknown=false"
+    reply = client.post(f"/v1/scene?{query}", content=png, headers={"content-type": "image/png"})
+    assert reply.status_code == 200, reply.text
+    assert reply.json()["objects"][0]["category"] is not None
+    sync = ItnetClient("http://testserver")
+    sync._http = client
+    camera = (i.fx, i.fy, i.cx, i.cy)
+    assert sync.scene(png, intrinsics=camera, budget_ms=300)["objects"][0]["category"] is None
+    shown = sync.scene(png, intrinsics=camera, budget_ms=300, unknown=False)["objects"][0]
+    assert shown["category"] is not None
+
+
 def test_the_python_clients_send_a_scene_as_png_npy_or_cloud(
     client: TestClient, files: Path, chair_scene: Scene
 ) -> None:

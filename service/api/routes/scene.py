@@ -11,7 +11,8 @@ Bodies, by ``Content-Type``:
 
 Clouds are in the camera's frame (x right, y down, z ahead), metres. Bounded: the body by
 ``max_body_bytes``, a depth image by ``SceneLimits.max_pixels`` and a cloud by ``max_points``
-(413), ``budget_ms`` by ``max_budget_ms``; the request holds one of the estimate slots.
+(413), ``budget_ms`` by ``max_budget_ms``; the request holds one of the estimate slots. The
+budget counts from the request's arrival (its upload and decoding included), as for poses.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from itnet.scene.inputs import SceneInput, SceneLimits, from_png
 from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, up_direction
 from itnet.scene.posing import NoClassifierError
 from itnet.scene.segment import CAMERA_UP, SegmentOptions
-from itnet.service.api.deps import BodyDep, GateOpenDep, StateDep
+from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, malformed_json
 from itnet.service.schemas import ErrorResponse
 from itnet.service.state import ServiceState
@@ -92,6 +93,7 @@ Centre = Annotated[float | None, Query(description="principal point in pixels (d
 )  # fmt: skip
 async def scene(
     request: Request,
+    arrived: ArrivedDep,
     body: BodyDep,
     state: StateDep,
     _gate: GateOpenDep,
@@ -128,6 +130,12 @@ async def scene(
     split_touching: Annotated[
         bool, Query(description="cut a cluster where the cut judge finds two objects touching")
     ] = True,
+    unknown: Annotated[
+        bool, Query(description="a cluster no category fits answered as unknown (category null)")
+    ] = True,
+    named_split: Annotated[
+        bool, Query(description="an unknown cluster parted where the recognition finds two objects")
+    ] = True,
     up: Annotated[
         str | None,
         Query(
@@ -152,8 +160,9 @@ async def scene(
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
             _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
-            SceneFinishing(floor_centre, along_floor, recheck), scene_classifier,
-            SegmentOptions(split_touching=split_touching), expected_up,
+            SceneFinishing(floor_centre, along_floor, recheck, unknown=unknown,
+                           named_split=named_split), scene_classifier,
+            SegmentOptions(split_touching=split_touching), expected_up, arrived,
         )  # fmt: skip
 
 
@@ -197,16 +206,18 @@ def _find(
     depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
     finishing: SceneFinishing = SceneFinishing(), scene_classifier: bool = True,
     options: SegmentOptions = SegmentOptions(),
-    expected_up: tuple[float, float, float] = CAMERA_UP,
+    expected_up: tuple[float, float, float] = CAMERA_UP, arrived: float | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """Decode and find the objects (CPU: a worker thread)."""
+    """Decode and find the objects (CPU: a worker thread), the budget counted from the
+    request's ``arrived`` (``time.perf_counter()``; default now)."""
     if not state.ready:
         raise ServiceError(503, "not_ready", f"no model is loaded: {state.load_error}")
     try:
         given = _decode(body, kind, camera, depth_scale)
         result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
                               finishing=finishing, scene_classifier=scene_classifier,
-                              options=options, expected_up=expected_up)  # fmt: skip
+                              options=options, expected_up=expected_up,
+                              started=arrived)  # fmt: skip
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
