@@ -107,6 +107,7 @@ def summary(rows: list[dict], returned: int) -> dict:
     objects = [r for r in rows if r["kind"] == "object" and r["visible"]]
     false = sum(r["kind"] == "false" for r in rows)
     unknown = sum(r["kind"] == "unknown" for r in rows)
+    unknown_found = sum(r["found"] and r.get("predicted") is None for r in objects)
 
     def pct(k: int, n: int) -> dict:
         p = k / max(n, 1)
@@ -126,8 +127,7 @@ def summary(rows: list[dict], returned: int) -> dict:
         "false": pct(false, returned),
         # answered as unknown, matched to no object (a piece of one, a wall's strip)
         "unknown_unmatched": pct(unknown, returned),
-        "unknown_objects": pct(sum(r.get("found", False) and r.get("predicted") is None
-                                   for r in objects), len(objects)),  # fmt: skip
+        "unknown_objects": pct(unknown_found, len(objects)),
         "by_category": by_category,
     }
 

@@ -114,8 +114,9 @@ def scene_arguments(
         "intrinsics": camera,
         "budget_ms": budget_ms,
         "depth_scale": depth_scale,
-        "finishing": SceneFinishing(floor_centre, along_floor, recheck, unknown=unknown,
-                                    named_split=named_split),
+        "finishing": SceneFinishing(
+            floor_centre, along_floor, recheck, unknown=unknown, named_split=named_split
+        ),
         "scene_classifier": scene_classifier,
         "options": SegmentOptions(split_touching=split_touching),
         **({} if up is None else {"expected_up": tuple(up)}),

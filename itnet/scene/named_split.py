@@ -79,9 +79,9 @@ def named_parts(
         side = cut.side(points)
         if min(side.sum(), (~side).sum()) < MIN_PART_POINTS:
             continue
-        sure = [namer.confidence(points[part], deadline) for part in (side, ~side)]
-        if sure[0] is not None and sure[1] is not None and min(sure) > best:
-            best, best_side = min(sure), side
+        first, second = (namer.confidence(points[part], deadline) for part in (side, ~side))
+        if first is not None and second is not None and min(first, second) > best:
+            best, best_side = min(first, second), side
     if best_side is None:
         return whole
     return [np.flatnonzero(best_side), np.flatnonzero(~best_side)]

@@ -199,8 +199,13 @@ def _answered(
         parts = _parts(context, points, now + share_ms / 2e3)
         if len(parts) > 1:
             left_ms = share_ms - (time.perf_counter() - now) * 1e3
-            return [o for part in parts for o in _answered(
-                context, points[part], indices[part], left_ms / len(parts), rng, split=False)]
+            return [
+                o
+                for part in parts
+                for o in _answered(
+                    context, points[part], indices[part], left_ms / len(parts), rng, split=False
+                )
+            ]
     finish = partial(stood_on_floor, catalog=catalog, points=seen_points, height=height,
                      found=found, table=context.table, floor_centre=finishing.floor_centre)  # fmt: skip
     seen = finish(seen)

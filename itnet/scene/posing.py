@@ -203,8 +203,9 @@ def posed_as(
     run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs,
     or one where the budget holds no more), within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model
     for the category, or the budget)."""
-    model = model or (None if seen.category is None else pose_model_for(seen.category,
-                                                                        catalog.models))
+    model = model or (
+        None if seen.category is None else pose_model_for(seen.category, catalog.models)
+    )
     if model is None:
         seen.no_pose = "no_pose_model"
         return seen

@@ -9,9 +9,9 @@ from scene_helpers import boxes_shape, chair_shape, make_test_scene
 
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.inputs import from_depth
-from itnet.scene.warm_up import warm_up
 from itnet.scene.segment import SegmentOptions, VoxelCloud, segment, working_points
 from itnet.scene.unknown import TOO_LARGE, cluster_radius, unknown_reason
+from itnet.scene.warm_up import warm_up
 
 
 def test_the_working_cloud_follows_the_room_not_the_resolution() -> None:
