@@ -105,22 +105,27 @@ class Catalog:
         request: PoseRequest,
         started: float | None = None,
         reserve_ms: float = 0.0,
+        work_started: float | None = None,
     ) -> AnytimeRun:
         """The request's run, ready to iterate (``started``: its clock, default now;
-        ``reserve_ms``: kept back for handing the reply back). Raises PoseError subclasses."""
+        ``reserve_ms``: kept back for handing the reply back; ``work_started``: when the
+        request's own work, its decoding, began, default ``started``). Raises PoseError
+        subclasses."""
         started = time.perf_counter() if started is None else started
         planned, recognition = self.plan(points, request, started)
         planned.model.relax_step_ms()  # a step time inflated by a past burst must not stick
-        return AnytimeRun(planned, points, started, reserve_ms, recognition)
+        return AnytimeRun(planned, points, started, reserve_ms, recognition, work_started)
 
     @contextmanager
     def serving(self, run: AnytimeRun) -> Iterator[None]:
         """Hold ``run`` among the admitted while it runs, then check that it served a pose.
         Raises OverloadedError (the work admitted leaves it no room, or no step fit its budget)
-        or BudgetTooSmallError (one step is longer than the budget)."""
+        or BudgetTooSmallError (one step is longer than the budget, or, with no other run
+        admitted, the request's own arrival and decoding left no room for one)."""
+        alone = self.admission.running == 0
         with self.admission.admit(run):
             yield
-        run.check_served()
+        run.check_served(alone)
 
     def pose(self, points: ArrayLike, request: PoseRequest | None = None) -> dict:
         """The finished pose of one cloud (N, 3) as a reply's dict (``T_canonical_from_input``,

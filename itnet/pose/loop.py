@@ -51,8 +51,13 @@ class AnytimeRun(Iterator[Estimate]):
         started: float | None = None,
         reserve_ms: float = 0.0,
         recognition: object | None = None,
+        work_started: float | None = None,
     ) -> None:
         self.started = time.perf_counter() if started is None else started
+        # how long the request's own work took before its first step: decoding it, recognising
+        # its category, planning it (from ``work_started``, once its body was in; default from
+        # ``started``)
+        self.set_up_ms = (time.perf_counter() - (work_started or self.started)) * 1e3
         self.plan, self.model, self.recognition = plan, plan.model, recognition
         self.cloud = validate_cloud(points, plan.limits)
         self.reserve_ms = min(max(0.0, reserve_ms), plan.budget_ms / 2)
@@ -259,11 +264,13 @@ class AnytimeRun(Iterator[Estimate]):
             **recognised,
         }
 
-    def check_served(self) -> None:
+    def check_served(self, alone: bool = False) -> None:
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
-        than the whole budget on an idle machine, else OverloadedError (503: the machine was
-        too busy, or the request too slow to arrive)."""
+        than the whole budget on an idle machine, or where the run was ``alone`` (no other run
+        admitted beside it) and its own work (``set_up_ms``: decoding the request, ...) left no
+        room for one step: retrying the same request cannot succeed. Else OverloadedError (503:
+        the machine was too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
         step_ms = self.plan.first_step_ms(len(self.cloud))  # on an idle machine: not the load
@@ -271,6 +278,14 @@ class AnytimeRun(Iterator[Estimate]):
             raise BudgetTooSmallError(
                 f"budget_ms {self.plan.budget_ms:g} is below one step of model "
                 f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
+            )
+        if alone and self.set_up_ms + step_ms > self.plan.budget_ms:
+            raise BudgetTooSmallError(
+                f"decoding this request took {self.set_up_ms:.1f} ms of its "
+                f"budget_ms {self.plan.budget_ms:g}, and one step takes about {step_ms:.3g} ms: "
+                "no pose fits it; send the cloud as binary float32 (Content-Type: "
+                "application/octet-stream, the parameters in the query), which decodes in a "
+                "fraction of the time, or give a larger budget"
             )
         raise OverloadedError(
             f"no step of model {self.model.card.name!r} fit in budget_ms {self.plan.budget_ms:g}: "

@@ -142,10 +142,35 @@ def test_no_pose_from_no_step(tiny_model_dir, model, cloud):
         run.check_served()
 
 
+def test_a_request_whose_own_arrival_spent_its_budget_is_refused_as_unmeetable(model, cloud):
+    """A run whose request took longer to arrive and decode than its budget has room for one
+    step: alone on the machine, retrying cannot help (422, naming the binary body); beside other
+    runs, the machine was busy (503)."""
+    import time
+
+    budget = 5 * model.idle_ms
+    late = time.perf_counter() - 3 * budget / 1e3
+    run = AnytimeRun(plan(model, PoseRequest(budget_ms=budget)), cloud, late)
+    assert run.set_up_ms > budget and list(run) == [] and run.iteration == 0
+    with pytest.raises(BudgetTooSmallError, match="application/octet-stream"):
+        run.check_served(alone=True)
+    with pytest.raises(OverloadedError, match="no step"):
+        run.check_served(alone=False)
+    catalog = Catalog({"tiny": model})
+    late_run = catalog.start(cloud, PoseRequest(budget_ms=budget, model="tiny"), late)
+    with pytest.raises(BudgetTooSmallError, match="decoding this request"):
+        with catalog.serving(late_run):
+            late_run.run_to_end()
+    on_time = catalog.start(cloud, PoseRequest(budget_ms=200, model="tiny", max_iterations=2))
+    with catalog.serving(on_time):
+        on_time.run_to_end()
+    assert on_time.iteration == 2
+
+
 def test_catalog_pose_admits_by_work_and_never_hands_back_a_start(model, tiny_model_dir, cloud):
     """Catalog.pose runs under the catalog's admission: while admitted runs need more work than a
     new run's budget leaves, it is refused (503) before a step; a start with no step is refused
-    too; alone, it poses."""
+    too (alone, where its own setting up spent the budget: 422); alone, it poses."""
     catalog = Catalog({"tiny": model})
     request = PoseRequest(budget_ms=200, max_iterations=3)
     assert catalog.pose(cloud, request)["iterations"] == 3
@@ -156,7 +181,8 @@ def test_catalog_pose_admits_by_work_and_never_hands_back_a_start(model, tiny_mo
     assert catalog.admission.running == 0
     assert catalog.pose(cloud, request)["iterations"] == 3  # admitted again once it is done
     cold = load_model(tiny_model_dir / "tiny.onnx", threads=1, warm_up=False)
-    with pytest.raises(OverloadedError, match="no step"):  # its budget gone before a step
+    # its budget gone before a step, by its own setting up: a retry cannot succeed
+    with pytest.raises(BudgetTooSmallError, match="decoding this request"):
         Catalog({"tiny": cold}).pose(cloud, PoseRequest(budget_ms=1e-3))
 
 

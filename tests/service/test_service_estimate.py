@@ -86,6 +86,29 @@ def test_the_budget_is_honoured(
     assert "below one step" in reply.json()["detail"]
 
 
+def test_a_body_whose_decoding_spends_its_budget_is_a_422_that_names_the_binary_body(
+    client: TestClient, make_cloud: CloudMaker, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Alone on the server, a JSON body whose decoding takes longer than its budget leaves for
+    one step gets a 422 saying so and naming the binary body, not a 503 "retry" that cannot
+    succeed; the same cloud sent as float32 with the same budget is posed."""
+    decoder = client.app.state.service.decoder  # type: ignore[attr-defined]
+    decode = decoder.http
+
+    def slow_json(body: bytes, content_type: str | None, query: object):  # type: ignore[no-untyped-def]
+        if (content_type or "").startswith("application/json"):
+            time.sleep(0.06)  # a large JSON body's parse, on a slow machine
+        return decode(body, content_type, query)
+
+    monkeypatch.setattr(decoder, "http", slow_json)
+    cloud = make_cloud()
+    reply = post_json(client, cloud, budget_ms=40)
+    assert reply.status_code == 422 and reply.json()["kind"] == "budget_too_small", reply.text
+    assert "application/octet-stream" in reply.json()["detail"]
+    binary = post_binary(client, cloud, budget_ms=40)
+    assert binary.status_code == 200 and binary.json()["iterations"] >= 1
+
+
 def test_a_long_budget_runs_steps_until_it_is_spent(
     slow_client: TestClient, make_cloud: CloudMaker
 ) -> None:

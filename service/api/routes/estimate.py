@@ -151,8 +151,9 @@ def _decode_and_run(
     the loop's end, model, iterations, stop reason). The error is returned, not raised: an
     exception would leave the task group wrapped in an ExceptionGroup."""
     try:
+        decoding = time.perf_counter()
         points, params = state.decoder.http(body, content_type, query)
-        run = state.start_run(points, params, arrived, reserve_ms=state.handback.reserve_ms())
+        run = state.start_run(points, params, arrived, state.handback.reserve_ms(), decoding)
     except Exception as err:
         return err
     handle.attach(run)
