@@ -158,9 +158,11 @@ def test_a_request_whose_own_arrival_spent_its_budget_is_refused_as_unmeetable(m
         run.check_served(alone=False)
     catalog = Catalog({"tiny": model})
     late_run = catalog.start(cloud, PoseRequest(budget_ms=budget, model="tiny"), late)
-    with pytest.raises(BudgetTooSmallError, match="decoding this request"):
-        with catalog.serving(late_run):
-            late_run.run_to_end()
+    with (
+        pytest.raises(BudgetTooSmallError, match="decoding this request"),
+        catalog.serving(late_run),
+    ):
+        late_run.run_to_end()
     on_time = catalog.start(cloud, PoseRequest(budget_ms=200, model="tiny", max_iterations=2))
     with catalog.serving(on_time):
         on_time.run_to_end()
