@@ -152,9 +152,6 @@ def find_objects(
 # an object's category, pose and finishing see at most this many of its points, drawn at
 # random (the pose networks read fewer; a near dresser of a 640x480 frame has 60,000)
 OBJECT_POINTS = 4096
-# an object reached with less than this left of the scene's budget is not classified: its box
-# and points are answered, with category null and ``no_pose: budget``
-CLASSIFY_MS = 3.0
 
 
 @dataclass(frozen=True)
@@ -174,18 +171,14 @@ def _answered(
     rng: np.random.Generator, split: bool = True,
 ) -> list[SceneObject]:  # fmt: skip
     """One cluster (K, 3), its points' ``indices`` (K,) and its share of the budget (ms) -> its
-    SceneObject; the objects of its parts where no category fits it and the recognition
-    parts it in two (``named_split``, where ``split``); none for a cluster the classifier
-    cannot use."""
+    SceneObject; the objects of its parts where it is too large for the category it is named
+    and the recognition parts it in two (``named_split``, where ``split``); none for a cluster
+    the classifier cannot use."""
     found, finishing, catalog = context.found, context.finishing, context.catalog
     now = time.perf_counter()
     seen_points = points if len(points) <= OBJECT_POINTS else points[
         rng.choice(len(points), OBJECT_POINTS, replace=False)]  # fmt: skip
     hidden = base_out_of_view(found.edges, seen_points, found.floor, finishing)
-    if share_ms < CLASSIFY_MS:
-        box = object_box(points, found.up, found.floor, None)
-        return [SceneObject(indices, None, 0.0, [], True, box, no_pose="budget",
-                            base_out_of_view=hidden)]  # fmt: skip
     height = None if found.floor is None else top_height(seen_points, found.floor)
     try:
         seen = pose_object(catalog, seen_points, found.up, VIEWPOINT, share_ms,
@@ -195,7 +188,7 @@ def _answered(
                            unknown=finishing.unknown)  # fmt: skip
     except BadCloudError:  # a cluster the classifier cannot use (degenerate): no object
         return []
-    if seen.unknown is not None and split and finishing.named_split and found.floor is not None:
+    if seen.unknown == "too_large" and split and finishing.named_split and found.floor is not None:
         parts = _parts(context, points, now + share_ms / 2e3)
         if len(parts) > 1:
             left_ms = share_ms - (time.perf_counter() - now) * 1e3
