@@ -171,15 +171,15 @@ class ServiceState:
         request: PoseRequest,
         arrived: float | None = None,
         reserve_ms: float = 0.0,
-        decoding_started: float | None = None,
+        decode_ms: float | None = None,
     ) -> AnytimeRun:
         """Resolve the model (classifying for ``auto``), plan the request and set up its run
         (CPU: call from a worker thread). The budget counts from ``arrived``
-        (``time.perf_counter()`` when the request came in); ``decoding_started``: when its body
-        was in and its decoding began (a body whose decoding alone spends the budget is refused
-        as unmeetable, not as an overload). Raises ServiceError."""
+        (``time.perf_counter()`` when the request came in); ``decode_ms``: how long its body took
+        to decode (a body whose decoding alone spends the budget is refused as unmeetable, not
+        as an overload). Raises ServiceError."""
         with self._replying():
-            return self.catalog.start(points, request, arrived, reserve_ms, decoding_started)
+            return self.catalog.start(points, request, arrived, reserve_ms, decode_ms)
 
     @contextmanager
     def serving(self, run: AnytimeRun) -> Iterator[None]:

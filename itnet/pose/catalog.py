@@ -105,16 +105,16 @@ class Catalog:
         request: PoseRequest,
         started: float | None = None,
         reserve_ms: float = 0.0,
-        work_started: float | None = None,
+        decode_ms: float | None = None,
     ) -> AnytimeRun:
         """The request's run, ready to iterate (``started``: its clock, default now;
-        ``reserve_ms``: kept back for handing the reply back; ``work_started``: when the
-        request's own work, its decoding, began, default ``started``). Raises PoseError
+        ``reserve_ms``: kept back for handing the reply back; ``decode_ms``: how long decoding
+        the request took, default all the time since ``started``). Raises PoseError
         subclasses."""
         started = time.perf_counter() if started is None else started
         planned, recognition = self.plan(points, request, started)
         planned.model.relax_step_ms()  # a step time inflated by a past burst must not stick
-        return AnytimeRun(planned, points, started, reserve_ms, recognition, work_started)
+        return AnytimeRun(planned, points, started, reserve_ms, recognition, decode_ms)
 
     @contextmanager
     def serving(self, run: AnytimeRun) -> Iterator[None]:

@@ -51,13 +51,14 @@ class AnytimeRun(Iterator[Estimate]):
         started: float | None = None,
         reserve_ms: float = 0.0,
         recognition: object | None = None,
-        work_started: float | None = None,
+        decode_ms: float | None = None,
     ) -> None:
         self.started = time.perf_counter() if started is None else started
-        # how long the request's own work took before its first step: decoding it, recognising
-        # its category, planning it (from ``work_started``, once its body was in; default from
-        # ``started``)
-        self.set_up_ms = (time.perf_counter() - (work_started or self.started)) * 1e3
+        # how long the request's own decoding took (``decode_ms``; default: all the time since
+        # it started)
+        self.set_up_ms = (
+            (time.perf_counter() - self.started) * 1e3 if decode_ms is None else decode_ms
+        )
         self.plan, self.model, self.recognition = plan, plan.model, recognition
         self.cloud = validate_cloud(points, plan.limits)
         self.reserve_ms = min(max(0.0, reserve_ms), plan.budget_ms / 2)
@@ -268,8 +269,7 @@ class AnytimeRun(Iterator[Estimate]):
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
         than the whole budget on an idle machine, or where the run was ``alone`` (no other run
-        admitted beside it) and its own work (``set_up_ms``: decoding the request, ...) left no
-        room for one step: retrying the same request cannot succeed. Else OverloadedError (503:
+        admitted beside it) and its own decoding (``set_up_ms``) left no room for one step: retrying the same request cannot succeed. Else OverloadedError (503:
         the machine was too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return

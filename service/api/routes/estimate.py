@@ -153,7 +153,8 @@ def _decode_and_run(
     try:
         decoding = time.perf_counter()
         points, params = state.decoder.http(body, content_type, query)
-        run = state.start_run(points, params, arrived, state.handback.reserve_ms(), decoding)
+        decode_ms = (time.perf_counter() - decoding) * 1e3
+        run = state.start_run(points, params, arrived, state.handback.reserve_ms(), decode_ms)
     except Exception as err:
         return err
     handle.attach(run)
