@@ -4,7 +4,10 @@ floor kept; a wall with a window still a wall."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
+import pytest
 from scene_helpers import boxes_shape, chair_shape, make_test_scene
 
 from itnet.scene import SceneFinishing, find_objects
@@ -120,3 +123,32 @@ def test_a_wall_with_a_window_is_a_wall() -> None:
     labels = scene.labels.ravel()[given.indices]
     assert len(found.walls) >= 1
     assert len(found.objects) == 1 and (labels[found.objects[0]] == 1).mean() > 0.9
+
+
+def test_the_recognition_parts_a_cluster_where_both_parts_are_objects(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Two boxes 3 cm apart along x make one cluster: of the cut judge's planes, the one through
+    the gap leaves two parts that a category fits (here: any part narrower than 1 m), and the
+    cluster is parted there; where no part fits, it stays whole."""
+    from itnet.scene import named_split
+    from itnet.scene.planes import Plane
+
+    rng = np.random.default_rng(3)
+    left = rng.uniform([-0.83, -0.8, 3.0], [-0.03, 0.0, 3.5], size=(3000, 3))
+    right = rng.uniform([0.0, -0.7, 3.0], [0.8, 0.0, 3.5], size=(3000, 3))
+    points = np.concatenate([left, right])
+    floor = Plane(np.array([0.0, -1.0, 0.0]), 0.0)  # y down: the floor at y = 0
+    namer = named_split.Namer(None, None, None, floor, np.zeros(3))  # type: ignore[arg-type]
+
+    def narrow(self: object, part: np.ndarray, deadline: float) -> float | None:
+        return 0.9 if np.ptp(part[:, 0]) < 1.0 else None
+
+    monkeypatch.setattr(named_split.Namer, "confidence", narrow)
+    parts = named_split.named_parts(points, namer, None, time.perf_counter() + 10)
+    assert sorted(len(p) for p in parts) == [3000, 3000]
+    assert {frozenset(p.tolist()) for p in parts} == {frozenset(range(3000)),
+                                                      frozenset(range(3000, 6000))}  # fmt: skip
+    monkeypatch.setattr(named_split.Namer, "confidence", lambda self, part, deadline: None)
+    (whole,) = named_split.named_parts(points, namer, None, time.perf_counter() + 10)
+    assert len(whole) == 6000
