@@ -69,7 +69,7 @@ UNKNOWN = typer.Option(
 NAMED_SPLIT = typer.Option(
     True,
     "--named-split/--no-named-split",
-    help="An unknown cluster parted where the recognition finds two objects in it.",
+    help="A cluster too large for its category parted where the recognition finds two objects.",
 )
 UP = typer.Option(
     None,

@@ -121,7 +121,7 @@ class Catalog:
         """Hold ``run`` among the admitted while it runs, then check that it served a pose.
         Raises OverloadedError (the work admitted leaves it no room, or no step fit its budget)
         or BudgetTooSmallError (one step is longer than the budget, or, with no other run
-        admitted, the request's own arrival and decoding left no room for one)."""
+        admitted, the request's own decoding left no room for one)."""
         alone = self.admission.running == 0
         with self.admission.admit(run):
             yield

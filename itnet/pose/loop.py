@@ -54,9 +54,8 @@ class AnytimeRun(Iterator[Estimate]):
         decode_ms: float | None = None,
     ) -> None:
         self.started = time.perf_counter() if started is None else started
-        # how long the request's own decoding took (``decode_ms``; default: all the time since
-        # it started)
-        self.set_up_ms = (
+        # how long the request's own decoding took (default: all the time since it started)
+        self.decode_ms = (
             (time.perf_counter() - self.started) * 1e3 if decode_ms is None else decode_ms
         )
         self.plan, self.model, self.recognition = plan, plan.model, recognition
@@ -269,8 +268,9 @@ class AnytimeRun(Iterator[Estimate]):
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
         than the whole budget on an idle machine, or where the run was ``alone`` (no other run
-        admitted beside it) and its own decoding (``set_up_ms``) left no room for one step: retrying the same request cannot succeed. Else OverloadedError (503:
-        the machine was too busy, or the request too slow to arrive)."""
+        admitted beside it) and its own decoding (``decode_ms``) left no room for one step:
+        retrying the same request cannot succeed. Else OverloadedError (503: the machine was
+        too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
         step_ms = self.plan.first_step_ms(len(self.cloud))  # on an idle machine: not the load
@@ -279,9 +279,9 @@ class AnytimeRun(Iterator[Estimate]):
                 f"budget_ms {self.plan.budget_ms:g} is below one step of model "
                 f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
             )
-        if alone and self.set_up_ms + step_ms > self.plan.budget_ms:
+        if alone and self.decode_ms + step_ms > self.plan.budget_ms:
             raise BudgetTooSmallError(
-                f"decoding this request took {self.set_up_ms:.1f} ms of its "
+                f"decoding this request took {self.decode_ms:.1f} ms of its "
                 f"budget_ms {self.plan.budget_ms:g}, and one step takes about {step_ms:.3g} ms: "
                 "no pose fits it; send the cloud as binary float32 (Content-Type: "
                 "application/octet-stream, the parameters in the query), which decodes in a "

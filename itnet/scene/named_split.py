@@ -1,16 +1,16 @@
 """A cluster too large for any category, split where the recognition finds two objects in it.
 
 A table with its chairs, a bed with a night stand beside it, a dresser against a chest: objects
-standing against each other make one cluster, and where the cut judge (``touching``) did not
-part it, it is larger than any real piece of the category it is named (``unknown``: too
-large). A cluster named with little confidence is not tried: it is more often a thing of no
-category, or one seen poorly (its name less sure where the budget cut the classifier's second
-opinion short), than two objects. Each of the cut judge's candidate planes through such a cluster (its likeliest
-``TRIED`` first) parts it in two, and each part is classified as the scene names objects
-(``posing.scene_category``, on at most ``PART_POINTS`` of its points); the cut is made where
-both parts are objects some category fits (``unknown.unknown_reason`` finds nothing against
-them), the one whose less certain part is the most certain. Where no cut gives two such parts
-the cluster stays one, unknown.
+standing against each other make one cluster, and where the cut judge (``touching``) did not part
+it, it is larger than any real piece of the category it is named (``unknown``: too large). A cluster
+named with little confidence is not tried: it is more often a thing of no category, or one seen
+poorly (its name less sure where the budget cut the classifier's second opinion short), than two
+objects. Each of the cut judge's candidate planes through such a cluster (its likeliest ``TRIED``
+first) parts it in two, and each part is classified as the scene names objects
+(``posing.scene_category``, on at most ``PART_POINTS`` of its points); the cut is made where both
+parts are objects some category fits (``unknown.unknown_reason`` finds nothing against them), the
+one whose less certain part is the most certain. Where no cut gives two such parts the cluster stays
+one, unknown.
 """
 
 from __future__ import annotations
@@ -64,9 +64,9 @@ class Namer:
 def named_parts(
     points: NDArray, namer: Namer, judge: CutJudge | None, deadline: float
 ) -> list[NDArray[np.int64]]:
-    """A cluster (K, 3) too large for its category -> the indices (into ``points``) of the objects the recognition
-    finds in it: two parts, or the whole where no cut parts it into two objects some category
-    fits, or where ``deadline`` (``time.perf_counter()``) passes first."""
+    """A cluster (K, 3) too large for its category -> the indices (into ``points``) of the
+    objects the recognition finds in it: two parts, or the whole where no cut parts it into two
+    objects some category fits, or where ``deadline`` (``time.perf_counter()``) passes first."""
     whole = [np.arange(len(points))]
     if len(points) < 2 * MIN_PART_POINTS:
         return whole

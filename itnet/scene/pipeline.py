@@ -212,7 +212,7 @@ def _answered(
 
 
 def _parts(context: _Context, points: NDArray, deadline: float) -> list[NDArray[np.int64]]:
-    """An unknown cluster's (K, 3) objects, as the recognition parts it (``named_parts``)."""
+    """A too large cluster's (K, 3) objects, as the recognition parts it (``named_parts``)."""
     assert context.found.floor is not None
     namer = Namer(context.catalog, context.namer, context.categories, context.found.floor,
                   VIEWPOINT)  # fmt: skip
@@ -318,7 +318,7 @@ def object_box(points: NDArray, up: NDArray, floor: Plane | None, pose: NDArray 
     if pose is not None:
         rotation = pose[:3, :3].T  # R_camera_from_canonical: the canonical axes
     else:
-        sample = points[:: max(1, len(points) // 4096)]
+        sample = points[:: max(1, len(points) // OBJECT_POINTS)]
         flat = sample - column_mean(sample)
         flat -= np.outer(flat @ up, up)
         _, _, vt = np.linalg.svd(flat, full_matrices=False)

@@ -100,17 +100,25 @@ def ransac_plane(
     if beyond_m is not None:
         counts = counts - (signed < -beyond_m).sum(axis=0)
     best = int(np.argmax(counts))
-    plane = Plane(normals[best], float(offsets[best]))
-    fitted = points if len(points) <= refine else points[rng.integers(0, len(points), size=refine)]
+    plane = refined_plane(
+        Plane(normals[best], float(offsets[best])), points, threshold, rng, refine
+    )
+    if plane is None:
+        return None
+    return plane, np.abs(plane.distance(points)) < threshold
+
+
+def refined_plane(
+    plane: Plane, points: NDArray, threshold: float, rng: np.random.Generator, sample: int = 20000
+) -> Plane | None:
+    """``plane`` refitted twice by ``fit_plane`` to its inliers within ``threshold`` among a
+    random ``sample`` of the points (N, 3), its normal kept on the same side (the fit's sign is
+    arbitrary); None where fewer than 3 points lie that near it."""
+    fitted = points if len(points) <= sample else points[rng.integers(0, len(points), size=sample)]
     for _ in range(2):
         inliers = np.abs(plane.distance(fitted)) < threshold
         if inliers.sum() < 3:
             return None
-        refined = fit_plane(fitted[inliers])
-        # keep the refined normal on the hypothesis' side (the fit's sign is arbitrary)
-        plane = (
-            refined
-            if refined.normal @ plane.normal >= 0
-            else Plane(-refined.normal, -refined.offset)
-        )
-    return plane, np.abs(plane.distance(points)) < threshold
+        refit = fit_plane(fitted[inliers])
+        plane = refit if refit.normal @ plane.normal >= 0 else Plane(-refit.normal, -refit.offset)
+    return plane

@@ -59,8 +59,9 @@ def scene_catalog(model_dir: Path | None = None, threads: int = 2) -> Catalog:
 @dataclass
 class ObjectPose:
     """One cluster's category (None: unknown) and, where its category has a pose model and the
-    budget held a run, its pose: ``result`` is the anytime run's reply (``T_canonical_from_input``, both
-    quaternions, iterations, ...) without the recognition's fields; ``pose`` (4, 4)."""
+    budget held a run, its pose: ``result`` is the anytime run's reply
+    (``T_canonical_from_input``, both quaternions, iterations, ...) without the recognition's
+    fields; ``pose`` (4, 4)."""
 
     category: str | None  # None: unknown (``unknown`` says why)
     probability: float
@@ -201,8 +202,8 @@ def posed_as(
 ) -> ObjectPose:
     """``seen`` (its category) with its pose: the category's anytime pipeline (or ``model``'s)
     run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs,
-    or one where the budget holds no more), within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model
-    for the category, or the budget)."""
+    or one where the budget holds no more), within ``budget_ms`` from ``started``; ``no_pose``
+    says why not where it has none (no model for the category, or the budget)."""
     model = model or (
         None if seen.category is None else pose_model_for(seen.category, catalog.models)
     )

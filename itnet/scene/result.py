@@ -56,12 +56,11 @@ class SceneObject:
     unknown: str | None = None  # 'unsure' or 'too_large'
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
-        """The JSON form: ``category`` (null: unknown), ``category_probability``,
-        ``candidates``, ``unsure``, ``named_by``, ``base_out_of_view``, ``unknown`` (why it is
-        unknown: 'unsure' or 'too_large'; null where named), the run's fields (``T_canonical_from_input``,
-        ``quat_wxyz``, ``quat_xyzw``, ``translation``, ``iterations``, ``stopped_by``, ``model``,
-        ...; null pose where none, with ``no_pose``), ``box``, ``points`` (how many) and
-        ``indices``."""
+        """The JSON form: ``category`` (null: unknown), ``category_probability``, ``candidates``,
+        ``unsure``, ``named_by``, ``base_out_of_view``, ``unknown`` (why it is unknown: 'unsure' or
+        'too_large'; null where named), the run's fields (``T_canonical_from_input``, ``quat_wxyz``,
+        ``quat_xyzw``, ``translation``, ``iterations``, ``stopped_by``, ``model``, ...; null pose
+        where none, with ``no_pose``), ``box``, ``points`` (how many) and ``indices``."""
         out: dict[str, Any] = {
             "category": self.category,
             "category_probability": round(self.probability, 6),

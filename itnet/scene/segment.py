@@ -16,10 +16,11 @@ stands on the floor, filtered by size.
    (3-D) or their footprints on the floor within ``footprint_m`` (so the parts of one object that
    occlusion cut apart, a chair's back above a table, stay one object): the connected components
    (scipy's KD-tree and csgraph).
-4. Filters: at least ``min_points`` working voxels (``least_voxels``), a top at least ``min_height_m`` above the floor (no
-   floor fragments), at most ``max_size_m`` across and tall (no room-sized leftovers), its
-   median point farther than ``wall_piece_m`` from every wall (a wall's noise, in front of the
-   plane by more than its threshold, is a thin sheet that would otherwise pass).
+4. Filters: at least ``min_points`` working voxels (``least_voxels``), a top at least
+   ``min_height_m`` above the floor (no floor fragments), at most ``max_size_m`` across and tall (no
+   room-sized leftovers), its median point farther than ``wall_piece_m`` from every wall (a wall's
+   noise, in front of the plane by more than its threshold, is a thin sheet that would otherwise
+   pass).
 5. Pieces: a cluster that does not reach down to the floor (its lowest point higher than
    ``max_base_m``, where the floor is seen within ``attach_m`` under its lowest points) or stays
    low (its top below ``min_object_m``) is a piece of an object that occlusion or a thin part
@@ -46,7 +47,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from itnet.columns import column_max, column_min
-from itnet.scene.planes import Plane, fit_plane, floor_axes, ransac_plane
+from itnet.scene.planes import Plane, floor_axes, ransac_plane, refined_plane
 from itnet.scene.touching import load_cut_judge, split_touching
 from itnet.scene.view_edges import ViewEdges
 
@@ -98,9 +99,9 @@ class SegmentOptions:
     min_points: int = 12
     min_height_m: float = 0.2
     max_size_m: float = 3.0
-    # the working cloud: the centroids of voxels of this size, or larger where there would be
-    # more than work_points (None: as many as the scene's budget affords, ``working_points``),
-    # from at most max_input of the scene's points (``working_cloud``)
+    # the objects' working cloud: the centroids of voxels of this size, or larger where there
+    # would be more than work_points (None: as many as the scene's budget affords,
+    # ``working_points``), from at most max_input of the scene's points (``VoxelCloud``)
     work_voxel_m: float = 0.03
     work_points: int | None = None
     # the planes are found among voxels of this size of this many of the points
@@ -145,22 +146,6 @@ def find_floor(
         plane = Plane(-plane.normal, -plane.offset)
     if plane.normal @ expected_up < cos_tilt:  # a ceiling, seen from below
         return None
-    return plane
-
-
-def refitted(
-    plane: Plane, points: NDArray, threshold: float, rng: np.random.Generator, sample: int = 20000
-) -> Plane:
-    """A plane found on the working cloud refitted twice to the scene's own points (N, 3) within
-    ``threshold`` of it (a random ``sample`` of them; voxel centroids where the plane meets an
-    object lean toward the object), its normal on the same side."""
-    fitted = points if len(points) <= sample else points[rng.integers(0, len(points), sample)]
-    for _ in range(2):
-        inliers = np.abs(plane.distance(fitted)) < threshold
-        if inliers.sum() < 3:
-            break
-        refit = fit_plane(fitted[inliers])
-        plane = refit if refit.normal @ plane.normal >= 0 else Plane(-refit.normal, -refit.offset)
     return plane
 
 
@@ -213,7 +198,7 @@ def clusters(
 ) -> list[NDArray[np.int64]]:
     """Points (N, 3) standing on the floor -> connected groups of them (indices into
     ``points``), linked in 3-D and by footprint (see the module). ``voxel_m``: the points are
-    already the centroids of voxels this large (``working_cloud``), linked within ``link_m`` or
+    already the centroids of voxels this large (``VoxelCloud``), linked within ``link_m`` or
     ``link_voxels`` voxels (neighbours' centroids lie up to two voxels apart), whichever is
     farther."""
     if len(points) == 0:
@@ -309,7 +294,7 @@ def attach_pieces(
     joined = [[g] for g in based]
     low = []
     for piece in (g for g in groups if not whole(g)):
-        gaps = [near.gap(piece, j, options.attach_m) for j in range(len(based))]
+        gaps = near.gaps(piece, list(range(len(based))), options.attach_m)
         nearest = int(np.argmin(gaps)) if gaps else -1
         if nearest >= 0 and gaps[nearest] <= options.attach_m:
             joined[nearest].append(piece)
@@ -345,8 +330,7 @@ def slivers_joined(
         if not larger:
             continue
         gaps = []
-        for j in larger:
-            gap = apart.gap(groups[i], j, reach)
+        for j, gap in zip(larger, apart.gaps(groups[i], larger, reach), strict=True):
             near = gap <= options.sliver_m or (
                 gap <= options.far_sliver_m and sizes[i] <= options.far_sliver_share * sizes[j]
             )
@@ -369,16 +353,20 @@ class _Near:
         self.boxes = [(column_min(points[g]), column_max(points[g])) for g in groups]
         self.trees: dict[int, cKDTree] = {}
 
-    def gap(self, piece: NDArray[np.int64], j: int, beyond: float) -> float:
-        """How near ``piece`` comes to cluster ``j``; infinite where their boxes lie farther
-        than ``beyond`` apart."""
+    def gaps(self, piece: NDArray[np.int64], near: list[int], beyond: float) -> list[float]:
+        """How near ``piece`` comes to each cluster of ``near`` (their places in the groups);
+        infinite where their boxes lie farther than ``beyond`` apart."""
         lo, hi = column_min(self.points[piece]), column_max(self.points[piece])
-        apart = np.maximum(0.0, np.maximum(self.boxes[j][0] - hi, lo - self.boxes[j][1]))
-        if float(np.linalg.norm(apart)) > beyond:
-            return math.inf
-        if j not in self.trees:
-            self.trees[j] = cKDTree(self.points[self.groups[j]])
-        return _gap(self.points, piece, self.trees[j])
+        out = []
+        for j in near:
+            apart = np.maximum(0.0, np.maximum(self.boxes[j][0] - hi, lo - self.boxes[j][1]))
+            if float(np.linalg.norm(apart)) > beyond:
+                out.append(math.inf)
+                continue
+            if j not in self.trees:
+                self.trees[j] = cKDTree(self.points[self.groups[j]])
+            out.append(_gap(self.points, piece, self.trees[j]))
+        return out
 
 
 def _gap(points: NDArray, piece: NDArray[np.int64], tree: cKDTree) -> float:
@@ -405,9 +393,8 @@ def segment(
     module). ``expected_up``: roughly which way is up in the cloud (the floor is searched
     within ``max_tilt_deg`` of it).
 
-    The planes are found among voxels of ``plane_points`` of the points, the objects on a
-    working cloud of
-    what is neither floor nor wall (``VoxelCloud``, at most ``work_points`` voxels, from at
+    The planes are found among voxels of ``plane_points`` of the points, the objects on a working
+    cloud of what is neither floor nor wall (``VoxelCloud``, at most ``work_points`` voxels, from at
     most ``max_input`` points): the cost follows the room and the budget, not the camera's
     resolution; each object then gets every point of its voxels."""
     rng = np.random.default_rng(seed)
@@ -422,7 +409,9 @@ def segment(
     floor = find_floor(planar, prior, options, rng)
     if floor is None:
         return Segmentation(None, prior, edges=edges)
-    floor = refitted(floor, points, options.floor_threshold_m, rng)
+    # refitted to the frame's own points: voxel centroids where the floor meets an object lean
+    # toward the object (where too few lie near it, as found)
+    floor = refined_plane(floor, points, options.floor_threshold_m, rng) or floor
     up = floor.normal
     above = floor.distance(planar) > options.floor_threshold_m
     walls = find_walls(planar[above], up, floor, options, rng, edges)
@@ -464,11 +453,9 @@ def nearest_floor(floor_points: NDArray, up: NDArray) -> float:
     return float(np.percentile(reach, 1)) if len(reach) else math.inf
 
 
-# The working clouds' sizes: the planes' voxels, and the objects' per ms of a scene's budget
-# within bounds. Segmenting a real room costs about 3-4 ms per thousand object voxels on 2
-# cores (docs/scenes.md, "Cost"); about a third of the budget is left to it, the rest to
-# posing the objects.
-PLANE_POINTS = 8_000
+# The objects' working cloud's size per ms of a scene's budget, within bounds. Segmenting a real
+# room costs about 3-4 ms per thousand object voxels on 2 cores (docs/scenes.md, "Cost"); about
+# a third of the budget is left to it, the rest to posing the objects.
 WORK_POINTS_PER_MS = 75
 WORK_POINTS_RANGE = (4_000, 30_000)
 

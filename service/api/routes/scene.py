@@ -134,7 +134,7 @@ async def scene(
         bool, Query(description="a cluster no category fits answered as unknown (category null)")
     ] = True,
     named_split: Annotated[
-        bool, Query(description="an unknown cluster parted where the recognition finds two objects")
+        bool, Query(description="a cluster too large for its category parted in two objects")
     ] = True,
     up: Annotated[
         str | None,
