@@ -1,22 +1,24 @@
-"""Benchmark: itnet-align against registration baselines on pairs of partial scans.
+"""Benchmark: itnet-align against the composed poses and registration baselines, on pairs of
+partial scans from three pair generators.
 
-    .venv/bin/python -m benchmarks.bench_align --pairs 100               # validation pairs
-    .venv/bin/python -m benchmarks.bench_align --pairs 200 --split test  # measured once
-    .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align" \
-        "itnet-align --up"        # each scan's up given, tilted 2 deg from the truth
-    .venv/bin/python -m benchmarks.bench_align --model night_stand --up 2
+    .venv/bin/python -m benchmarks.bench_align --pairs 100                      # validation
+    .venv/bin/python -m benchmarks.bench_align --pairs 100 --split test --out docs  # measured once
+    .venv/bin/python -m benchmarks.bench_align --model table --generators camera
+    .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align --up"
 
-Pairs: two partial scans of the same held-out object (the model's category from ModelNet10: the
-validation shapes its training left out, or the test split; mapped to the canonical frame by
-``itnet.model.shapes`` and the category's turn, radius 1), each from an independent random viewpoint
-(full SO(3), ``itnet.model.scanner``), in its own camera frame; seeded, so every method sees the
-same pairs. Truth: T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a of the scans.
-Metric (SPEC.md, ``itnet.metrics.alignment_errors``): rotation error and the distance between
-where the estimate and the truth put A's centroid, over the object radius; success at
-(10 deg, 0.1). ``--up ERROR_DEG`` adds the itnet-align variants given each scan's up direction
-(``--up-a``/``--up-b``), the truth tilted by that error as a gravity sensor's would be; a model
-whose card requires up runs only those. Writes align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the
-README's table is ``--out docs``, so a trial run never overwrites it).
+Pairs (``benchmarks.align_pairs``): two partial scans of the same held-out object (the model's
+category from ModelNet10: the validation shapes its training left out, or the test split), from
+each generator of ``--generators``: ``any_view`` (two viewpoints from any direction),
+``camera`` (a Kinect v2 above the floor, real sizes, each scan from its own distance) and
+``overlap`` (a RealSense D435, the second view turned 15-180 degrees about up: overlap from
+nearly all to almost none). Seeded, so every method sees the same pairs. Metric (SPEC.md):
+rotation error and the distance between where the estimate and the truth put A's centroid,
+over the object radius, the least over the category's symmetric equivalents; success at
+(10 deg, 0.1). "composed poses" is inv(T_canonical_from_b) · T_canonical_from_a of the two
+served poses alone, the prior itnet-align must never be worse than (paired, per generator).
+``--up ERROR_DEG`` adds the itnet-align variants given each scan's up direction, tilted by that
+error as a gravity sensor's would be; a model whose card requires up runs only those. Writes
+align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the README's is ``--out docs``).
 """
 
 from __future__ import annotations
@@ -33,33 +35,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchmarks import baselines
+from benchmarks.align_pairs import GENERATORS, Pair, make_pairs, split_shapes
 from benchmarks.report import write_report
 from itnet.alignment.estimators import in_process_estimator
-from itnet.alignment.hypotheses import category_symmetry, relative_pose
-from itnet.alignment.pipeline import AlignOptions, align_clouds
-from itnet.metrics import alignment_errors, is_correct
-from itnet.model import categories
-from itnet.model.scanner import ScanConfig, scan_shape
-from itnet.model.shapes import load_shape
+from itnet.alignment.pipeline import align_clouds
+from itnet.alignment.request import DEFAULT_BUDGET_MS, AlignRequest
+from itnet.metrics import is_correct
 from itnet.pose.catalog import Catalog
-from itnet.pose.request import PoseRequest
 from itnet.pose.runtime import LoadedModel
 from itnet.upright import tilted
 
 ROOT = Path(__file__).resolve().parents[1]
-SWITCH_MARGINS = (0.05, 0.2)  # beside the default's (itnet.alignment.pipeline.SWITCH_MARGIN)
-
-
-@dataclass
-class Pair:
-    """Clouds A (N, 3) and B (M, 3) in their camera frames, the true T_b_from_a, the radius."""
-
-    a: NDArray[np.float64]
-    b: NDArray[np.float64]
-    truth: NDArray[np.float64]
-    radius: float
-    name: str
-    ups: tuple[NDArray[np.float64], NDArray[np.float64]]  # each scan's true up, in its frame
 
 
 @dataclass
@@ -70,34 +56,25 @@ class Outcome:
     translation: list[float] = field(default_factory=list)
     ms: list[float] = field(default_factory=list)
     info: list[dict] = field(default_factory=list)
+    generator: list[str] = field(default_factory=list)
 
     def success(self) -> NDArray[np.bool_]:
         return is_correct(np.array(self.rotation_deg), np.array(self.translation))
 
 
-def make_pairs(files: list[Path], count: int, seed: int, category: str = "chair") -> list[Pair]:
-    """``count`` scan pairs cycling over the shape ``files`` (ModelNet frame, turned into
-    ``category``'s canonical frame)."""
-    turns = categories.category(category).quarter_turns
-    shapes = [load_shape(p, "modelnet", turns) for p in files]
+def resampled(pairs: list[Pair], count: int, seed: int) -> None:
+    """Each scan resampled to ``count`` points: a seeded subset, or every point and repeats of
+    some jittered by 0.005 radii."""
     rng = np.random.default_rng(seed)
-    config = ScanConfig()
-    pairs = []
-    for i in range(count):
-        shape = shapes[i % len(shapes)]
-        a, pose_a = scan_shape(shape.points, rng, config)
-        b, pose_b = scan_shape(shape.points, rng, config)
-        ups = (pose_a[1, :3], pose_b[1, :3])  # R^T e_y: the canonical +y in each camera frame
-        pairs.append(Pair(a, b, relative_pose(pose_a, pose_b), 1.0, shape.name, ups))
-    return pairs
 
+    def one(points: NDArray) -> NDArray:
+        if len(points) >= count:
+            return points[rng.choice(len(points), count, replace=False)]
+        extra = points[rng.choice(len(points), count - len(points))]
+        return np.concatenate([points, extra + rng.normal(scale=0.005, size=extra.shape)])
 
-def split_shapes(data: Path, category: str, split: str) -> list[Path]:
-    """The shapes of ``split``: ModelNet's test folder, or the validation shapes the category's
-    models were trained without (``itnet train``'s split: a tenth of the training folder)."""
-    from itnet.model.data import split_files
-
-    return split_files(data, category, 0.1, 0)["val" if split == "validation" else "test"]
+    for pair in pairs:
+        pair.a, pair.b = one(pair.a), one(pair.b)
 
 
 def given_ups(pairs: list[Pair], error_deg: float, seed: int) -> None:
@@ -112,27 +89,26 @@ def itnet_methods(
 ) -> tuple[dict[str, Callable], LoadedModel]:
     """itnet-align variants (the CLI's options in the name), each returning (T_b_from_a, info);
     ``with_up``: also each with ``--up`` (it then takes the pair's ups; only those where the
-    model requires up). "composed poses" is inv(T_canonical_from_b) · T_canonical_from_a of the
-    two served poses alone (no rival ever chosen), the reference the alignment must beat."""
+    model requires up). "composed poses" is the two served poses composed, nothing else;
+    "composed poses + ICP" that pose refined, no rival ever judged."""
     catalog = Catalog.load(model_dir)
     model = catalog.model(model_name)
-    estimate = in_process_estimator(catalog, PoseRequest(model=model_name, budget_ms=budget_ms))
-    symmetry = category_symmetry(model.card.category, model.card.symmetry)
     variants = {
-        "composed poses": AlignOptions(symmetry=symmetry, switch_margin=2.0),
-        "itnet-align --no-refine": AlignOptions(symmetry=symmetry),
-        "itnet-align": AlignOptions(symmetry=symmetry, refine=True),
-        **{f"itnet-align (switch margin {m})": AlignOptions(symmetry=symmetry, refine=True,
-                                                           switch_margin=m)
-           for m in SWITCH_MARGINS},
-    }  # fmt: skip
+        "composed poses": AlignRequest(budget_ms=budget_ms, rivals=False, refine=False),
+        "composed poses + ICP": AlignRequest(budget_ms=budget_ms, rivals=False, refine=True),
+        "itnet-align --no-refine": AlignRequest(budget_ms=budget_ms, refine=False),
+        "itnet-align": AlignRequest(budget_ms=budget_ms, refine=True),
+    }
 
-    def method(options: AlignOptions, up: bool) -> Callable:
+    def method(request: AlignRequest, up: bool) -> Callable:
+        estimate = in_process_estimator(catalog, request.pose_request(model_name))
+        options = request.options(model.card, bool(request.refine))
+
         def align(a: NDArray, b: NDArray, ups: tuple | None = None) -> tuple[NDArray, dict]:
             result = align_clouds(a, b, estimate, options, *(ups if up else (None, None)))
             chosen = result.hypotheses[result.chosen].source
-            info = {**result.confidence, "hypothesis": chosen, "iterations": result.iterations,
-                    "considered": result.considered,
+            info = {"probability": result.probability, "hypothesis": chosen,
+                    "iterations": result.iterations, "considered": result.considered,
                     **{f"{k}_ms": v for k, v in result.timings_ms.items()}}  # fmt: skip
             return result.T_b_from_a, info
 
@@ -140,11 +116,11 @@ def itnet_methods(
         return align
 
     out = {}
-    for name, options in variants.items():
+    for name, request in variants.items():
         if not model.card.requires_up:
-            out[name] = method(options, False)
+            out[name] = method(request, False)
         if with_up or model.card.requires_up:
-            out[f"{name} --up"] = method(options, True)
+            out[f"{name} --up"] = method(request, True)
     return out, model
 
 
@@ -164,10 +140,11 @@ def run_methods(methods: dict[str, Callable], pairs: list[Pair], seconds: float)
             reply = method(pair.a, pair.b, **_ups(method, pair))
             out.ms.append((time.perf_counter() - start) * 1e3)
             estimate, info = reply if isinstance(reply, tuple) else (reply, {})
-            rot, trans = alignment_errors(estimate, pair.truth, pair.a.mean(0), pair.radius)
-            out.rotation_deg.append(float(rot))
-            out.translation.append(float(trans))
+            rot, trans = pair.errors(estimate)
+            out.rotation_deg.append(rot)
+            out.translation.append(trans)
             out.info.append(info)
+            out.generator.append(pair.generator)
     return outcomes
 
 
@@ -197,7 +174,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=2024)
     parser.add_argument("--model", default="chair")
     parser.add_argument("--model-dir", type=Path, default=None)
-    parser.add_argument("--budget-ms", type=float, default=1000.0)
+    parser.add_argument("--generators", nargs="+", default=list(GENERATORS))
+    parser.add_argument("--points", type=int, default=None,
+                        help="resample every scan to this many points (a timing at a size the "
+                        "scans do not reach: repeated points jittered by 0.005 radii)")  # fmt: skip
+    parser.add_argument("--budget-ms", type=float, default=DEFAULT_BUDGET_MS,
+                        help="the whole alignment's")  # fmt: skip
     parser.add_argument("--seconds-per-method", type=float, default=120.0)
     parser.add_argument("--only", nargs="*", default=None, help="method names to run")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "align",
@@ -221,8 +203,11 @@ def main() -> None:
 
     methods, model = itnet_methods(args.model, args.model_dir, args.budget_ms, args.up is not None)
     category = model.card.category or "chair"
-    pairs = make_pairs(split_shapes(args.data, category, args.split), args.pairs, args.seed,
-                       category)  # fmt: skip
+    shapes = split_shapes(args.data, category, args.split)
+    pairs = [pair for k, generator in enumerate(args.generators)
+             for pair in make_pairs(generator, shapes, args.pairs, args.seed + k, category)]  # fmt: skip
+    if args.points is not None:
+        resampled(pairs, args.points, args.seed + 2)
     given_ups(pairs, 2.0 if args.up is None else args.up, args.seed + 1)
     methods.update(baselines.available())
     if args.only:
@@ -237,6 +222,8 @@ def main() -> None:
     modified = time.strftime("%Y-%m-%d %H:%M", time.localtime(model_stat.st_mtime))
     meta = {
         "pairs": len(pairs),
+        "generators": args.generators,
+        "category": category,
         "seed": args.seed,
         "split": args.split,
         "data": str(args.data),
@@ -246,13 +233,15 @@ def main() -> None:
         "budget_ms": args.budget_ms,
         "up_error_deg": args.up,
         "command": " ".join(["python -m benchmarks.bench_align", *_without_notes(sys.argv[1:])]),
-        "notes": args.note,
+        "notes": args.note + ([f"Every scan resampled to {args.points} points (repeats "
+                               "jittered by 0.005 radii)."] if args.points else []),
         "points": [int(np.median([len(p.a) for p in pairs])),
                    int(np.median([len(p.b) for p in pairs]))],
     }  # fmt: skip
     write_report(results, meta, args.out / "align_benchmark")
     dump = {name: {"rotation_deg": o.rotation_deg, "translation": o.translation, "ms": o.ms,
-                   "info": o.info} for name, o in results.items()}  # fmt: skip
+                   "info": o.info, "generator": o.generator}
+            for name, o in results.items()}  # fmt: skip
     (args.out / "align_benchmark.json").write_text(json.dumps({"meta": meta, "results": dump}))
 
 

@@ -23,17 +23,21 @@ def summary(outcome) -> dict:  # type: ignore[no-untyped-def]
     }
 
 
-def confidence_table(outcome) -> list[str]:  # type: ignore[no-untyped-def]
-    """Success rate by reported confidence (is the confidence worth reading?)."""
-    conf = np.array([i.get("confidence", np.nan) for i in outcome.info])
-    if np.isnan(conf).all():
+RELIABILITY_BINS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
+
+
+def reliability_table(outcome) -> list[str]:  # type: ignore[no-untyped-def]
+    """Of the answers given each probability, how many were right: is it calibrated?"""
+    prob = np.array([i.get("probability", np.nan) for i in outcome.info])
+    if np.isnan(prob).all():
         return []
     ok = outcome.success()
-    rows = ["| confidence | pairs | success |", "|---|---|---|"]
-    for lo, hi in ((0.0, 0.3), (0.3, 0.6), (0.6, 1.01)):
-        sel = (conf >= lo) & (conf < hi)
-        rate = f"{ok[sel].mean():.0%}" if sel.any() else "–"
-        rows.append(f"| {lo:.1f}–{min(hi, 1.0):.1f} | {int(sel.sum())} | {rate} |")
+    rows = ["| probability | pairs | mean probability | right |", "|---|---|---|---|"]
+    for lo, hi in zip(RELIABILITY_BINS[:-1], RELIABILITY_BINS[1:]):
+        sel = (prob >= lo) & ((prob < hi) | (hi == 1.0))
+        if sel.any():
+            rows.append(f"| {lo:.2f}–{hi:.2f} | {int(sel.sum())} | {prob[sel].mean():.2f} | "
+                        f"{ok[sel].mean():.0%} |")  # fmt: skip
     return rows
 
 
@@ -47,25 +51,42 @@ def hypothesis_counts(outcome) -> str:  # type: ignore[no-untyped-def]
 
 
 def time_split(results: dict) -> list[str]:
-    """Markdown lines: where the time of each itnet-align variant goes (medians per pair)."""
+    """Markdown lines: where the time of each itnet variant goes (medians per pair)."""
     rows = []
     for name, outcome in results.items():
-        if name.startswith("itnet-align") and outcome.info and "itnet_ms" in outcome.info[0]:
+        if outcome.info and "itnet_ms" in outcome.info[0]:
             part = {k: np.median([i.get(k, 0.0) for i in outcome.info])
-                    for k in ("itnet_ms", "rank_ms", "refine_ms", "score_ms", "iterations",
-                              "considered")}  # fmt: skip
-            rows.append(f"| {name} | {part['itnet_ms']:.1f} ms | {part['rank_ms']:.1f} ms | "
-                        f"{part['refine_ms']:.1f} ms | {part['score_ms']:.1f} ms | "
-                        f"{part['iterations']:.0f} | {part['considered']:.0f} |")  # fmt: skip
+                    for k in ("itnet_ms", "composed_ms", "rivals_ms", "iterations")}  # fmt: skip
+            doubt = np.mean([i.get("considered", 0) > 0 for i in outcome.info])
+            rows.append(f"| {name} | {part['itnet_ms']:.1f} ms | {part['composed_ms']:.1f} ms | "
+                        f"{part['rivals_ms']:.1f} ms | {part['iterations']:.0f} | {doubt:.0%} |")  # fmt: skip
     if not rows:
         return []
-    return ["", "Where the time of itnet-align goes (medians per pair):", "",
-            "| method | IT-Net (both clouds) | ranking | ICP | scoring | IT-Net iterations "
-            "| hypotheses |", "|---|---|---|---|---|---|---|", *rows]  # fmt: skip
+    return ["", "Where the time goes (medians per pair):", "",
+            "| method | both poses (together) | composed pose: ICP, judging | rivals | IT-Net "
+            "iterations | pairs in doubt (rivals judged) |", "|---|---|---|---|---|---|", *rows]  # fmt: skip
 
 
-def write_report(results: dict, meta: dict, stem: Path) -> None:
-    """Write ``stem``.md (table, setup, command) and ``stem``.png (figure)."""
+def _subset(outcome, keep: np.ndarray):  # type: ignore[no-untyped-def]
+    """The Outcome of the pairs ``keep`` (bool, one a pair)."""
+    picked = type(outcome)()
+    for name in ("rotation_deg", "translation", "ms", "info", "generator"):
+        values = getattr(outcome, name)
+        setattr(picked, name, [v for v, k in zip(values, keep) if k])
+    return picked
+
+
+def paired_line(results: dict, name: str, reference: str) -> str:
+    """'+x.x ± s.e. points' of ``name`` over ``reference`` on the same pairs."""
+    a = results[name].success().astype(float)
+    b = results[reference].success().astype(float)
+    if len(a) != len(b) or len(a) < 2:
+        return "–"
+    d = a - b
+    return f"{100 * d.mean():+.1f} ± {100 * d.std(ddof=1) / np.sqrt(len(d)):.1f} points"
+
+
+def method_rows(results: dict) -> list[str]:
     rows = [
         "| method | success (10°, 0.1 r) | median rotation error | median translation error "
         "| median time per pair | pairs |",
@@ -74,38 +95,60 @@ def write_report(results: dict, meta: dict, stem: Path) -> None:
     for name, outcome in results.items():
         s = summary(outcome)
         rows.append(
-            f"| {name} | **{s['success']:.0%}** | {s['median_rotation_deg']:.1f}° | "
+            f"| {name} | **{s['success']:.1%}** | {s['median_rotation_deg']:.1f}° | "
             f"{s['median_translation']:.3f} r | {s['median_ms']:.1f} ms | {s['pairs']} |"
         )
+    return rows
+
+
+def write_report(results: dict, meta: dict, stem: Path) -> None:
+    """Write ``stem``.md (a table per pair generator, the paired comparison with the composed
+    poses, the reliability of the probability, setup, command) and ``stem``.png (figure)."""
     lines = [
-        "# Alignment benchmark: itnet-align vs. registration baselines",
+        f"# Alignment benchmark: itnet-align ({meta.get('category', 'chair')})",
         "",
         f"Made by `{meta['command']}` (writes this file, `align_benchmark.png` and "
         "`align_benchmark.json`).",
+    ]
+    generators = meta.get("generators") or ["any_view"]
+    reference = next((n for n in results if n.startswith("composed poses")), None)
+    for generator in generators:
+        part = {name: _subset(o, np.array([g == generator for g in o.generator]))
+                for name, o in results.items() if generator in o.generator}  # fmt: skip
+        if not part:
+            continue
+        lines += ["", f"## Pairs: `{generator}`", "", *method_rows(part)]
+        if reference is not None:
+            lines.append("")
+            for name in part:
+                if name.startswith("itnet-align") and len(part[name].ms) == len(part[reference].ms):
+                    lines.append(f"- `{name}` against the {reference}, paired: "
+                                 f"{paired_line(part, name, reference)}")  # fmt: skip
+    lines += [
         "",
-        *rows,
+        "## Setup",
         "",
-        f"- Pairs: {meta['pairs']} pairs of partial scans of the same object, ModelNet10 *test* "
-        f"chairs (`{meta['data']}`, held out from training), two independent random viewpoints "
-        "each (full SO(3), `itnet.model.scanner` z-buffer scans with sensor noise), seed "
-        f"{meta['seed']}; median {meta['points'][0]} / {meta['points'][1]} points in A / B.",
+        f"- Pairs: {meta['pairs']} pairs of partial scans of the same object, ModelNet10 "
+        f"{meta['split']} shapes of the category (`{meta['data']}`), seed {meta['seed']} "
+        f"(`benchmarks.align_pairs`); median {meta['points'][0]} / {meta['points'][1]} points "
+        "in A / B.",
         "- Success: rotation error < 10° and A's centroid within 0.1 object radii of where the "
-        "true T_b_from_a puts it (`itnet.metrics.alignment_errors`).",
-        f"- Model: {meta['model']}; IT-Net budget {meta['budget_ms']:g} ms per pose "
-        "(the model's recommended iteration count ends it first).",
+        "true T_b_from_a puts it, the best of the category's symmetric equivalents "
+        "(`itnet.metrics.alignment_errors`).",
+        f"- Model: {meta['model']}; budget {meta['budget_ms']:g} ms for the whole alignment.",
         "- Sizes for every method (voxels, ICP distances) are fractions of B's RMS radius, "
         "measured on the cloud; all global baselines end with the same point-to-plane ICP as "
         "`itnet-align --refine`.",
-        "- Times: wall clock per pair on this machine (2 CPU cores, shared with other jobs), "
-        "after one warm-up call per method; the methods take turns pair by pair, so a change "
-        "in load hits them alike.",
+        "- Times: wall clock per pair on this machine (2 CPU cores), after one warm-up call per "
+        "method; the methods take turns pair by pair, so a change in load hits them alike.",
         *[f"- {note}" for note in meta.get("notes", [])],
     ]
     lines += time_split(results)
     for name, outcome in results.items():
-        table = confidence_table(outcome)
+        table = reliability_table(outcome)
         if table and name.startswith("itnet-align"):
-            lines += ["", f"`{name}`: chosen hypotheses: {hypothesis_counts(outcome)}.", "", *table]
+            lines += ["", f"`{name}`, all pairs: chosen hypotheses: "
+                      f"{hypothesis_counts(outcome)}.", "", *table]  # fmt: skip
     stem.with_suffix(".md").write_text("\n".join(lines) + "\n")
     plot(results, stem.with_suffix(".png"))
 

@@ -1,5 +1,5 @@
 """Blocking client of the itnet service: ``POST /v1/estimate``, ``WS /v1/estimate/stream`` and
-``POST /v1/scene``.
+``POST /v1/scene`` and ``POST /v1/align``.
 
 with ItnetClient("http://127.0.0.1:8000") as client:
     result = client.estimate(points, budget_ms=50)          # EstimateResult
@@ -9,6 +9,7 @@ with ItnetClient("http://127.0.0.1:8000") as client:
                 stream.cancel()                             # the server answers with the result
     stream.result                                           # EstimateResult
     reply = client.scene("frame.png", intrinsics=(525, 525, 319.5, 239.5))  # every object
+    aligned = client.align(a, b, budget_ms=100)             # T_b_from_a, its probability
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ from numpy.typing import ArrayLike
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 from websockets.sync.client import ClientConnection, connect
 
+from itnet.alignment.request import AlignRequest
 from itnet.clients.wire import (
+    ALIGN_PATH,
     BINARY,
     ESTIMATE_PATH,
     SCENE_PATH,
@@ -33,6 +36,7 @@ from itnet.clients.wire import (
     EstimateResult,
     ItnetClientError,
     ItnetConnectionError,
+    align_request,
     binary_body,
     json_request,
     parse_message,
@@ -193,6 +197,20 @@ class ItnetClient:
         )
         try:
             reply = self._http.post(SCENE_PATH, content=body, params=query, headers=headers)
+        except httpx.TransportError as err:
+            raise ItnetConnectionError(f"{self.base_url}: {err}") from None
+        return _json(reply)
+
+    def align(self, points_a: ArrayLike, points_b: ArrayLike,
+              request: AlignRequest | None = None, **fields: Any) -> Any:  # fmt: skip
+        """``POST /v1/align``: T_b_from_a, the transform that moves cloud A (N, 3) onto cloud B
+        (M, 3) -> the reply (a dict: ``T_b_from_a``, ``hypothesis``, ``probability``,
+        ``runner_up``, both poses; docs/align.md). ``request`` (an AlignRequest) and ``fields``
+        (any of its fields by name: ``budget_ms=100, up_a=[0, -1, 0]``) say what to ask. Raises
+        ItnetRequestError (refused), ItnetConnectionError, ValueError for a field it refuses."""
+        sent = align_request(request, fields)
+        try:
+            reply = self._http.post(ALIGN_PATH, json=sent.body(points_a, points_b))
         except httpx.TransportError as err:
             raise ItnetConnectionError(f"{self.base_url}: {err}") from None
         return _json(reply)

@@ -20,7 +20,7 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
@@ -28,8 +28,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from itnet.pose.request import PoseRequest
 
+if TYPE_CHECKING:
+    from itnet.alignment.request import AlignRequest
+
 ESTIMATE_PATH = "/v1/estimate"
 SCENE_PATH = "/v1/scene"
+ALIGN_PATH = "/v1/align"
 STREAM_PATH = "/v1/estimate/stream"
 BINARY = {"Content-Type": "application/octet-stream"}
 
@@ -151,6 +155,23 @@ def pose_request(request: PoseRequest | None, fields: dict[str, Any]) -> PoseReq
         if name in values:
             values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
     return PoseRequest.model_validate(values, strict=False)
+
+
+def align_request(request: AlignRequest | None, fields: dict[str, Any]) -> AlignRequest:
+    """The alignment request to send: ``request`` (default: the service's defaults) with
+    ``fields`` (any of AlignRequest's) set on top; directions as lists. Raises TypeError for a
+    name AlignRequest does not have, ValueError (pydantic's) for a value it refuses."""
+    from itnet.alignment.request import AlignRequest
+
+    unknown = sorted(set(fields) - set(AlignRequest.model_fields))
+    if unknown:
+        raise TypeError(f"unknown alignment option(s) {', '.join(map(repr, unknown))}")
+    base = {} if request is None else request.model_dump(exclude_unset=True)
+    values = {k: v for k, v in {**base, **fields}.items() if v is not None}
+    for name in ("up_a", "up_b", "viewpoint"):
+        if name in values:
+            values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
+    return AlignRequest.model_validate(values)
 
 
 def request_fields(request: PoseRequest) -> dict[str, Any]:

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree  # imported here: a first request must not pay for it
 
+from itnet.columns import column_mean
 from itnet.geometry import apply_rigid, axis_angle_to_matrix, rigid_from_rotation_translation
 
 MIRROR_PLANES = ("x", "z")  # x = 0: left-right; z = 0: front-back
@@ -72,10 +73,13 @@ def mirror_refined(
     reflected = moved * [-1.0, 1.0, 1.0]
     tree = cKDTree(moved)
     align = np.eye(4)  # reflected -> moved
+    # The ``keep`` quantile's order statistic: ``distance <= np.quantile(distance, keep)`` keeps
+    # exactly the distances up to the k-th smallest, which a partition finds in linear time.
+    k = int(np.floor(keep * (len(cloud) - 1)))
     for _ in range(iterations):
-        source = apply_rigid(align, reflected)
+        source = reflected @ align[:3, :3].T + align[:3, 3]
         distance, partner = tree.query(source)
-        paired = distance <= np.quantile(distance, keep)
+        paired = distance <= np.partition(distance, k)[k]
         step = rigid_fit(source[paired], moved[partner[paired]])
         align = step @ align
         if np.abs(step - np.eye(4)).max() < settled:  # ICP has settled: the rest would not move
@@ -95,8 +99,10 @@ def mirror_refined(
 
 def rigid_fit(source: NDArray, target: NDArray) -> NDArray:
     """The rigid transform (4, 4) taking points (M, 3) closest to their partners (M, 3) (Kabsch)."""
-    cs, ct = source.mean(0), target.mean(0)
+    cs, ct = column_mean(source), column_mean(target)
     u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
     flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
     rotation = vt.T @ flip @ u.T
-    return rigid_from_rotation_translation(rotation, ct - rotation @ cs)
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rotation, ct - rotation @ cs
+    return out

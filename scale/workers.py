@@ -76,23 +76,16 @@ class AlignWorker:
     ``{"row": [json, ...]}``, one ``itnet align --json`` row a pair (without ``output``: the
     batch writes no moved clouds)."""
 
-    def __init__(
-        self, model: str, model_dir: str | None, threads: int, request: dict[str, Any],
-        options: dict[str, Any],
-    ) -> None:  # fmt: skip
+    def __init__(self, model: str, model_dir: str | None, threads: int,
+                 request: dict[str, Any]) -> None:  # fmt: skip
         from itnet.alignment.estimators import in_process_estimator
-        from itnet.alignment.hypotheses import category_symmetry
-        from itnet.alignment.pipeline import AlignOptions
-        from itnet.pose.request import PoseRequest
+        from itnet.alignment.request import AlignRequest
 
         catalog, loaded = _load(model, model_dir, threads)
         self.name = loaded.card.name
-        pose_request = PoseRequest.model_validate({**request, "model": model})
-        self.estimate = in_process_estimator(catalog, pose_request)
-        symmetry = options.pop("symmetry", "auto")
-        if symmetry == "auto":
-            symmetry = category_symmetry(loaded.card.category, loaded.card.symmetry)
-        self.options = AlignOptions(symmetry=symmetry, **options)
+        asked = AlignRequest.model_validate({**request, "model": loaded.card.name})
+        self.estimate = in_process_estimator(catalog, asked.pose_request())
+        self.options = asked.options(loaded.card, bool(asked.refine))
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         from itnet.alignment.pipeline import CloudEstimateError, align_clouds
@@ -106,7 +99,8 @@ class AlignWorker:
             ups = {k: [float(v) for v in u.split(",")] if u else None for k, u in given.items()}
             try:
                 points_a, points_b = read_cloud(str(a)), read_cloud(str(b))
-                result = align_clouds(points_a, points_b, self.estimate, self.options, **ups)
+                result = align_clouds(points_a, points_b, self.estimate, self.options,
+                                      ups["up_a"], ups["up_b"])  # fmt: skip
                 row = {**fields, "model": self.name, "symmetry": self.options.symmetry,
                        **result.to_dict(), **{k: u for k, u in ups.items() if u is not None}}  # fmt: skip
             except CloudReadError as err:

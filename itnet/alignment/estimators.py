@@ -1,27 +1,41 @@
 """Pose estimators for ``itnet.alignment.pipeline``: the served pose, in-process or from a service.
 
-Both are callables ``(cloud (N, 3), up (3,) or None) -> PoseEstimate``: the cloud's pose as
-``itnet pose`` serves it (the same ``PoseRequest``, planned the same way: the card's runs, its
+``InProcessEstimator`` is a callable ``(cloud (N, 3), up (3,) or None) -> PoseEstimate``, and
+poses an alignment's two clouds together (``together``: admitted as one request, their steps in
+the same network calls): each cloud's pose as
+``itnet pose`` serves it for the request ``cloud_request`` makes of the alignment's (its share
+of the alignment's budget, ``ALIGN_RUNS`` fused runs unless the request names its ensemble; the
 verifier, mirror and centre finishes, ``up`` where given), with each run's own pose as the
-alternatives; where the card's plan has fewer than ``alternatives`` runs (a single run, say), a
-second request of that many fused runs gives them. The alignment code does not care where the
-network runs, and the two give the same answer by construction.
+alternatives; where the plan has fewer than ``alternatives`` runs (a single run, say), a second
+request of that many fused runs gives them. ``POST /v1/align`` runs the same estimator on the
+server's models, which is what ``itnet-align --server`` asks for.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.alignment.pipeline import PoseEstimate, PoseEstimator
+from itnet.alignment.pipeline import POSE_SHARE, CloudEstimateError, PoseEstimate
 from itnet.pose.request import PoseRequest
 
 if TYPE_CHECKING:
-    from itnet.clients import ItnetClient
     from itnet.pose.catalog import Catalog
+    from itnet.pose.loop import AnytimeRun
+
+
+ALIGN_RUNS = 4  # runs fused into each cloud's pose where the request names none (docs/align.md)
+
+
+def cloud_request(request: PoseRequest) -> PoseRequest:
+    """The pose request of each cloud of an alignment asked for with ``request`` (whose
+    ``budget_ms`` is the whole alignment's): POSE_SHARE of the budget, ALIGN_RUNS fused runs
+    unless it names its ensemble."""
+    return request.model_copy(update={"budget_ms": request.budget_ms * POSE_SHARE,
+                                      "ensemble": request.ensemble or ALIGN_RUNS})  # fmt: skip
 
 
 def _with_up(request: PoseRequest, up: NDArray | None) -> PoseRequest:
@@ -34,45 +48,75 @@ def _with_up(request: PoseRequest, up: NDArray | None) -> PoseRequest:
 
 
 ALTERNATIVES = 4  # runs whose poses an alignment weighs at the least, per cloud
+NAMES = ("A", "B")
 
 
-def _served(serve: Callable[[PoseRequest], dict], request: PoseRequest, alternatives: int,
-            ) -> PoseEstimate:  # fmt: skip
-    """The served pose of ``request`` (``serve``: request -> reply), its runs, and the runs of
-    a second request of ``alternatives`` fused runs where the first had fewer."""
-    reply = serve(request)
-    runs = [np.asarray(reply["runs"], dtype=np.float64).reshape(-1, 4, 4)]
-    iterations = int(reply["iterations"])
-    if int(reply["ensemble"]) < alternatives:
-        more = serve(request.model_copy(update={"ensemble": alternatives}))
-        runs.append(np.asarray(more["runs"], dtype=np.float64).reshape(-1, 4, 4))
-        iterations += int(more["iterations"])
-    return PoseEstimate(np.asarray(reply["T_canonical_from_input"], dtype=np.float64), iterations,
-                        float(reply["elapsed_ms"]), str(reply["stopped_by"]), reply,
-                        np.concatenate(runs))  # fmt: skip
+def _estimate(replies: list[dict]) -> PoseEstimate:
+    """One cloud's served pose from its reply, with the runs of every reply (the served one
+    first, then a second request's alternatives)."""
+    reply = replies[0]
+    runs = np.concatenate([np.asarray(r["runs"], dtype=np.float64).reshape(-1, 4, 4)
+                           for r in replies])  # fmt: skip
+    return PoseEstimate(np.asarray(reply["T_canonical_from_input"], dtype=np.float64),
+                        sum(int(r["iterations"]) for r in replies), float(reply["elapsed_ms"]),
+                        str(reply["stopped_by"]), reply, runs)  # fmt: skip
 
 
-def in_process_estimator(catalog: Catalog, request: PoseRequest,
-                         alternatives: int = ALTERNATIVES) -> PoseEstimator:  # fmt: skip
-    """The served pose through ``Catalog.start`` (the pose pipeline, in this process). Raises
-    ``itnet.pose.errors.PoseError`` for a cloud or request the pipeline refuses."""
+class InProcessEstimator:
+    """The served pose of ``cloud_request(request)`` through ``Catalog.start`` (the pose
+    pipeline, in this process), its budget counted from ``started`` (a ``time.perf_counter()``
+    value; default: each call's start). Where the plan fuses fewer than ``alternatives`` runs,
+    a second request of that many gives the alignment its alternatives."""
 
-    def estimate(points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
-        return _served(lambda asked: catalog.pose(points, asked), _with_up(request, up),
-                       alternatives)  # fmt: skip
+    def __init__(self, catalog: Catalog, request: PoseRequest, started: float | None = None,
+                 alternatives: int = ALTERNATIVES) -> None:  # fmt: skip
+        self.catalog, self.started, self.alternatives = catalog, started, alternatives
+        self.request = cloud_request(request)
 
-    return estimate
+    def __call__(self, points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
+        """One cloud's pose. Raises ``itnet.pose.errors.PoseError`` for a cloud or request the
+        pipeline refuses."""
+        asked = _with_up(self.request, up)
+        replies = [self.catalog.pose(points, asked, self.started)]
+        if int(replies[0]["ensemble"]) < self.alternatives:
+            more = asked.model_copy(update={"ensemble": self.alternatives})
+            replies.append(self.catalog.pose(points, more, self.started))
+        return _estimate(replies)
+
+    def together(self, clouds: list[NDArray[np.float64]],
+                 ups: list[NDArray | None]) -> list[PoseEstimate]:  # fmt: skip
+        """The poses of an alignment's clouds, admitted together and run at once. Raises
+        CloudEstimateError naming the cloud refused (``__cause__``: the PoseError)."""
+        asked = [_with_up(self.request, up) for up in ups]
+        replies = [[r] for r in self._together(clouds, asked)]
+        if int(replies[0][0]["ensemble"]) < self.alternatives:
+            more = [r.model_copy(update={"ensemble": self.alternatives}) for r in asked]
+            for got, reply in zip(replies, self._together(clouds, more)):
+                got.append(reply)
+        return [_estimate(r) for r in replies]
+
+    def _together(self, clouds: list[NDArray], requests: list[PoseRequest]) -> list[dict]:
+        """The clouds' poses, admitted as one request and run in turn on one clock: the k-th
+        of n may end at (k + 1) / n of the budget, so the first cannot spend the others'."""
+        from itnet.pose.errors import PoseError
+
+        started = time.perf_counter() if self.started is None else self.started
+        runs: list[AnytimeRun] = []
+        for k, (name, points, asked) in enumerate(zip(NAMES, clouds, requests)):
+            share = asked.budget_ms * (k + 1) / len(clouds)
+            try:
+                runs.append(self.catalog.start(points, asked.model_copy(update={"budget_ms": share}),
+                                               started))  # fmt: skip
+            except PoseError as err:
+                raise CloudEstimateError(name, err) from err
+        try:
+            return self.catalog.pose_together(runs)
+        except PoseError as err:
+            unserved = [k for k, run in enumerate(runs) if run.iteration == 0]
+            raise CloudEstimateError(NAMES[unserved[0] if unserved else 0], err) from err
 
 
-def client_estimator(client: ItnetClient, request: PoseRequest,
-                     alternatives: int = ALTERNATIVES) -> PoseEstimator:  # fmt: skip
-    """The served pose through ``itnet.clients.ItnetClient.estimate`` (binary body: float32 on
-    the wire). Raises ``itnet.clients.ItnetRequestError`` when the service refuses the cloud."""
-
-    def estimate(points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
-        def serve(asked: PoseRequest) -> dict:
-            return client.estimate(points, asked, binary=True).raw
-
-        return _served(serve, _with_up(request, up), alternatives)
-
-    return estimate
+def in_process_estimator(catalog: Catalog, request: PoseRequest, started: float | None = None,
+                         alternatives: int = ALTERNATIVES) -> InProcessEstimator:  # fmt: skip
+    """``InProcessEstimator(catalog, request, started, alternatives)``."""
+    return InProcessEstimator(catalog, request, started, alternatives)

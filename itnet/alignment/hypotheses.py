@@ -1,4 +1,4 @@
-"""Relative alignment of two clouds from their canonical poses: hypotheses, scores, confidence.
+"""Relative alignment of two clouds from their canonical poses: the hypotheses.
 
 Pure numpy: no files, no network, no model. Frames (SPEC.md):
 
@@ -14,10 +14,10 @@ each likely symmetry ``S`` of the category (the identity first),
 
     inv(T_cb[j]) · S · T_ca[i]          (what T_b_from_a is if A's pose i is off by S)
 
-ranks them by how well the moved A lies on B at a loose distance, keeps the best few that are
-distinct (``distinct``), refines those with ICP when asked (``itnet.alignment.refine``), scores them at a
-tight distance (``itnet.alignment.overlap``) and reports the best. ``confidence`` says how much the answer
-can be trusted (see its docstring).
+where the composed pose of the two served poses is in doubt: it ranks them by how well the moved
+A lies on B at a loose distance, keeps the best few that are distinct (``distinct``), refines
+those with ICP when asked (``itnet.alignment.refine``), and judges each by the evidence of
+``itnet.alignment.choice``.
 """
 
 from __future__ import annotations
@@ -73,10 +73,15 @@ class Hypothesis:
     loose_fitness: float = float("nan")  # the share at the ranking distance, before refinement
     initial: NDArray[np.float64] | None = field(default=None, repr=False)  # before refinement
     icp: dict[str, float] | None = None  # open3d's fitness and inlier RMSE of the last ICP stage
+    served: bool = False  # built from the two served poses (no other run's)
+    turned: bool = False  # a symmetry turn applied
+    evidence: NDArray[np.float64] | None = field(default=None, repr=False)  # choice.FEATURES
+    probability: float = float("nan")  # calibrated, that it is right (itnet.alignment.choice)
 
     def to_dict(self) -> dict:
         rmse = float(f"{self.rmse:.5g}")
-        out = {"source": self.source, "fitness": round(self.fitness, 4), "rmse": rmse,
+        out = {"source": self.source, "probability": round(self.probability, 4),
+               "fitness": round(self.fitness, 4), "rmse": rmse,
                "loose_fitness": round(self.loose_fitness, 4),
                "T_b_from_a": self.T_b_from_a.tolist()}  # fmt: skip
         return out if self.icp is None else {**out, "icp": self.icp}
@@ -107,7 +112,11 @@ def build_hypotheses(
         for j in range(len(pb)):
             runs = "" if i == j == 0 else f" a{i} b{j}"
             for k, turn in enumerate(names):
-                found.append(Hypothesis(poses[i, j, k], f"itnet{runs}{turn}"))
+                found.append(
+                    Hypothesis(
+                        poses[i, j, k], f"itnet{runs}{turn}", served=i == j == 0, turned=k > 0
+                    )
+                )
     return found
 
 
@@ -144,33 +153,3 @@ def same_alignment(
     a, b = np.asarray(t1), np.asarray(t2)
     angle = float(rotation_error_deg(a[:3, :3], b[:3, :3]))
     return angle < max_deg and float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < max_shift * scale
-
-
-def choose(hypotheses: list[Hypothesis], margin: float = 0.0) -> int:
-    """Index of the (refined) hypothesis to report: the first (the composed poses) unless the
-    best of the others by fitness, then rmse, beats its fitness by more than ``margin`` of the
-    points."""
-    best = max(range(len(hypotheses)), key=lambda i: (hypotheses[i].fitness, -hypotheses[i].rmse))
-    return best if hypotheses[best].fitness > hypotheses[0].fitness + margin else 0
-
-
-def confidence(hypotheses: list[Hypothesis], chosen: int, scale: float) -> dict[str, float]:
-    """How far the chosen alignment can be trusted, in [0, 1], with its two parts.
-
-    * ``fitness``: the chosen hypothesis's symmetric overlap (0 = A lands nowhere near B);
-    * ``margin``: its fitness minus that of the best rival, a hypothesis that disagrees with it by
-      more than 10 degrees or 0.1 scale (the whole fitness when there is no rival): a symmetric
-      object or a featureless view makes rivals fit as well, and the margin falls to 0;
-    * ``confidence = sqrt(clip(fitness / 0.4) · clip(margin / 0.2))``: 1 when A lands on B
-      (0.4 of the points within the inlier distance is a good fit for two partial views) and
-      no alternative comes close. Without ICP the fit is measured on the raw IT-Net estimate,
-      whose few degrees of error already push points past a tight inlier distance: expect a
-      low confidence there, which says "not verified", not "wrong".
-    """
-    best = hypotheses[chosen]
-    rivals = [h.fitness for h in hypotheses
-              if not same_alignment(h.T_b_from_a, best.T_b_from_a, scale, 10.0, 0.1)]  # fmt: skip
-    margin = best.fitness - max(rivals) if rivals else best.fitness
-    value = float(np.sqrt(np.clip(best.fitness / 0.4, 0, 1) * np.clip(margin / 0.2, 0, 1)))
-    return {"confidence": round(value, 4), "fitness": round(best.fitness, 4),
-            "margin": round(float(margin), 4)}  # fmt: skip

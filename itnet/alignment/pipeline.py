@@ -1,22 +1,26 @@
-"""Align cloud A onto cloud B: each cloud's served pose, hypotheses, ICP, the chosen one.
+"""Align cloud A onto cloud B: both clouds' served poses, the composed pose, rivals where it is in
+doubt, the likeliest.
 
-The steps (the policy is explained in ``itnet.alignment.hypotheses``)::
+The steps::
 
-    pose_a = estimate(A)          # the pose ``itnet pose`` serves: the same request and plan,
-    pose_b = estimate(B)          # in-process or through a service
-    hypotheses = inv(T_b) · S · T_a  for every pose T_a of A and T_b of B (the served one first,
-                 then each run's) and every symmetry S of the category (identity first)
-    candidates = the distinct ones, best by a loose fit        # ``hypotheses.distinct``
-    each       = ICP(candidate)                                # only with refine=True
-    chosen     = the composed poses (S = identity), unless with ICP another candidate fits
-                 clearly better (by ``switch_margin`` of the points)
+    pose_a, pose_b = estimate(A), estimate(B)   # together: both clouds' steps share the calls
+    composed = inv(T_b) · T_a                   # the prior: the two served poses composed
+    composed+icp = ICP(composed)                # with refine=True
+    p = probability(evidence)                   # ``itnet.alignment.choice``: calibrated
+    if max p < sure:                            # in doubt: the rivals
+        hypotheses = inv(T_b[j]) · S · T_a[i]   # every run of A and of B, every symmetry turn
+        rivals = the distinct ones that overlap best, each refined by ICP
+    chosen = the likeliest (the composed pose unless a rival is more likely right; refined by
+             ICP where that keeps it within 10 degrees and 0.1 radii: the same alignment)
 
 Why the served poses. A category-level pose needs no overlap between the two views, which
-correspondence-based registration does; the pose pipeline's finishing stages (fused runs, the
-verifier, the mirror and centre finishes) make each pose as good as the category's model can
-give it, and composing two such poses is the alignment. The symmetric hypotheses and ICP only
-get a say where the geometry clearly prefers one of them: a loose overlap score picks wrong
-symmetric twins of low-overlap pairs more often than the poses are wrong.
+correspondence-based registration does; the pose pipeline's finishing stages make each pose as
+good as the category's model can give it, and composing two such poses is the alignment. A rival
+replaces it only where the evidence says it is more likely right: how well the clouds agree
+after the move, how much they overlap at all, and how many of the networks' runs back it.
+
+``options.budget_ms`` is the whole alignment's: the poses get ``POSE_SHARE`` of it, and the
+rivals are scored only where the time left holds them.
 
 Where the caller knows which way is up in a cloud (``up_a``, ``up_b``: gravity from an IMU, a
 floor's normal), its pose is estimated held upright (``itnet.upright``). Models whose card
@@ -35,12 +39,12 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.alignment.choice import choose, feature_row, icp_move, probability, support
 from itnet.alignment.hypotheses import (
     Hypothesis,
     build_hypotheses,
-    choose,
-    confidence,
     distinct,
+    same_alignment,
     symmetry_rotations,
 )
 from itnet.alignment.overlap import Cloud, overlap, sample
@@ -89,9 +93,11 @@ class CloudEstimateError(Exception):
         super().__init__(f"cloud {cloud}: {cause}")
 
 
-# A rival hypothesis replaces the composed poses only where it fits this much more of the points
-# (docs/align.md: chosen on validation pairs).
-SWITCH_MARGIN = 0.1
+# The composed pose at or above this calibrated probability is answered without scoring rivals
+# (docs/align.md: chosen on validation pairs of every generator).
+SURE = 0.9
+POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses (run together)
+DOUBT_LOOSE = 0.1  # a rival landing this much more of A on B (loosely) puts the composed in doubt
 
 
 @dataclass(frozen=True)
@@ -101,19 +107,21 @@ class AlignOptions:
 
     symmetry: str = "yaw90"  # a name in itnet.symmetry.SYMMETRY_NAMES
     refine: bool = False
-    candidates: int = 12  # distinct hypotheses kept (and refined, with refine) after ranking
-    finalists: int = 4  # with refine: candidates that get ICP's fine stage, the best after its
-    # coarse one (all of them when finalists >= candidates); the composed poses always do
+    budget_ms: float | None = None  # the whole alignment's (None: no limit on the rivals)
+    sure: float = SURE  # the composed pose this likely right is answered as it is (> 1: the
+    # rivals are always scored)
+    rivals: bool = True  # False: the composed pose (and its ICP) only
+    candidates: int = 6  # distinct rivals kept after ranking (and refined, with refine)
+    finalists: int = 3  # with refine: rivals that get ICP's fine stage, the best after its
+    # coarse one (all of them when finalists >= candidates)
     coarse_points: int | None = 200  # points of A in ICP's coarse stage (None: all)
     distinct_deg: float = 30.0  # hypotheses closer than this (and distinct_shift) count as one
     distinct_shift: float = 0.3
     icp_distance: float = 0.1  # ICP's final correspondence cut-off (the first stage: twice it)
     icp_tolerance: float = 1e-4  # ICP stops once fitness and RMSE change less than this
-    inlier_distance: float = 0.05  # the final score's inlier distance
-    rank_points: int = 32  # points of each cloud the loose ranking measures
-    score_points: int = 300  # points of each cloud the final score measures
-    switch_margin: float = SWITCH_MARGIN  # another candidate is chosen over the composed poses
-    # only where its fitness is higher by this much (a share of the points)
+    inlier_distance: float = 0.05  # the fitness's inlier distance
+    rank_points: int = 32  # points of each cloud the rivals' ranking measures
+    score_points: int = 300  # points of each cloud the fitness measures
     voxel: float | None = None  # ICP downsampling; None: 0.05 above 20,000 points, else none
     seed: int = 0
 
@@ -128,19 +136,31 @@ class Alignment:
     T_b_from_a: NDArray[np.float64]
     pose_a: PoseEstimate  # A's served pose
     pose_b: PoseEstimate
-    hypotheses: list[Hypothesis]  # the candidates, scored (and refined, with refine)
+    hypotheses: list[Hypothesis]  # the candidates judged: the composed pose first
     chosen: int
-    confidence: dict[str, float]
-    timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, rank, refine, score, total
+    timings_ms: dict[str, float] = field(default_factory=dict)  # itnet, composed, rivals, total
     iterations: int = 0  # IT-Net steps of both clouds' poses
-    considered: int = 0  # hypotheses ranked before the candidates were picked
+    considered: int = 0  # hypotheses the rivals were picked from (0: the composed pose sure)
     scale: float = 1.0  # B's RMS radius about its centroid (the unit of the relative distances)
-    inlier_distance: float = 0.0  # the score's inlier distance, B's units
+    inlier_distance: float = 0.0  # the fitness's inlier distance, B's units
     icp_distance: float = 0.0  # ICP's final correspondence distance, B's units (0: no ICP)
+
+    @property
+    def probability(self) -> float:
+        """The calibrated probability that the answer is right."""
+        return self.hypotheses[self.chosen].probability
+
+    def runner_up(self) -> Hypothesis | None:
+        """The likeliest candidate that is another alignment than the answer (None: none)."""
+        best = self.hypotheses[self.chosen].T_b_from_a
+        others = [h for h in self.hypotheses
+                  if not same_alignment(h.T_b_from_a, best, self.scale, 10.0, 0.1)]  # fmt: skip
+        return max(others, key=lambda h: h.probability, default=None)
 
     def to_dict(self) -> dict:
         """JSON form (the CLI's ``--json``)."""
         t = self.T_b_from_a
+        chosen, second = self.hypotheses[self.chosen], self.runner_up()
         return {
             "T_b_from_a": t.tolist(),
             "rotation_deg": round(float(rotation_angle_deg(t[:3, :3])), 4),
@@ -148,17 +168,20 @@ class Alignment:
             "iterations": self.iterations,
             "elapsed_ms": round(self.timings_ms.get("total", 0.0), 3),
             "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()},
-            **self.confidence,
-            "hypothesis": self.hypotheses[self.chosen].source,
+            "hypothesis": chosen.source,
+            "probability": round(chosen.probability, 4),
+            "fitness": round(chosen.fitness, 4),
+            "runner_up": None if second is None else {
+                "hypothesis": second.source, "probability": round(second.probability, 4)},
             "considered": self.considered,
             "scale": float(f"{self.scale:.5g}"),
             "inlier_distance": float(f"{self.inlier_distance:.5g}"),
             "icp_distance": float(f"{self.icp_distance:.5g}"),
-            "refined": self.hypotheses[self.chosen].initial is not None,
+            "refined": chosen.initial is not None,
             "T_canonical_from_a": self.pose_a.to_dict(),
             "T_canonical_from_b": self.pose_b.to_dict(),
             "hypotheses": [h.to_dict() for h in self.hypotheses],
-        }
+        }  # fmt: skip
 
 
 def _pose(estimate: PoseEstimator, points: NDArray, name: str, up: NDArray | None) -> PoseEstimate:
@@ -169,6 +192,87 @@ def _pose(estimate: PoseEstimator, points: NDArray, name: str, up: NDArray | Non
         raise CloudEstimateError(name, err) from err
 
 
+def _poses(estimate: PoseEstimator, a: NDArray, b: NDArray,
+           ups: list[NDArray | None]) -> tuple[PoseEstimate, PoseEstimate]:  # fmt: skip
+    """Both clouds' served poses: together where the estimator can (``together``: admitted as
+    one request, their steps batched into the same network calls), else one after the other."""
+    together = getattr(estimate, "together", None)
+    if together is not None:
+        pose_a, pose_b = together([a, b], ups)
+        return pose_a, pose_b
+    return _pose(estimate, a, "A", ups[0]), _pose(estimate, b, "B", ups[1])
+
+
+class _Judge:
+    """Judges candidates on the two clouds: ICP, fitness, overlap, the runs' support, and the
+    calibrated probability; one per alignment."""
+
+    def __init__(self, a: NDArray, b: NDArray, run_pairs: NDArray, options: AlignOptions) -> None:
+        self.options = options
+        self.scale = estimate_normalization(b).scale
+        # KD-trees on at most TREE_POINTS of each cloud: a 100,000-point scan scores the same
+        # on a fifth of its points, and its tree builds in a fraction of the time.
+        self.a = Cloud(sample(a, TREE_POINTS, options.seed))
+        self.b = Cloud(sample(b, TREE_POINTS, options.seed + 1))
+        self.run_pairs = run_pairs
+        self.best_composed = 0.0  # the composed poses' best fitness
+        self.refiner = None
+        if options.refine:
+            from itnet.alignment.refine import IcpRefiner
+
+            voxel = options.voxel
+            if voxel is None:
+                voxel = 0.05 if max(len(a), len(b)) > 20_000 else 0.0
+            self.refiner = IcpRefiner(a, b, options.icp_distance * self.scale,
+                                      voxel=voxel * self.scale, tolerance=options.icp_tolerance,
+                                      coarse_points=options.coarse_points)  # fmt: skip
+
+    def overlap(self, poses: NDArray, distance: float, points: int) -> tuple[NDArray, NDArray]:
+        """(fitness (H,), rmse (H,)) of poses (H, 4, 4) at ``distance`` radii of B."""
+        return overlap(poses, self.a, self.b, distance * self.scale, points, self.options.seed)
+
+    def loose(self, poses: NDArray) -> NDArray:
+        """How much A lands on B at the ranking distance (twice ICP's), on a few points (H,)."""
+        return self.overlap(poses, 2 * self.options.icp_distance, self.options.rank_points)[0]
+
+    def refine(self, hypotheses: list[Hypothesis], finalists: int | None = None) -> None:
+        """ICP's coarse stage on each, its fine stage on the ``finalists`` that fit best after it
+        (None: all); each then holds its refined pose, its start in ``initial``."""
+        assert self.refiner is not None
+        coarse = [self.refiner.refine(h.T_b_from_a, slice(1)) for h in hypotheses]
+        fine = set(range(len(hypotheses)))
+        if finalists is not None and finalists < len(hypotheses):
+            o = self.options
+            fit = self.overlap(np.array([r.T_b_from_a for r in coarse]), o.inlier_distance,
+                               o.score_points)[0]  # fmt: skip
+            fine = set(np.argsort(-fit, kind="stable")[:finalists].tolist())
+        for k, (h, first) in enumerate(zip(hypotheses, coarse)):
+            done = self.refiner.refine(first.T_b_from_a, slice(1, None)) if k in fine else first
+            h.initial, h.T_b_from_a = h.T_b_from_a, done.T_b_from_a
+            h.icp = {"fitness": round(done.fitness, 4), "rmse": float(f"{done.rmse:.5g}")}
+            h.source += "+icp"
+
+    def judge(self, hypotheses: list[Hypothesis], composed: bool = False) -> None:
+        """Fitness, overlap, support, evidence and probability of each (``composed``: these are
+        the composed poses, whose best fitness a rival's gain is measured from)."""
+        o = self.options
+        poses = np.array([h.T_b_from_a for h in hypotheses])
+        fitness, rmse = self.overlap(poses, o.inlier_distance, o.score_points)
+        loose = self.loose(poses)
+        starts = np.array([h.T_b_from_a if h.initial is None else h.initial for h in hypotheses])
+        backing = support(starts, self.run_pairs, self.scale)
+        if composed:
+            self.best_composed = float(fitness.max())
+        for h, fit, err, near, backs in zip(hypotheses, fitness, rmse, loose, backing):
+            h.fitness, h.rmse, h.loose_fitness = float(fit), float(err), float(near)
+            move = None if h.initial is None else icp_move(h.initial, h.T_b_from_a, self.scale)
+            gain = 0.0 if composed else float(fit) - self.best_composed
+            h.evidence = feature_row(float(fit), float(near), float(backs), h.served, h.turned,
+                                     move, gain)  # fmt: skip
+        for h, p in zip(hypotheses, probability(np.array([h.evidence for h in hypotheses]))):
+            h.probability = float(p)
+
+
 def align_clouds(
     points_a: ArrayLike,
     points_b: ArrayLike,
@@ -176,74 +280,71 @@ def align_clouds(
     options: AlignOptions,
     up_a: ArrayLike | None = None,
     up_b: ArrayLike | None = None,
+    started: float | None = None,
 ) -> Alignment:
     """Cloud A (N, 3) and B (M, 3), each in its own frame and unit-consistent -> Alignment.
     ``up_a``, ``up_b`` (3,, any length): which way is up in each cloud, where known (see the
-    module); ValueError for one that is not a direction.
+    module); ValueError for one that is not a direction. ``started``: the budget's clock (a
+    ``time.perf_counter()`` value; default now).
 
     ``estimate`` maps a cloud (K, 3) to its served pose (``PoseEstimator``); what it raises
-    comes back as CloudEstimateError (``__cause__``: the original). Raises ``itnet.alignment.refine.RefineUnavailable``
-    when refinement needs open3d and it is absent.
+    comes back as CloudEstimateError (``__cause__``: the original). Raises
+    ``itnet.alignment.refine.RefineUnavailable`` when refinement needs open3d and it is absent.
     """
     if options.candidates < 1:
         raise ValueError("candidates must be >= 1")
-    start = time.perf_counter()
+    start = time.perf_counter() if started is None else started
     ups = [None if up is None else unit_up(up) for up in (up_a, up_b)]
     a = np.asarray(points_a, dtype=np.float64)
     b = np.asarray(points_b, dtype=np.float64)
-    pose_a = _pose(estimate, a, "A", ups[0])
-    pose_b = _pose(estimate, b, "B", ups[1])
+    pose_a, pose_b = _poses(estimate, a, b, ups)
     t_itnet = time.perf_counter()
 
-    scale = estimate_normalization(b).scale
-    # KD-trees on at most TREE_POINTS of each cloud: a 100,000-point scan scores the same on a
-    # fifth of its points, and its tree builds in a fraction of the time.
-    cloud_a = Cloud(sample(a, TREE_POINTS, options.seed))
-    cloud_b = Cloud(sample(b, TREE_POINTS, options.seed + 1))
-    every = build_hypotheses(
-        pose_a.candidates(), pose_b.candidates(), symmetry_rotations(options.symmetry)
-    )
-    # Rank at ICP's first-stage distance, where an unrefined estimate still lands on B.
-    loose, _ = overlap(np.array([h.T_b_from_a for h in every]), cloud_a, cloud_b,
-                       2 * options.icp_distance * scale, options.rank_points, options.seed)  # fmt: skip
-    for h, fit in zip(every, loose):
-        h.loose_fitness = float(fit)
-    keep = distinct(every, loose, options.candidates, scale, options.distinct_deg,
-                    options.distinct_shift)  # fmt: skip
-    # The composed poses (every[0]) always stay, first: they are the answer unless ICP shows
-    # clearly better.
-    rivals = [every[k] for k in keep if k != 0][: options.candidates - 1]
-    hypotheses = [every[0], *rivals]
-    t_rank = time.perf_counter()
-
+    every = build_hypotheses(pose_a.candidates(), pose_b.candidates(),
+                             symmetry_rotations(options.symmetry))  # fmt: skip
+    judge = _Judge(a, b, np.array([h.T_b_from_a for h in every if not h.turned]), options)
+    composed = [every[0]]
+    icp_ms = 0.0
     if options.refine:
-        from itnet.alignment.refine import IcpRefiner
+        composed.append(Hypothesis(every[0].T_b_from_a.copy(), every[0].source, served=True))
+        t_icp = time.perf_counter()
+        judge.refine(composed[1:])
+        icp_ms = (time.perf_counter() - t_icp) * 1e3
+    t_judge = time.perf_counter()
+    judge.judge(composed, composed=True)
+    judge_ms = (time.perf_counter() - t_judge) * 1e3
+    t_composed = time.perf_counter()
 
-        voxel = options.voxel
-        if voxel is None:
-            voxel = 0.05 if max(len(a), len(b)) > 20_000 else 0.0
-        refiner = IcpRefiner(a, b, options.icp_distance * scale, voxel=voxel * scale,
-                             tolerance=options.icp_tolerance,
-                             coarse_points=options.coarse_points)  # fmt: skip
-        # Coarse stage for every candidate, fine stage for the finalists that fit best after it.
-        coarse = [refiner.refine(h.T_b_from_a, slice(1)) for h in hypotheses]
-        fit, _ = overlap(np.array([r.T_b_from_a for r in coarse]), cloud_a, cloud_b,
-                         options.inlier_distance * scale, options.score_points, options.seed)  # fmt: skip
-        finalists = {0, *np.argsort(-fit, kind="stable")[: options.finalists].tolist()}
-        for k, (h, first) in enumerate(zip(hypotheses, coarse)):
-            refined = refiner.refine(first.T_b_from_a, slice(1, None)) if k in finalists else first
-            h.initial, h.T_b_from_a = h.T_b_from_a, refined.T_b_from_a
-            h.icp = {"fitness": round(refined.fitness, 4), "rmse": float(f"{refined.rmse:.5g}")}
-            h.source += "+icp"
-    t_refine = time.perf_counter()
-
-    fitness, rmse = overlap(np.array([h.T_b_from_a for h in hypotheses]), cloud_a, cloud_b,
-                            options.inlier_distance * scale, options.score_points, options.seed)  # fmt: skip
-    for h, fit, err in zip(hypotheses, fitness, rmse):
-        h.fitness, h.rmse = float(fit), float(err)
-    # A rival replaces the composed poses only where, refined, it fits clearly better; without
-    # ICP the composed poses stand (validation pairs: 72% composed, 70% by the loose ranking).
-    chosen = choose(hypotheses, options.switch_margin) if options.refine else 0
+    # The composed pose is in doubt where it is not likely right, or where a rival lands more of
+    # A on B at the loose distance (a quick count over every hypothesis, before any ICP).
+    rest = every[1:] if options.rivals else []
+    loose = judge.loose(np.array([h.T_b_from_a for h in rest])) if rest else np.zeros(0)
+    sure = max(h.probability for h in composed) >= options.sure
+    rivalled = bool(len(loose)) and float(loose.max()) > every[0].loose_fitness + DOUBT_LOOSE
+    # The rivals cost about the composed pose's ICP for each finalist and half of it (the coarse
+    # stage) for each other candidate, and its judging twice (the ranking, the judging).
+    rivals_ms = icp_ms * (options.candidates + options.finalists) / 2 + 2 * judge_ms
+    left_ms = np.inf
+    if options.budget_ms is not None:
+        left_ms = options.budget_ms - (time.perf_counter() - start) * 1e3
+    hypotheses, considered = list(composed), 0
+    if rest and (rivalled or not sure) and left_ms >= rivals_ms:
+        keep = distinct(every, np.concatenate([[np.inf], loose]), options.candidates + 1,
+                        judge.scale, options.distinct_deg, options.distinct_shift)  # fmt: skip
+        rivals = [every[k] for k in keep if k != 0]
+        considered = len(every)
+        if options.refine and rivals:
+            judge.refine(rivals, options.finalists)
+        if rivals:
+            judge.judge(rivals)
+        hypotheses += rivals
+    chosen = choose([h.probability for h in hypotheses])
+    if (
+        chosen == 0
+        and options.refine
+        and same_alignment(composed[1].T_b_from_a, composed[0].T_b_from_a, judge.scale, 10.0, 0.1)
+    ):
+        chosen = 1  # the same alignment, sharpened by ICP
     done = time.perf_counter()
     return Alignment(
         T_b_from_a=hypotheses[chosen].T_b_from_a,
@@ -251,17 +352,15 @@ def align_clouds(
         pose_b=pose_b,
         hypotheses=hypotheses,
         chosen=chosen,
-        confidence=confidence(hypotheses, chosen, scale),
         timings_ms={
             "itnet": (t_itnet - start) * 1e3,
-            "rank": (t_rank - t_itnet) * 1e3,
-            "refine": (t_refine - t_rank) * 1e3,
-            "score": (done - t_refine) * 1e3,
+            "composed": (t_composed - t_itnet) * 1e3,
+            "rivals": (done - t_composed) * 1e3,
             "total": (done - start) * 1e3,
         },
         iterations=pose_a.iterations + pose_b.iterations,
-        considered=len(every),
-        scale=scale,
-        inlier_distance=options.inlier_distance * scale,
-        icp_distance=options.icp_distance * scale if options.refine else 0.0,
+        considered=considered,
+        scale=judge.scale,
+        inlier_distance=options.inlier_distance * judge.scale,
+        icp_distance=options.icp_distance * judge.scale if options.refine else 0.0,
     )

@@ -1,28 +1,25 @@
 """``itnet align A B`` (also ``itnet-align``): T_b_from_a, the transform that moves cloud A onto B.
 
-Both canonical poses are the ones ``itnet pose`` serves (the same request, planned the same way;
-in-process, or a running service with ``--server``): ``T_b_from_a = inv(T_canonical_from_b) ·
-T_canonical_from_a``. The symmetric hypotheses, optional ICP and the choice between them are in
-``itnet.alignment.pipeline`` and ``itnet.alignment.hypotheses``.
+The options are ``AlignRequest``'s fields; in-process, or ``POST /v1/align`` at a running service
+with ``--server`` (the same request, the same code). Both canonical poses are the ones
+``itnet pose`` serves; ``T_b_from_a = inv(T_canonical_from_b) · T_canonical_from_a`` is the prior,
+and a rival replaces it only where it is more likely right (``itnet.alignment.pipeline``).
 """
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import Any, NoReturn
 
+import numpy as np
 import typer
 
+from itnet.alignment.request import DEFAULT_BUDGET_MS, AlignRequest, align_help
 from itnet.commands import UNITS_HELP, check_units, check_xyz
-from itnet.commands.pose import request_from_options
-from itnet.pose.request import field_help
 
-if TYPE_CHECKING:
-    from itnet.pose.request import PoseRequest
-
-SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
-LOW_CONFIDENCE = 0.3
+LOW_PROBABILITY = 0.5
 
 
 def align(
@@ -36,38 +33,27 @@ def align(
         "and use their category's model.",
     ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(1000.0, help="Time budget of each cloud's pose, in ms."),
-    max_iterations: int | None = typer.Option(None, help=field_help("max_iterations")),
+    budget_ms: float = typer.Option(DEFAULT_BUDGET_MS, help=align_help("budget_ms")),
+    max_iterations: int | None = typer.Option(None, help=align_help("max_iterations")),
     server: str | None = typer.Option(
-        None, "--server", help="URL of a running itnet service (default: run the model here)."
+        None,
+        "--server",
+        help="URL of a running itnet service: POST /v1/align there (default: run the models here).",
     ),
     refine: bool | None = typer.Option(
         None,
         "--refine/--no-refine",
-        help="Refine the candidates with point-to-plane ICP (open3d). Default: on when open3d "
-        "is installed (the 'refine' extra), off otherwise; --no-refine skips it (faster, "
-        "fewer pairs aligned).",
+        help="Refine the composed pose and its rivals with point-to-plane ICP (open3d). "
+        "Default: on when open3d is installed (the 'refine' extra), off otherwise.",
         show_default=False,
     ),
     starts: int | None = typer.Option(
-        None,
-        "--starts",
-        "--ensemble",
-        min=1,
-        max=16,
-        help="Runs fused into each cloud's pose, each from another turn about z (the pose "
-        "request's ensemble; default: the model's).",
+        None, "--starts", "--ensemble", min=1, max=16, help=align_help("starts")
     ),
-    candidates: int = typer.Option(
-        12, min=1, max=64, help="Distinct hypotheses kept after ranking (refined with --refine)."
-    ),
-    symmetry: str = typer.Option(
-        "auto",
-        help="Symmetry hypotheses: auto (from the model's category and card), none, yaw180, yaw90, yaw.",
-    ),
-    finalists: int = typer.Option(
-        4, min=1, max=64, help="With --refine: candidates that get ICP's fine stage."
-    ),
+    rivals: bool = typer.Option(True, "--rivals/--no-rivals", help=align_help("rivals")),
+    candidates: int = typer.Option(6, min=1, max=64, help=align_help("candidates")),
+    symmetry: str = typer.Option("auto", help=align_help("symmetry")),
+    finalists: int = typer.Option(3, min=1, max=64, help=align_help("finalists")),
     up: str | None = typer.Option(
         None,
         help="Which way is up in both clouds, 'x,y,z' (scans from a sensor held level, e.g. "
@@ -93,76 +79,113 @@ def align(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
 ) -> None:
     """Estimate T_b_from_a (moves A onto B) from the two clouds' canonical poses and print it."""
-    from itnet.alignment.hypotheses import category_symmetry
-    from itnet.alignment.pipeline import AlignOptions, CloudEstimateError, align_clouds
-    from itnet.alignment.refine import RefineUnavailable, require_open3d
     from itnet.cloud_io import CloudReadError, read_cloud, write_ply
     from itnet.geometry import apply_rigid
 
-    if symmetry not in SYMMETRY_CHOICES:
-        _fail(f"--symmetry must be one of {', '.join(SYMMETRY_CHOICES)}, got {symmetry!r}")
     if output is not None and output.suffix.lower() != ".ply":
         _fail(f"--output must be a .ply file, got {output}")
     try:
         points_a, points_b = read_cloud(cloud_a), read_cloud(cloud_b)
     except CloudReadError as err:
         _fail(str(err))
-
-    try:
-        if refine is not False:
-            require_open3d()  # imported up front, so the reported time is the work's
-            refine = True
-    except RefineUnavailable as err:
-        if refine:  # asked for by name
-            _fail(str(err), code=1)
-        typer.echo(f"note: no ICP refinement: {err}", err=True)
-        refine = False
     ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
     if model == "auto":
         model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups)
-    request = request_from_options(
-        budget_ms=budget_ms, max_iterations=max_iterations, model=model, ensemble=starts,
-        viewpoint=viewpoint, units=units,
-    )  # fmt: skip
-    estimate, (category, declared, requires_up), close = _estimator(server, request, model_dir)
-    if requires_up and None in ups.values():
-        close()
-        _fail(
-            f"model {model!r} needs which way is up in both clouds: give --up x,y,z (both), or "
-            "--up-a and --up-b (its poses are measured, and served, only with it)"
+    request = _request(model=model, budget_ms=budget_ms, max_iterations=max_iterations,
+                       starts=starts, refine=refine, symmetry=symmetry, rivals=rivals,
+                       candidates=candidates,
+                       finalists=finalists, viewpoint=viewpoint, units=units, **ups)  # fmt: skip
+    if server is None:
+        result = _align_here(request, model_dir, points_a, points_b, (cloud_a, cloud_b))
+        reply = {"model": model, "symmetry": result[1], **result[0].to_dict()}
+    else:
+        reply = _align_there(server, request, points_a, points_b, (cloud_a, cloud_b))
+    t = np.asarray(reply["T_b_from_a"], dtype=np.float64)
+    if output is not None:
+        write_ply(output, apply_rigid(t, points_a))
+    if as_json:
+        typer.echo(json.dumps({"cloud_a": str(cloud_a), "cloud_b": str(cloud_b), **reply,
+                               **{k: v for k, v in ups.items() if v is not None},
+                               "output": None if output is None else str(output)}))  # fmt: skip
+    else:
+        _print_summary(reply)
+    if reply["probability"] < LOW_PROBABILITY:
+        typer.echo(
+            f"warning: the alignment is {reply['probability']:.0%} likely right: the clouds "
+            "overlap little, the poses disagree, or the object looks alike in several poses; "
+            "check the result (--output)",
+            err=True,
         )
-    options = AlignOptions(
-        symmetry=category_symmetry(category, declared) if symmetry == "auto" else symmetry,
-        refine=refine,
-        candidates=candidates,
-        finalists=finalists,
-    )
+
+
+def _request(**options: Any) -> AlignRequest:
+    """The CLI's options -> AlignRequest, or a typer error (exit 2) naming the option."""
+    from pydantic import ValidationError
+
     try:
-        result = align_clouds(points_a, points_b, estimate, options, **ups)
+        return AlignRequest.model_validate(options)
+    except ValidationError as err:
+        first = err.errors(include_url=False)[0]
+        name = "--" + str(first["loc"][0]).replace("_", "-") if first["loc"] else "options"
+        _fail(f"{name}: {first['msg']}")
+
+
+def _refine(asked: bool | None) -> bool:
+    """Whether ICP runs: asked for and open3d importable (fail where asked for by name and
+    absent), or not."""
+    from itnet.alignment.refine import RefineUnavailable, require_open3d
+
+    if asked is False:
+        return False
+    try:
+        require_open3d()  # imported up front, so the reported time is the work's
+        return True
+    except RefineUnavailable as err:
+        if asked:
+            _fail(str(err), code=1)
+        typer.echo(f"note: no ICP refinement: {err}", err=True)
+        return False
+
+
+def _align_here(request: AlignRequest, model_dir: Path | None, points_a: Any, points_b: Any,
+                paths: tuple[Path, Path]) -> tuple[Any, str]:  # fmt: skip
+    """The alignment in this process -> (Alignment, the symmetry of its rivals)."""
+    from itnet.alignment.estimators import in_process_estimator
+    from itnet.alignment.pipeline import CloudEstimateError, align_clouds
+    from itnet.commands.in_process import get_catalog, get_model
+
+    card = get_model(str(request.model), model_dir).card
+    if card.requires_up and (request.up_a is None or request.up_b is None):
+        _fail(
+            f"model {card.name!r} needs which way is up in both clouds: give --up x,y,z (both), "
+            "or --up-a and --up-b (its poses are measured, and served, only with it)"
+        )
+    options = request.options(card, _refine(request.refine))
+    estimate = in_process_estimator(get_catalog(model_dir), request.pose_request())
+    try:
+        result = align_clouds(points_a, points_b, estimate, options, request.up_a, request.up_b,
+                              started=time.perf_counter())  # fmt: skip
     except ValueError as err:  # an up that is not a direction (the zero vector)
         _fail(str(err))
     except CloudEstimateError as err:
-        path = cloud_a if err.cloud == "A" else cloud_b
+        path = paths[0] if err.cloud == "A" else paths[1]
         _fail(f"{path}: {err.__cause__}", code=_exit_code(err.__cause__))
-    finally:
-        close()
+    return result, options.symmetry
 
-    if output is not None:
-        write_ply(output, apply_rigid(result.T_b_from_a, points_a))
-    if as_json:
-        reply = {"cloud_a": str(cloud_a), "cloud_b": str(cloud_b), "model": model,
-                 "symmetry": options.symmetry, **result.to_dict(),
-                 **{k: v for k, v in ups.items() if v is not None},
-                 "output": None if output is None else str(output)}  # fmt: skip
-        typer.echo(json.dumps(reply))
-    else:
-        _print_summary(result)
-    if result.confidence["confidence"] < LOW_CONFIDENCE:
-        typer.echo(
-            f"warning: low confidence {result.confidence['confidence']:.2f}: the clouds overlap "
-            "little or the object looks alike in several poses; check the result (--output)",
-            err=True,
-        )
+
+def _align_there(server: str, request: AlignRequest, points_a: Any, points_b: Any,
+                 paths: tuple[Path, Path]) -> dict:  # fmt: skip
+    """``POST /v1/align`` at ``server`` -> its reply; a refusal naming a cloud names its file."""
+    from itnet.clients import ItnetClient, ItnetClientError
+
+    with ItnetClient(server) as client:
+        try:
+            return dict(client.align(points_a, points_b, request))
+        except ItnetClientError as err:
+            text = str(err)
+            for name, path in zip(("A", "B"), paths):
+                text = text.replace(f"cloud {name}: ", f"{path}: ")
+            _fail(f"{text}", code=_exit_code(err))
 
 
 def _fail(message: str, code: int = 2) -> NoReturn:
@@ -225,82 +248,26 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
     return chosen
 
 
-def _estimator(server: str | None, request: PoseRequest, model_dir: Path | None):  # type: ignore[no-untyped-def]
-    """(pose estimator, (the model's category, its declared symmetry, whether it requires up), a
-    close function) for in-process or --server."""
-    from itnet.alignment.estimators import client_estimator, in_process_estimator
-
-    if server is None:
-        from itnet.commands.in_process import get_catalog, get_model
-
-        card = get_model(str(request.model), model_dir).card
-        estimate = in_process_estimator(get_catalog(model_dir), request)
-        return estimate, (card.category, card.symmetry, card.requires_up), lambda: None
-
-    from itnet.clients import ItnetClient, ItnetClientError
-
-    client = ItnetClient(server)
-    try:
-        listed = client.models()
-    except ItnetClientError as err:
-        client.close()
-        _fail(f"cannot use the service at {server}: {err}", code=1)
-    return (
-        client_estimator(client, request),
-        _category(listed, str(request.model)),
-        (client.close),
-    )
-
-
-def _category(listed: object, model: str) -> tuple[str, str, bool]:
-    """The category, symmetry and ``requires_up`` of ``model`` in a ``GET /v1/models`` reply
-    ('', 'none' and False when it does not say)."""
-    entries = listed.get("models", listed) if isinstance(listed, dict) else listed
-    if isinstance(entries, dict):
-        entries = [
-            {"name": k, **v} if isinstance(v, dict) else {"name": k} for k, v in entries.items()
-        ]
-    for entry in entries if isinstance(entries, list) else []:
-        if isinstance(entry, dict) and entry.get("name") == model:
-            category, symmetry = str(entry.get("category", "")), str(entry.get("symmetry", "none"))
-            return category, symmetry, bool(entry.get("requires_up", False))
-    return "", "none", False
-
-
-def _print_summary(result) -> None:  # type: ignore[no-untyped-def]
-    """The matrix, then one line: rotation, translation, iterations, time, hypothesis, fit."""
-    import numpy as np
-
-    from itnet.alignment.hypotheses import same_alignment
-    from itnet.geometry import rotation_angle_deg
-
-    t = result.T_b_from_a
-    shift = float(np.linalg.norm(t[:3, 3]))
+def _print_summary(reply: dict) -> None:
+    """The matrix, then one line: rotation, translation, iterations, time, hypothesis, how likely
+    right, and the runner-up."""
+    t = np.asarray(reply["T_b_from_a"], dtype=np.float64)
+    times = reply["timings_ms"]
     typer.echo("T_b_from_a (moves A onto B):")
     for row in t:
         typer.echo("  " + " ".join(f"{v:11.6f}" for v in row))
-    chosen = result.hypotheses[result.chosen]
-    times = result.timings_ms
-    refine = f", icp {times['refine']:.1f} ms" if chosen.initial is not None else ""
+    second = reply.get("runner_up")
+    runner_up = "" if second is None else (
+        f"; runner-up {second['hypothesis']} {second['probability']:.0%}")  # fmt: skip
     typer.echo(
-        f"rotation {float(rotation_angle_deg(t[:3, :3])):.2f} deg, translation "
-        f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}] (|t| {shift:.4g}), "
-        f"{result.iterations} iterations, {times['total']:.1f} ms (itnet {times['itnet']:.1f} ms"
-        f"{refine}); hypothesis {chosen.source}, fitness {chosen.fitness:.3f}, "
-        f"rmse {chosen.rmse:.4g}, confidence {result.confidence['confidence']:.2f}"
+        f"rotation {reply['rotation_deg']:.2f} deg, translation "
+        f"[{t[0, 3]:.4g}, {t[1, 3]:.4g}, {t[2, 3]:.4g}] (|t| {np.linalg.norm(t[:3, 3]):.4g}), "
+        f"{reply['iterations']} iterations, {times['total']:.1f} ms (itnet {times['itnet']:.1f} "
+        f"ms); hypothesis {reply['hypothesis']}, {reply['probability']:.0%} likely right, "
+        f"fitness {reply['fitness']:.3f}{runner_up}"
     )
-    if chosen.icp is not None:
+    if reply["considered"]:
         typer.echo(
-            f"icp (point-to-plane, open3d): fitness {chosen.icp['fitness']:.3f}, "
-            f"inlier rmse {chosen.icp['rmse']:.4g} (correspondences within "
-            f"{result.icp_distance:.4g})"
-        )
-    first = result.hypotheses[0]
-    if result.chosen != 0 and not same_alignment(
-        first.T_b_from_a, chosen.T_b_from_a, result.scale, 10.0, 0.1
-    ):
-        typer.echo(
-            f"note: of {result.considered} hypotheses, {len(result.hypotheses)} distinct ones were "
-            f"kept; the composed poses ({first.source}, fitness {first.fitness:.3f}) lost to "
-            f"{chosen.source}, which fits the geometry clearly better after ICP"
+            f"the composed pose was in doubt: {len(reply['hypotheses']) - 1} distinct rivals of "
+            f"{reply['considered']} hypotheses judged"
         )

@@ -14,6 +14,7 @@ from typing import Any, NoReturn
 
 import typer
 
+from itnet.alignment.request import DEFAULT_BUDGET_MS, align_help
 from itnet.commands import recordings as rec
 from itnet.commands import scene as scene_options
 
@@ -87,20 +88,18 @@ def align(
     ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
     model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(1000.0, help="IT-Net time budget per pose estimate, in ms."),
-    max_iterations: int | None = typer.Option(None, help="Iteration cap of each pose."),
+    budget_ms: float = typer.Option(DEFAULT_BUDGET_MS, help=align_help("budget_ms")),
+    max_iterations: int | None = typer.Option(None, help=align_help("max_iterations")),
     refine: bool | None = typer.Option(
         None,
         "--refine/--no-refine",
         show_default=False,
         help="ICP refinement (open3d), as in itnet align: default on when open3d is installed.",
     ),
-    starts: int | None = typer.Option(
-        None, min=1, max=16, help="Runs fused into each cloud's pose (default: the model's)."
-    ),
-    candidates: int = typer.Option(12, min=1, max=64, help="Hypotheses kept after ranking."),
-    symmetry: str = typer.Option("auto", help="auto (the model's category), none, yaw180, yaw90."),
-    finalists: int = typer.Option(4, min=1, max=64, help="With refinement: ICP's fine stage."),
+    starts: int | None = typer.Option(None, min=1, max=16, help=align_help("starts")),
+    candidates: int = typer.Option(6, min=1, max=64, help=align_help("candidates")),
+    symmetry: str = typer.Option("auto", help=align_help("symmetry")),
+    finalists: int = typer.Option(3, min=1, max=64, help=align_help("finalists")),
     threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
     batch_size: int = typer.Option(8, min=1, help="Pairs per worker call."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
@@ -108,7 +107,7 @@ def align(
     """T_b_from_a of every pair of a manifest, as `itnet align --json` gives it, in one table."""
     _require_ray()
     from itnet.alignment.refine import RefineUnavailable, require_open3d
-    from itnet.commands.align import SYMMETRY_CHOICES
+    from itnet.alignment.request import SYMMETRY_CHOICES
     from itnet.commands.in_process import get_model
     from itnet.scale.inputs import InputError, read_manifest
     from itnet.scale.workers import AlignWorker
@@ -128,11 +127,10 @@ def align(
                 _fail(str(err))
             typer.echo(f"note: no ICP refinement: {err}", err=True)
             refine = False
-    options = {"symmetry": symmetry, "refine": refine, "candidates": candidates,
+    request = {"budget_ms": budget_ms, "max_iterations": max_iterations, "starts": starts,
+               "refine": refine, "symmetry": symmetry, "candidates": candidates,
                "finalists": finalists}  # fmt: skip
-    request = {"budget_ms": budget_ms, "max_iterations": max_iterations, "ensemble": starts}
-    args = {"model": model, "model_dir": _dir(model_dir), "request": request,
-            "options": options}  # fmt: skip
+    args = {"model": model, "model_dir": _dir(model_dir), "request": request}
     items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
     get_model(model, model_dir)  # exit 2 if unknown
     _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,

@@ -42,20 +42,24 @@ class Admission:
         return sum(run.needed_work_ms() for run in self._runs) / max(1, slots)
 
     @contextmanager
-    def admit(self, run: AnytimeRun) -> Iterator[None]:
-        """Hold ``run`` among the admitted while it runs; OverloadedError where it cannot fit."""
+    def admit(self, *runs: AnytimeRun) -> Iterator[None]:
+        """Hold ``runs`` (one request's, e.g. an alignment's two clouds) among the admitted while
+        they run; OverloadedError where they cannot fit together."""
         with self._lock:
-            ahead, cost = self.ahead_ms(run.model.concurrent_steps), run.needed_work_ms()
-            if self._runs and ahead + cost > run.left_ms():
+            first = runs[0]
+            ahead = self.ahead_ms(first.model.concurrent_steps)
+            cost = sum(run.needed_work_ms() for run in runs)
+            if self._runs and ahead + cost > min(run.left_ms() for run in runs):
                 raise OverloadedError(
                     f"the server is busy: {len(self._runs)} estimate(s) need about {ahead:.0f} "
                     f"ms of steps, and this one about {cost:.0f} ms of its "
-                    f"{run.plan.budget_ms:g} ms budget; retry in {self.retry_after_s} s",
+                    f"{first.plan.budget_ms:g} ms budget; retry in {self.retry_after_s} s",
                     self.retry_after_s,
                 )
-            self._runs.append(run)
+            self._runs.extend(runs)
         try:
             yield
         finally:
             with self._lock:
-                self._runs.remove(run)
+                for run in runs:
+                    self._runs.remove(run)

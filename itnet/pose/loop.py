@@ -268,8 +268,9 @@ class AnytimeRun(Iterator[Estimate]):
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
         than the whole budget on an idle machine, or where the run was ``alone`` (no other run
-        admitted beside it) and its own decoding (``decode_ms``) left no room for one step:
-        retrying the same request cannot succeed. Else OverloadedError (503: the machine was
+        admitted beside it) and its own decoding (``decode_ms``) alone passed the budget:
+        retrying the same request cannot succeed. (Decoding that left too little for a step,
+        but did not pass the budget itself, is a busy moment: a retry may succeed.) Else OverloadedError (503: the machine was
         too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
@@ -279,7 +280,7 @@ class AnytimeRun(Iterator[Estimate]):
                 f"budget_ms {self.plan.budget_ms:g} is below one step of model "
                 f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
             )
-        if alone and self.decode_ms + step_ms > self.plan.budget_ms:
+        if alone and self.decode_ms > self.plan.budget_ms:
             raise BudgetTooSmallError(
                 f"decoding this request took {self.decode_ms:.1f} ms of its "
                 f"budget_ms {self.plan.budget_ms:g}, and one step takes about {step_ms:.3g} ms: "

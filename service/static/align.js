@@ -24,8 +24,9 @@ export async function runAlign({ view, a, b, request, truth, elements }) {
   view.setPose('main', multiply(toDisplay, reply.T_b_from_a), MOVE_MS);
   showPose(elements.pose, 'T_b_from_a', reply.T_b_from_a);
   const parts = [
-    `rotation ${reply.rotation_deg.toFixed(1)}°, confidence ${reply.confidence.toFixed(2)}`,
-    `hypothesis ${reply.hypothesis} of ${reply.considered}, ${reply.refined ? 'refined by ICP' : 'no ICP'}`,
+    `rotation ${reply.rotation_deg.toFixed(1)}°, ${(100 * reply.probability).toFixed(0)}% likely right`,
+    `hypothesis ${reply.hypothesis}${reply.considered ? ` (rivals judged of ${reply.considered})` : ''}, ${reply.refined ? 'refined by ICP' : 'no ICP'}`,
+    reply.runner_up ? `runner-up ${reply.runner_up.hypothesis} ${(100 * reply.runner_up.probability).toFixed(0)}%` : 'no runner-up',
     `${reply.iterations} IT-Net iterations, ${reply.elapsed_ms.toFixed(1)} ms on the server`,
   ];
   if (reply.up_a) parts.push('both poses held upright by each scan\'s up direction');

@@ -55,8 +55,9 @@ function saveUrl(extra = {}) {
   history.replaceState(null, '', `${location.pathname}?${query}`);
 }
 
-// Each tab's budget until the user sets one: a scene's objects share one budget (the API's default).
-const TAB_BUDGET_MS = { pose: 50, align: 50, scene: 140 };
+// Each tab's budget until the user sets one: a scene's objects share one budget, an alignment's
+// two clouds and its choice another (the API's defaults).
+const TAB_BUDGET_MS = { pose: 50, align: 100, scene: 140 };
 
 function setTab(tab) {
   document.body.dataset.tab = tab;

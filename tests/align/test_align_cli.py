@@ -27,7 +27,16 @@ def run(tiny_model_dir, *args, main=False):
 
 def test_json_reply(tiny_model_dir):
     result = run(
-        tiny_model_dir, A, B, "--json", "--symmetry", "none", "--starts", "1", "--no-refine"
+        tiny_model_dir,
+        A,
+        B,
+        "--json",
+        "--symmetry",
+        "none",
+        "--starts",
+        "1",
+        "--no-refine",
+        "--no-rivals",
     )
     assert result.exit_code == 0, result.output
     reply = json.loads(result.stdout)
@@ -36,8 +45,8 @@ def test_json_reply(tiny_model_dir):
     assert np.allclose(t[:3, :3] @ t[:3, :3].T, np.eye(3), atol=1e-5)  # float32 network poses
     # each cloud: its served pose (5 steps, the tiny model's) and 4 fused runs as alternatives
     assert reply["iterations"] == 20
-    assert reply["elapsed_ms"] > 0 and 0 <= reply["confidence"] <= 1
-    # No refinement: the answer is exactly the composed poses, inv(T_cb) . T_ca.
+    assert reply["elapsed_ms"] > 0 and 0 < reply["probability"] < 1
+    # No refinement, no rivals: the answer is exactly the composed poses, inv(T_cb) . T_ca.
     assert reply["hypothesis"] == "itnet" and reply["refined"] is False
     t_ca = reply["T_canonical_from_a"]["T_canonical_from_input"]
     t_cb = reply["T_canonical_from_b"]["T_canonical_from_input"]
@@ -52,8 +61,9 @@ def test_text_output_and_the_subcommand_agree(tiny_model_dir):
     assert alias.stdout.startswith("T_b_from_a (moves A onto B):")
     matrix = [line for line in alias.stdout.splitlines()[1:5]]
     assert matrix == sub.stdout.splitlines()[1:5]
-    # Each cloud's served pose (the tiny model's 5 iterations) and 4 fused runs of 5.
-    assert "rotation" in alias.stdout and "20 iterations" in alias.stdout
+    # Each cloud's served pose: 4 fused runs of the tiny model's 5 iterations.
+    assert "rotation" in alias.stdout and "10 iterations" in alias.stdout
+    assert "likely right" in alias.stdout
 
 
 def test_output_writes_a_moved_onto_b(tiny_model_dir, tmp_path):
@@ -72,8 +82,9 @@ def test_icp_is_the_default_when_open3d_is_installed(tiny_model_dir):
     pytest.importorskip("open3d")
     default = json.loads(run(tiny_model_dir, A, B, "--json").stdout)
     skipped = json.loads(run(tiny_model_dir, A, B, "--json", "--no-refine").stdout)
-    assert default["refined"] is True and default["timings_ms"]["refine"] > 0
-    assert skipped["refined"] is False and "+icp" not in skipped["hypothesis"]
+    assert default["icp_distance"] > 0 and default["hypotheses"][1]["source"] == "itnet+icp"
+    assert skipped["refined"] is False and skipped["icp_distance"] == 0
+    assert not any("+icp" in h["source"] for h in skipped["hypotheses"])
     assert "--no-refine" in runner.invoke(align_app, ["--help"]).stdout
 
 
@@ -81,16 +92,19 @@ def test_refine_reports_fit(tiny_model_dir):
     result = run(tiny_model_dir, A, B, "--json", "--refine")
     assert result.exit_code == 0, result.output
     reply = json.loads(result.stdout)
-    assert reply["refined"] is True and reply["hypothesis"].endswith("+icp")
     sources = [h["source"] for h in reply["hypotheses"]]
-    # (the served pose, its run, 4 alternatives) for each cloud, crossed, times 4 quarter turns
-    assert reply["considered"] == 6 * 6 * 4 and 1 <= len(sources) <= 12
-    assert all(s.startswith("itnet") and s.endswith("+icp") for s in sources)
-    assert 0 <= reply["fitness"] <= 1 and reply["timings_ms"]["refine"] > 0
+    # the composed pose as served and refined first; where it is in doubt, the rivals among
+    # (the served pose and its 4 runs) for each cloud, crossed, times 4 quarter turns
+    assert sources[:2] == ["itnet", "itnet+icp"] and len(sources) <= 2 + 6
+    assert reply["considered"] in (0, 5 * 5 * 4) and (len(sources) > 2) == (reply["considered"] > 0)
+    assert all(s.startswith("itnet") and s.endswith("+icp") for s in sources[1:])
+    assert 0 <= reply["fitness"] <= 1 and reply["timings_ms"]["composed"] > 0
     assert reply["icp_distance"] == pytest.approx(2 * reply["inlier_distance"], rel=1e-3)
-    assert all(0 <= h["icp"]["fitness"] <= 1 and h["icp"]["rmse"] >= 0 for h in reply["hypotheses"])
-    text = run(tiny_model_dir, A, B, "--refine")
-    assert "icp (point-to-plane, open3d): fitness" in text.stdout
+    refined = reply["hypotheses"][1:]
+    assert all(0 <= h["icp"]["fitness"] <= 1 and h["icp"]["rmse"] >= 0 for h in refined)
+    assert all(0 <= h["probability"] <= 1 for h in reply["hypotheses"])
+    best = max(reply["hypotheses"], key=lambda h: h["probability"])
+    assert reply["hypothesis"] == best["source"]  # the likeliest is the answer
 
 
 @pytest.mark.parametrize("which", ["a", "b"])
@@ -135,33 +149,37 @@ def test_shipped_examples_are_small_scans_of_one_chair():
     assert rmse < 0.05 * scale
 
 
-def test_summary_notes_a_switch_only_when_the_answer_differs(capsys):
+def test_summary_names_the_runner_up_and_says_when_rivals_were_judged(capsys):
     from itnet.alignment.hypotheses import Hypothesis
     from itnet.alignment.pipeline import Alignment, PoseEstimate
     from itnet.commands.align import _print_summary
     from itnet.geometry import axis_angle_to_matrix, rigid_from_rotation_translation
 
-    def hyp(deg, fitness, source):
+    def hyp(deg, probability, source):
         pose = rigid_from_rotation_translation(axis_angle_to_matrix([0, 1, 0], np.radians(deg)), 0)
-        return Hypothesis(pose, source, fitness, 0.01)
+        return Hypothesis(pose, source, 0.5, 0.01, probability=probability)
 
     run = PoseEstimate(np.eye(4), 6, 1.0, "max_iterations")
+    times = {"total": 1.0, "itnet": 0.5, "composed": 0.2, "rivals": 0.3}
 
-    def summary(second_deg):
-        hyps = [hyp(0, 0.4, "itnet+icp"), hyp(second_deg, 0.5, "itnet a1 b0+yaw90+icp")]
-        result = Alignment(hyps[1].T_b_from_a, run, run, hyps, 1, {"confidence": 0.5},
-                           {"total": 1.0, "itnet": 0.5, "refine": 0.3}, 48, 64)  # fmt: skip
-        _print_summary(result)
+    def summary(hyps, considered):
+        _print_summary(Alignment(hyps[1].T_b_from_a, run, run, hyps, 1, times, 48,
+                                 considered).to_dict())  # fmt: skip
         return capsys.readouterr().out
 
-    assert "note: of 64 hypotheses, 2 distinct" in summary(90)  # a different answer won
-    assert "note:" not in summary(2)  # the same answer, reached from another start
+    rivals = [hyp(0, 0.3, "itnet+icp"), hyp(90, 0.8, "itnet a1 b0+yaw90+icp")]
+    text = summary(rivals, 64)
+    assert "hypothesis itnet a1 b0+yaw90+icp, 80% likely right" in text
+    assert "runner-up itnet+icp 30%" in text and "1 distinct rivals of 64" in text
+    same = summary([hyp(0, 0.9, "itnet"), hyp(2, 0.95, "itnet+icp")], 0)
+    assert "runner-up" not in same and "in doubt" not in same  # the same answer, refined
 
 
 @pytest.mark.parametrize("name", ["chair", "chair_quarter"])
 def test_the_shipped_model_aligns_the_shipped_examples(name):
-    """The README's command, with the shipped chair model: within 5 degrees of the truth. The
-    quarter-turn example needs the symmetry hypotheses: one plain run is a quarter turn off."""
+    """The README's command, with the shipped chair model (and a budget a loaded test machine
+    does not cut short): within 5 degrees of the truth. The quarter-turn example needs the
+    rivals: one plain run, composed alone, is a quarter turn off."""
     from itnet.geometry import rotation_error_deg
 
     pytest.importorskip("open3d")
@@ -169,14 +187,15 @@ def test_the_shipped_model_aligns_the_shipped_examples(name):
     truth = np.array(json.loads((EXAMPLES / f"{name}_truth.json").read_text())["T_b_from_a"])
 
     def error(*options):
-        result = runner.invoke(align_app, [*files, "--refine", "--json", *options])
+        result = runner.invoke(align_app, [*files, "--refine", "--json", "--budget-ms", "1000",
+                                           *options])  # fmt: skip
         assert result.exit_code == 0, result.output
         t = np.array(json.loads(result.stdout)["T_b_from_a"])
         return float(rotation_error_deg(t[:3, :3], truth[:3, :3]))
 
     assert error() < 5.0
     if name == "chair_quarter":
-        assert error("--starts", "1", "--symmetry", "none") > 45.0
+        assert error("--starts", "1", "--symmetry", "none", "--no-rivals") > 45.0
 
 
 def test_the_shipped_table_poses_and_aligns_its_example_within_its_symmetry():
@@ -207,7 +226,7 @@ def test_the_shipped_toilet_aligns_its_example_pair():
 
 
 def test_the_shipped_bed_aligns_its_example_pair_and_auto_finds_the_bed_given_up():
-    """The installed bed model (8 runs fused by default; itnet-align weighs each of them) on a
+    """The installed bed model (itnet-align fuses 4 runs a cloud and weighs each of them) on a
     held-out ModelNet10 bed scanned twice in metres (the first pair made, seed 3). With --model
     auto and each scan's up (a level-sensing camera's: the truth's canonical +y in the scan's
     frame) the upright classifier joins and the pair is a bed. Without up this pair is unsure
@@ -271,7 +290,9 @@ def assert_aligns_example_pair(model: str, *extra: str) -> dict:
 
     truth = json.loads((EXAMPLES / f"{model}_truth.json").read_text())
     a, b = EXAMPLES / f"{model}_a.ply", EXAMPLES / f"{model}_b.ply"
-    aligned = CliRunner().invoke(align_app, [str(a), str(b), "--model", model, "--json", *extra])
+    # a budget no loaded test machine cuts short: the answer, not the time, is under test here
+    args = [str(a), str(b), "--model", model, "--json", "--budget-ms", "1000", *extra]
+    aligned = CliRunner().invoke(align_app, args)
     assert aligned.exit_code == 0, aligned.output
     moved = np.array(json.loads(aligned.output.strip().splitlines()[-1])["T_b_from_a"])
     true_b_from_a = np.array(truth["T_b_from_a"])

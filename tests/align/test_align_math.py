@@ -1,13 +1,22 @@
-"""Relative poses, hypotheses, overlap scores, the choice and the pipeline (no model, no open3d)."""
+"""Relative poses, hypotheses, overlap scores, the calibrated choice and the pipeline (no model,
+no open3d)."""
 
 import numpy as np
 import pytest
 
+from itnet.alignment.choice import (
+    FEATURES,
+    Calibration,
+    choose,
+    feature_row,
+    fit_logistic,
+    probability,
+    shipped,
+    support,
+)
 from itnet.alignment.hypotheses import (
     Hypothesis,
     build_hypotheses,
-    choose,
-    confidence,
     distinct,
     relative_pose,
     same_alignment,
@@ -156,28 +165,47 @@ def test_overlap_score(rng):
     assert fitness == pytest.approx(0.75)
 
 
-def hyp(fitness, angle_deg=0.0):
-    rot = axis_angle_to_matrix([0, 1, 0], np.radians(angle_deg))
-    return Hypothesis(rigid_from_rotation_translation(rot, 0), "h", fitness, 0.01)
+def test_choose_keeps_the_composed_pose_unless_a_rival_is_more_likely_right():
+    assert choose([0.6, 0.7, 0.2]) == 1
+    assert choose([0.7, 0.7]) == 0  # a tie is no reason to leave the composed pose
+    assert choose([0.9, 0.5]) == 0
 
 
-def test_choose_keeps_the_composed_poses_unless_a_rival_fits_clearly_better():
-    assert choose([hyp(0.50), hyp(0.58, 180)]) == 1
-    assert choose([hyp(0.50), hyp(0.58, 180)], margin=0.1) == 0
-    assert choose([hyp(0.50), hyp(0.65, 180)], margin=0.1) == 1
-    assert choose([hyp(0.60), hyp(0.58, 180)]) == 0
-    tie = [hyp(0.5), hyp(0.5, 90)]
-    tie[1].rmse = 0.001
-    assert choose(tie) == 0  # a tie is no reason to leave the composed poses
+def test_the_shipped_calibration_trusts_fit_and_the_runs_agreement():
+    weights = dict(zip(FEATURES, shipped().weights))
+    assert len(shipped().weights) == len(FEATURES) and shipped().fitted_on
+    assert weights["fitness"] > 0 and weights["support"] > 0 and weights["gain"] > 0
+    composed = feature_row(0.6, 0.9, 1.0, True, False, 0.2, 0.0)
+    worse = feature_row(0.3, 0.9, 1.0, True, False, 0.2, 0.0)
+    alone = feature_row(0.6, 0.9, 0.0, True, False, 0.2, 0.0)  # no run backs it
+    p = probability(np.stack([composed, worse, alone]))
+    assert p[0] > p[1] and p[0] > p[2] and ((p > 0) & (p < 1)).all()
 
 
-def test_confidence_falls_when_a_rival_fits_as_well():
-    alone = confidence([hyp(0.8), hyp(0.1, 180)], 0, scale=1.0)
-    tied = confidence([hyp(0.8), hyp(0.78, 180)], 0, scale=1.0)
-    assert alone["confidence"] > 0.8 and tied["confidence"] < 0.5 * alone["confidence"]
-    assert tied["margin"] == pytest.approx(0.02)
-    # A hypothesis that agrees with the chosen one is no rival.
-    assert confidence([hyp(0.8), hyp(0.8, 3)], 0, scale=1.0)["margin"] == pytest.approx(0.8)
+def test_support_counts_the_run_pairs_that_back_a_candidate(rng):
+    pose = random_pose(rng, scale=0.1)  # 5 degrees about the origin move it by under 0.15
+    turn = rigid_from_rotation_translation(axis_angle_to_matrix([0, 1, 0], np.radians(90)), 0)
+    near = rigid_from_rotation_translation(axis_angle_to_matrix([0, 1, 0], np.radians(5)), 0)
+    runs = np.stack([pose, near @ pose, turn @ pose, pose])
+    got = support(np.stack([pose, turn @ pose]), runs, scale=1.0)
+    assert got.tolist() == [0.75, 0.25]
+
+
+def test_fit_logistic_recovers_the_weights_it_was_drawn_from(rng):
+    x = np.column_stack([np.ones(4000), rng.normal(size=(4000, 2))])
+    truth = np.array([-0.5, 2.0, -1.0])
+    y = rng.random(4000) < 1 / (1 + np.exp(-x @ truth))
+    assert np.allclose(fit_logistic(x, y, l2=1e-6), truth, atol=0.2)
+
+
+def test_a_calibration_reads_back_what_it_wrote(tmp_path):
+    fitted = Calibration(np.arange(len(FEATURES), dtype=float) / 10, "test pairs")
+    fitted.write(tmp_path / "c.json", command="python -m x")
+    again = Calibration.read(tmp_path / "c.json")
+    assert np.allclose(again.weights, fitted.weights) and again.fitted_on == "test pairs"
+    (tmp_path / "bad.json").write_text('{"features": ["bias"], "weights": [1.0]}')
+    with pytest.raises(ValueError, match="features"):
+        Calibration.read(tmp_path / "bad.json")
 
 
 def fake_estimator(clouds_and_poses, calls):
@@ -206,20 +234,27 @@ def flipped_pair(rng):
     return a, b, relative_pose(t_ca, t_cb), estimate, calls
 
 
-def test_without_icp_the_composed_poses_stand_and_the_rivals_are_ranked(rng):
+def test_a_composed_pose_in_doubt_loses_to_a_rival_more_likely_right(rng):
     a, b, truth, estimate, calls = flipped_pair(rng)
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180"))
     assert calls == [len(a), len(b)]  # each cloud's served pose, once
     assert result.iterations == 8 and result.considered == 2
-    composed, flipped = result.hypotheses  # the composed poses always first
+    composed, flipped = result.hypotheses  # the composed pose always first
     assert composed.source == "itnet" and flipped.source == "itnet+yaw180"
-    assert result.chosen == 0  # unrefined, a loose overlap does not overrule the poses
-    assert np.allclose(flipped.T_b_from_a, truth, atol=1e-9)
+    assert composed.probability < flipped.probability  # A lands on B only turned
+    assert result.chosen == 1 and np.allclose(result.T_b_from_a, truth, atol=1e-9)
     assert flipped.loose_fitness > 0.95 > 0.5 > composed.loose_fitness
-    assert result.confidence["confidence"] < 0.1  # a rival fits far better: said so
     reply = result.to_dict()
-    assert reply["hypothesis"] == "itnet" and reply["refined"] is False
+    assert reply["hypothesis"] == "itnet+yaw180" and reply["refined"] is False
+    assert reply["probability"] == pytest.approx(flipped.probability, abs=1e-4)
+    assert reply["runner_up"]["hypothesis"] == "itnet"
     assert reply["icp_distance"] == 0 and reply["considered"] == 2
+
+
+def test_without_rivals_the_composed_pose_stands(rng):
+    a, b, _, estimate, _ = flipped_pair(rng)
+    result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", rivals=False))
+    assert len(result.hypotheses) == 1 and result.chosen == 0 and result.considered == 0
 
 
 def test_composed_poses_are_the_answer_where_no_rival_fits_better(rng):
@@ -230,6 +265,9 @@ def test_composed_poses_are_the_answer_where_no_rival_fits_better(rng):
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90"))
     assert result.chosen == 0 and result.hypotheses[0].source == "itnet"
     assert np.allclose(result.T_b_from_a, relative_pose(t_ca, t_cb), atol=1e-9)
+    # A sure composed pose is answered as it is: no rival judged.
+    assert result.probability >= 0.9 and result.considered == 0 and len(result.hypotheses) == 1
+    assert result.to_dict()["runner_up"] is None
 
 
 def test_align_clouds_names_the_cloud_that_failed(rng):

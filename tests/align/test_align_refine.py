@@ -101,11 +101,12 @@ def test_align_clouds_with_icp_switches_to_the_symmetric_hypothesis(rng):
     result = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", refine=True))
     assert result.hypotheses[result.chosen].source == "itnet+yaw180+icp"
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
-    assert result.confidence["fitness"] > 0.9 and result.confidence["confidence"] > 0.9
-    # Without the symmetry hypotheses, ICP alone cannot undo a half turn.
+    assert result.hypotheses[result.chosen].fitness > 0.9 and result.probability > 0.9
+    assert result.runner_up().probability < result.probability  # type: ignore[union-attr]
+    # Without the symmetry hypotheses, ICP alone cannot undo a half turn, and says so.
     plain = align_clouds(a, b, estimate, AlignOptions(symmetry="none", refine=True))
     assert rotation_error_deg(plain.T_b_from_a[:3, :3], truth[:3, :3]) > 90
-    assert plain.confidence["confidence"] < 0.5
+    assert plain.probability < 0.9 and plain.probability < result.probability  # in doubt
 
 
 def test_only_the_finalists_get_the_fine_stage(rng, monkeypatch):
@@ -120,9 +121,10 @@ def test_only_the_finalists_get_the_fine_stage(rng, monkeypatch):
     monkeypatch.setattr(IcpRefiner, "refine", spy)
     options = AlignOptions(symmetry="yaw90", refine=True, candidates=4, finalists=1)
     result = align_clouds(a, b, estimate, options)
-    assert len(result.hypotheses) == 4 and all(h.icp is not None for h in result.hypotheses)
-    # four coarse, then the fine stage for the best after it and for the composed poses
-    assert stages == [slice(1)] * 4 + [slice(1, None)] * 2
+    # the composed pose as it is and refined, then its three turns (the only rivals there are)
+    assert len(result.hypotheses) == 5 and all(h.icp is not None for h in result.hypotheses[1:])
+    # the composed pose's coarse and fine stages; the rivals' coarse, the best one's fine
+    assert stages == [slice(1), slice(1, None)] + [slice(1)] * 3 + [slice(1, None)]
     assert result.hypotheses[result.chosen].source == "itnet+yaw180+icp"
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
 
@@ -152,7 +154,7 @@ def test_dense_clouds_in_millimetres_align(rng):
     truth = invert_rigid(t_cb) @ t_ca
     assert rotation_error_deg(result.T_b_from_a[:3, :3], truth[:3, :3]) < 1.0
     assert np.linalg.norm(result.T_b_from_a[:3, 3] - truth[:3, 3]) < 10.0  # mm
-    assert result.confidence["fitness"] > 0.8
+    assert result.hypotheses[result.chosen].fitness > 0.8
 
 
 def test_the_coarse_stage_can_run_on_a_subset_of_a():

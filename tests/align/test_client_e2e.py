@@ -124,5 +124,6 @@ def test_align_through_the_server_matches_in_process(server, tiny_model_dir):
     remote_t = np.array(json.loads(remote.stdout)["T_b_from_a"])
     local_t = np.array(json.loads(local.stdout)["T_b_from_a"])
     assert np.allclose(remote_t, local_t, atol=1e-4)  # float32 binary body on the wire
+    assert json.loads(remote.stdout)["hypothesis"] == json.loads(local.stdout)["hypothesis"]
     down = runner.invoke(align_app, [*files, "--server", "http://127.0.0.1:9"])
-    assert down.exit_code == 1 and "cannot use the service" in down.stderr
+    assert down.exit_code == 1 and "127.0.0.1:9" in down.stderr

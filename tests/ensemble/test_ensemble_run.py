@@ -199,26 +199,29 @@ def test_the_service_plans_the_same_runs_whatever_is_in_flight(fused_model_dir, 
 
 
 def test_alignment_through_the_service_weighs_the_same_poses_as_in_process(fused_model_dir, cloud):
-    """itnet-align --server and in-process ask the same request of the same pipeline: the same
-    served pose and the same runs (tiny4's card recommends 4 runs; plain tiny one, so it gets 4
-    more as alternatives)."""
+    """itnet-align --server (POST /v1/align) and in-process run the same request through the
+    same pipeline: the same poses of 4 fused runs each (tiny4's card recommends 4, plain tiny's
+    one: an alignment asks for 4 of either), the same answer."""
     from fastapi.testclient import TestClient
 
-    from itnet.alignment.estimators import client_estimator, in_process_estimator
+    from itnet.alignment import align
+    from itnet.alignment.request import AlignRequest
     from itnet.clients import ItnetClient
-    from itnet.pose.request import PoseRequest
     from itnet.service.app import create_app
     from itnet.service.settings import Settings
 
+    other = cloud[::-1] @ np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]) + [0.3, 0, 0]
     with TestClient(create_app(Settings(model_dir=fused_model_dir, warm_up=False))) as served:
         http = ItnetClient("http://testserver")
         http._http = served  # the app in-process: TestClient is an httpx.Client
         catalog = served.app.state.service.catalog  # type: ignore[attr-defined]
-        for name, runs in (("tiny4", 4), ("tiny", 1 + 4)):
-            request = PoseRequest(model=name, budget_ms=5000, max_iterations=3)
-            remote = client_estimator(http, request)(cloud)
-            local = in_process_estimator(catalog, request)(cloud)
-            assert len(remote.runs) == len(local.runs) == runs
-            assert np.allclose(remote.T_canonical_from_input, local.T_canonical_from_input,
-                               atol=1e-4)  # fmt: skip
-            assert np.allclose(remote.runs, local.runs, atol=1e-4)
+        for name in ("tiny4", "tiny"):
+            request = AlignRequest(model=name, budget_ms=5000, max_iterations=3, refine=False)
+            remote = http.align(cloud, other, request)
+            local = align(catalog, cloud, other, request)
+            assert len(local.pose_a.runs) == len(local.pose_b.runs) == 4
+            assert remote["T_canonical_from_a"]["ensemble"] == 4
+            assert remote["hypothesis"] == local.hypotheses[local.chosen].source
+            assert np.allclose(remote["T_b_from_a"], local.T_b_from_a, atol=1e-6)
+            pose_a = remote["T_canonical_from_a"]["T_canonical_from_input"]
+            assert np.allclose(pose_a, local.pose_a.T_canonical_from_input, atol=1e-6)

@@ -152,7 +152,7 @@ def test_batch_align_gives_itnet_aligns_answers(local_ray: None, tmp_path: Path)
     shutil.copy(EXAMPLES / "chair_b.ply", tmp_path / "b.ply")
     (tmp_path / "pairs.csv").write_text("a,b\na.ply,b.ply\nb.ply,a.ply\na.ply,gone.ply\n")
     out = tmp_path / "pairs.parquet"
-    args = ["--no-refine", "--max-iterations", "6"]
+    args = ["--no-refine", "--max-iterations", "6", "--budget-ms", "5000"]  # no stage skipped
     result = runner.invoke(
         app, ["batch", "align", str(tmp_path / "pairs.csv"), "-o", str(out), *args]
     )
@@ -180,7 +180,7 @@ def test_batch_align_takes_each_pairs_up_from_the_manifest(local_ray: None, tmp_
              {"a": str(b), "b": str(a)}]  # fmt: skip
     (tmp_path / "pairs.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
     out = tmp_path / "pairs.jsonl.out.jsonl"
-    args = ["--model", "night_stand", "--no-refine"]
+    args = ["--model", "night_stand", "--no-refine", "--budget-ms", "5000"]
     result = runner.invoke(
         app, ["batch", "align", str(tmp_path / "pairs.jsonl"), "-o", str(out), *args]
     )

@@ -86,19 +86,21 @@ def test_a_viewpoint_is_taken_from_json_and_from_a_binary_query(
 def test_alignment_through_the_service_weighs_the_in_process_poses(
     centred: TestClient, make_cloud
 ) -> None:  # type: ignore[no-untyped-def]
-    """itnet-align --server and in-process weigh the same served poses, the centre correction
-    included, and the same runs."""
-    from itnet.alignment.estimators import client_estimator, in_process_estimator
+    """itnet-align --server (POST /v1/align) and in-process weigh the same served poses, the
+    centre correction included, and give the same answer."""
+    from itnet.alignment import align
+    from itnet.alignment.request import AlignRequest
     from itnet.clients import ItnetClient
-    from itnet.pose.request import PoseRequest
 
     client = ItnetClient("http://testserver")
     client._http = centred  # the app in-process: TestClient is an httpx.Client
     catalog = centred.app.state.service.catalog  # type: ignore[attr-defined]
     cloud = make_cloud().astype(np.float64)
-    request = PoseRequest(model="tiny", budget_ms=5000, max_iterations=3)
-    remote = client_estimator(client, request)(cloud)
-    local = in_process_estimator(catalog, request)(cloud)
-    assert remote.result["centre"] is True and local.result["centre"] is True
-    assert np.allclose(remote.T_canonical_from_input, local.T_canonical_from_input, atol=1e-4)
-    assert np.allclose(remote.runs, local.runs, atol=1e-4)
+    other = cloud + np.array([0.2, -0.1, 0.05])
+    request = AlignRequest(model="tiny", budget_ms=5000, max_iterations=3, refine=False)
+    remote = client.align(cloud, other, request)
+    local = align(catalog, cloud, other, request)
+    assert local.pose_a.result["centre"] is True and local.pose_b.result["centre"] is True
+    pose_a = remote["T_canonical_from_a"]["T_canonical_from_input"]
+    assert np.allclose(pose_a, local.pose_a.T_canonical_from_input, atol=1e-6)
+    assert np.allclose(remote["T_b_from_a"], local.T_b_from_a, atol=1e-6)

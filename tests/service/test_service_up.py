@@ -112,20 +112,22 @@ def test_the_clients_send_up(client: TestClient, make_cloud) -> None:  # type: i
 def test_alignment_runs_with_up_through_the_service_match_the_in_process_runs(
     client: TestClient, make_cloud
 ) -> None:  # type: ignore[no-untyped-def]
-    """itnet-align --server with up: the same request with each cloud's up as in-process, so the
-    same served pose and runs, every one of them upright."""
-    from itnet.alignment.estimators import client_estimator, in_process_estimator
+    """itnet-align --server with up (POST /v1/align with up_a, up_b): the same request as
+    in-process, so the same poses and runs, every one of them upright, and the same answer."""
+    from itnet.alignment import align
+    from itnet.alignment.request import AlignRequest
     from itnet.clients import ItnetClient
-    from itnet.pose.request import PoseRequest
 
     http = ItnetClient("http://testserver")
     http._http = client  # the app in-process: TestClient is an httpx.Client
     catalog = client.app.state.service.catalog  # type: ignore[attr-defined]
     cloud, up = make_cloud().astype(np.float64), unit_up(TILTED_UP)
-    request = PoseRequest(model="tiny", budget_ms=5000, max_iterations=3)
-    remote = client_estimator(http, request)(cloud, up)
-    local = in_process_estimator(catalog, request)(cloud, up)
-    assert np.allclose(remote.T_canonical_from_input, local.T_canonical_from_input, atol=1e-4)
-    assert np.allclose(remote.runs, local.runs, atol=1e-4)
-    for pose in remote.candidates():
+    ups = [float(v) for v in up]
+    request = AlignRequest(model="tiny", budget_ms=5000, max_iterations=3, refine=False,
+                           up_a=ups, up_b=ups)  # fmt: skip
+    remote = http.align(cloud, cloud, request)
+    local = align(catalog, cloud, cloud, request)
+    assert np.allclose(remote["T_b_from_a"], local.T_b_from_a, atol=1e-6)
+    assert remote["up_a"] == pytest.approx(ups) and remote["up_b"] == pytest.approx(ups)
+    for pose in (*local.pose_a.candidates(), *local.pose_b.candidates()):
         assert np.allclose(pose[:3, :3] @ up, UP, atol=1e-4)

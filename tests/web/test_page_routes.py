@@ -106,9 +106,9 @@ def test_a_bad_file_gets_a_clear_4xx(client, filename, body, status, says):
 
 def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_model_dir):
     from itnet.alignment.estimators import in_process_estimator
-    from itnet.alignment.pipeline import AlignOptions, align_clouds
+    from itnet.alignment.pipeline import align_clouds
+    from itnet.alignment.request import AlignRequest
     from itnet.pose.catalog import Catalog
-    from itnet.pose.request import PoseRequest
     from itnet.pose.runtime import load_models
 
     a, b = read_cloud(EXAMPLES / "chair_a.ply"), read_cloud(EXAMPLES / "chair_b.ply")
@@ -117,13 +117,14 @@ def test_align_is_the_in_process_alignment_with_the_loaded_model(client, tiny_mo
     assert reply.status_code == 200, reply.text
     got = reply.json()
     catalog = Catalog(load_models(tiny_model_dir, warm_up=False))
-    options = AlignOptions(symmetry=got["symmetry"], refine=False)
-    request = PoseRequest(model="tiny", budget_ms=2000)
-    want = align_clouds(a, b, in_process_estimator(catalog, request), options)
+    request = AlignRequest(model="tiny", budget_ms=2000)
+    options = request.options(catalog.model("tiny").card, refine=False)
+    want = align_clouds(a, b, in_process_estimator(catalog, request.pose_request()), options)
     assert got["model"] == "tiny" and got["refined"] is False
     assert np.allclose(got["T_b_from_a"], want.T_b_from_a, atol=1e-9)
-    # each cloud: its served pose (5 steps) and 4 fused runs of 5 as alternatives
-    assert got["iterations"] == want.iterations == 20
+    assert got["hypothesis"] == want.hypotheses[want.chosen].source
+    # each cloud's served pose: 4 fused runs of the tiny model's 5 steps
+    assert got["iterations"] == want.iterations == 10
 
 
 def test_align_with_each_clouds_up_holds_both_poses_upright(client):

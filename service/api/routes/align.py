@@ -1,14 +1,14 @@
 """``POST /v1/align``: T_b_from_a (moves cloud A onto cloud B) with the service's loaded model.
 
-The same alignment as ``itnet-align`` (``itnet.alignment.pipeline.align_clouds``: each cloud's
-pose as ``POST /v1/estimate`` serves it, hypotheses times the category's symmetries, optional
-ICP), run in-process on the models this server already holds. A server route rather than two streams composed in the
-browser: the hypotheses and ICP are what make alignment work on views that barely overlap, and
-they need both clouds in one place (and numpy, scipy, open3d), not just two poses.
+The same alignment as ``itnet-align`` (``itnet.alignment.pipeline.align_clouds``: both clouds'
+poses as ``POST /v1/estimate`` serves them, posed together; the composed pose, its rivals where
+it is in doubt, the likeliest), run in-process on the models this server already holds; it is
+what ``itnet-align --server`` asks for. The body is ``AlignRequest``'s fields and the two clouds.
 
 Bounded like an estimate: the body by ``max_body_bytes``, each cloud by ``min_points`` and
-``max_points``, ``budget_ms`` (per cloud's pose) by ``max_budget_ms``, ``max_iterations`` by its
-limit, and the request holds one of the ``max_concurrent_requests`` slots.
+``max_points``, ``budget_ms`` (the whole alignment's, counted from the request's arrival) by
+``max_budget_ms``, ``max_iterations`` by its limit, and the request holds one of the
+``max_concurrent_requests`` slots.
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from typing import Any
 
 import anyio
 from fastapi import APIRouter
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
+from itnet.alignment.request import AlignRequest
 from itnet.pose.cloud import validate_cloud
 from itnet.pose.errors import BadCloudError, PoseError
-from itnet.pose.request import PoseRequest, Xyz
-from itnet.service.api.deps import BodyDep, StateDep
+from itnet.service.api.deps import ArrivedDep, BodyDep, StateDep
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
 from itnet.service.schemas import ErrorResponse, Point
 from itnet.service.state import ServiceState
@@ -38,34 +38,12 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 }
 
 
-class AlignRequest(BaseModel):
-    """Two clouds of one object (or two objects of one category), in the same unit."""
-
-    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+class AlignBody(AlignRequest):
+    """Two clouds of one object (or two objects of one category), in the same unit, and how to
+    align them (``itnet.alignment.request.AlignRequest``)."""
 
     points_a: list[Point] = Field(fail_fast=True, description="cloud A (moved), N x 3")
     points_b: list[Point] = Field(fail_fast=True, description="cloud B (reference), M x 3")
-    model: str | None = Field(default=None, description="model name (default: the server's)")
-    budget_ms: float = Field(default=1000.0, gt=0, description="budget of each cloud's pose, ms")
-    max_iterations: int | None = Field(
-        default=None, ge=1, description="iteration cap of each pose (default: the model's)"
-    )
-    starts: int | None = Field(
-        default=None,
-        ge=1,
-        le=16,
-        description="runs fused into each cloud's pose (its request's ensemble; default: the "
-        "model's)",
-    )
-    refine: bool | None = Field(
-        default=None, description="ICP after IT-Net (default: when open3d is installed)"
-    )
-    up_a: Xyz = Field(
-        default=None,
-        description="which way is up in cloud A, [x, y, z] (against gravity): its poses are held "
-        "upright and its runs start from turns about it. Needed by models that require up",
-    )
-    up_b: Xyz = Field(default=None, description="which way is up in cloud B, [x, y, z]")
 
 
 @router.post(
@@ -77,7 +55,7 @@ class AlignRequest(BaseModel):
             "required": True,
             "content": {
                 "application/json": {
-                    "schema": AlignRequest.model_json_schema(
+                    "schema": AlignBody.model_json_schema(
                         ref_template="#/components/schemas/{model}"
                     )
                 }
@@ -85,19 +63,20 @@ class AlignRequest(BaseModel):
         }
     },
 )
-async def align(body: BodyDep, state: StateDep) -> dict[str, Any]:
+async def align(body: BodyDep, state: StateDep, arrived: ArrivedDep) -> dict[str, Any]:
     """The reply is ``itnet-align --json``'s object: ``T_b_from_a`` (4x4, row-major, B's units),
-    ``confidence``, ``refined``, the hypotheses and both canonical poses, plus ``model`` and
-    ``symmetry``."""
+    the chosen ``hypothesis`` and its ``probability``, the ``runner_up``, ``refined``, the
+    hypotheses judged and both canonical poses, plus ``model`` and ``symmetry``. The budget
+    counts from the request's arrival."""
     with state.gate.slot():
-        return await anyio.to_thread.run_sync(_align, state, body)
+        return await anyio.to_thread.run_sync(_align, state, body, arrived)
 
 
-def _parse(body: bytes) -> AlignRequest:
+def _parse(body: bytes) -> AlignBody:
     if not body.strip():
         raise malformed_json("the body is empty (expected points_a and points_b)")
     try:
-        return AlignRequest.model_validate_json(body)
+        return AlignBody.model_validate_json(body)
     except ValidationError as err:
         errors = err.errors(include_input=False, include_url=False)
         if errors and errors[0]["type"] == "json_invalid":
@@ -105,11 +84,10 @@ def _parse(body: bytes) -> AlignRequest:
         raise ServiceError(422, "invalid_request", describe_errors(errors)) from None
 
 
-def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
+def _align(state: ServiceState, body: bytes, arrived: float) -> dict[str, Any]:
     """Decode, check against the limits, align (CPU: runs in a worker thread)."""
     from itnet.alignment.estimators import in_process_estimator
-    from itnet.alignment.hypotheses import category_symmetry
-    from itnet.alignment.pipeline import AlignOptions, CloudEstimateError, align_clouds
+    from itnet.alignment.pipeline import CloudEstimateError, align_clouds
     from itnet.alignment.refine import RefineUnavailable, require_open3d
 
     request = _parse(body)
@@ -138,15 +116,11 @@ def _align(state: ServiceState, body: bytes) -> dict[str, Any]:
         if refine:
             raise ServiceError(422, "refine_unavailable", str(err)) from None
         refine = False
-    options = AlignOptions(
-        symmetry=category_symmetry(model.card.category, model.card.symmetry), refine=refine
-    )
-    pose_request = PoseRequest(budget_ms=request.budget_ms, max_iterations=request.max_iterations,
-                               model=model.card.name, ensemble=request.starts)  # fmt: skip
-    estimate = in_process_estimator(state.catalog, pose_request)
+    options = request.options(model.card, refine)
+    estimate = in_process_estimator(state.catalog, request.pose_request(model.card.name))
     ups = {"up_a": request.up_a, "up_b": request.up_b}
     try:
-        result = align_clouds(clouds[0], clouds[1], estimate, options, **ups)
+        result = align_clouds(clouds[0], clouds[1], estimate, options, **ups, started=arrived)
     except ValueError as err:  # an up that is not a direction (the zero vector)
         raise ServiceError(422, "invalid_request", str(err)) from None
     except CloudEstimateError as err:
