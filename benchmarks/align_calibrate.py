@@ -25,7 +25,7 @@ import numpy as np
 from benchmarks.align_pairs import GENERATORS, make_pairs, split_shapes
 from itnet.alignment.choice import FEATURES, Calibration, fit_logistic, probability
 from itnet.alignment.estimators import in_process_estimator
-from itnet.alignment.hypotheses import category_symmetry
+from itnet.alignment.hypotheses import rival_turns
 from itnet.alignment.pipeline import AlignOptions, align_clouds
 from itnet.pose.catalog import Catalog
 from itnet.pose.request import PoseRequest
@@ -36,15 +36,17 @@ BINS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 
 
 def collect(catalog: Catalog, category: str, generator: str, pairs: int, seed: int,
-            data: Path, budget_ms: float, ensemble: int | None = None) -> list[dict]:  # fmt: skip
+            data: Path, budget_ms: float, ensemble: int | None = None,
+            candidates: int = 6, finalists: int = 3) -> list[dict]:  # fmt: skip
     """Every pair's judged candidates: evidence, right or not, composed or rival."""
     model = catalog.model(category)
     card = model.card
     estimate = in_process_estimator(
         catalog, PoseRequest(model=category, budget_ms=budget_ms, ensemble=ensemble)
     )
-    options = AlignOptions(symmetry=category_symmetry(card.category, card.symmetry),
-                           refine=True, sure=2.0)  # fmt: skip
+    options = AlignOptions(symmetry=rival_turns(card.category, card.symmetry),
+                           refine=True, sure=2.0, candidates=candidates,
+                           finalists=finalists)  # fmt: skip
     out = []
     for pair in make_pairs(generator, split_shapes(data, category, "validation"), pairs, seed,
                            category):  # fmt: skip
@@ -112,6 +114,8 @@ def main() -> None:
         default=None,
         help="runs fused into each cloud's pose (default: the alignment's)",
     )
+    parser.add_argument("--candidates", type=int, default=6, help="rivals judged a pair")
+    parser.add_argument("--finalists", type=int, default=3, help="rivals ICP finishes")
     parser.add_argument("--records", type=Path, default=ROOT / "runs/align_calibration.json",
                         help="the collected evidence (read back with --from-records)")  # fmt: skip
     parser.add_argument("--from-records", action="store_true")
@@ -128,7 +132,8 @@ def main() -> None:
             for generator in args.generators:
                 start = time.perf_counter()
                 got = collect(catalog, category, generator, args.pairs, args.seed, args.data,
-                              args.budget_ms, args.ensemble)  # fmt: skip
+                              args.budget_ms, args.ensemble, args.candidates,
+                              args.finalists)  # fmt: skip
                 records += got
                 right = np.mean([r["right"][0] for r in got])
                 print(f"{category:8s} {generator:9s} {len(got)} pairs, composed right "

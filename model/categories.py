@@ -50,40 +50,75 @@ class Category:
     symmetry: str = "none"
     # canonical planes of mirror symmetry: 'x' (x = 0, left-right), 'z' (z = 0, front-back)
     mirror_planes: tuple[str, ...] = ()
+    # the turns about up a partial view of it is often mistaken by (a symmetry group's name, at
+    # least its ``symmetry``): a chair's seat is nearly square, so a view of it is often
+    # explained as well by a quarter turn. The alignment tries them as rivals.
+    confusions: str = "yaw180"
+    # (small, large) real bounding radius in metres (``REAL_RADIUS_M``)
+    real_radius_m: tuple[float, float] = (0.5, 0.5)
+    # (median, robust spread of its log) of its height in metres on ModelNet10's training
+    # shapes (``itnet.scene.height_prior``); None: unknown
+    height_m: tuple[float, float] | None = None
+    # in the development scenes: (which extent: 'height' or 'length', its range in metres)
+    # (``itnet.model.scenes``); None: not on a scene's floor
+    scene_size: tuple[str, tuple[float, float]] | None = None
 
     def __post_init__(self) -> None:
-        if self.symmetry not in SYMMETRY_NAMES:
-            raise ValueError(f"unknown symmetry {self.symmetry!r}")
+        for name in (self.symmetry, self.confusions):
+            if name not in SYMMETRY_NAMES:
+                raise ValueError(f"unknown symmetry {name!r}")
 
 
 MODELNET10: dict[str, Category] = {
     c.name: c
     for c in (
-        Category("bathtub", 1, "yaw180", ("x", "z")),
-        Category("bed", 0, "none", ("x",)),
-        Category("chair", 0, "none", ("x",)),
-        Category("desk", 1, "none"),  # mirror ratio 1.01-1.24 by sample: drawers on one side
-        Category("dresser", 1, "yaw180", ("x", "z")),
-        Category("monitor", 1, "none", ("x",)),
-        Category("night_stand", 1, "yaw180", ("x", "z")),
-        Category("sofa", 1, "none", ("x",)),
-        Category("table", 1, "yaw180", ("x", "z")),
-        Category("toilet", 0, "none", ("x",)),
+        Category("bathtub", 1, "yaw180", ("x", "z"),
+                 # 0.9 x 0.5 x 0.6 m (a small tub) to 1.8 x 0.6 x 0.9 m
+                 real_radius_m=(0.55, 1.05), height_m=(0.63, 0.34),
+                 scene_size=("length", (1.5, 1.8))),
+        Category("bed", 0, "none", ("x",),
+                 # single 0.9 x 1.0 x 2.0 m (with headboard) to king 1.9 x 1.2 x 2.2 m
+                 real_radius_m=(1.1, 1.6), height_m=(1.0, 0.39),
+                 scene_size=("length", (1.9, 2.1))),
+        Category("chair", 0, "none", ("x",), confusions="yaw90",
+                 # 0.42 x 0.78 x 0.45 m to an armchair's 0.65 x 1.1 x 0.7 m
+                 real_radius_m=(0.48, 0.75), height_m=(0.94, 0.21),
+                 scene_size=("height", (0.8, 1.0))),
+        Category("desk", 1, "none",  # mirror ratio 1.01-1.24 by sample: drawers on one side
+                 # 1.0 x 0.72 x 0.5 m to 1.8 x 0.76 x 0.9 m
+                 real_radius_m=(0.65, 1.1), height_m=(0.76, 0.09),
+                 scene_size=("length", (1.0, 1.6))),
+        Category("dresser", 1, "yaw180", ("x", "z"), confusions="yaw90",
+                 # 0.8 x 0.75 x 0.45 m to 1.6 x 1.1 x 0.55 m
+                 real_radius_m=(0.58, 1.0), height_m=(0.99, 0.37),
+                 scene_size=("height", (0.8, 1.2))),
+        Category("monitor", 1, "none", ("x",),
+                 # 0.45 x 0.35 x 0.18 m to 0.85 x 0.6 x 0.25 m, stand included
+                 real_radius_m=(0.28, 0.55), height_m=(0.5, 0.47)),
+        Category("night_stand", 1, "yaw180", ("x", "z"), confusions="yaw90",
+                 # 0.4 x 0.5 x 0.35 m to 0.6 x 0.75 x 0.5 m
+                 real_radius_m=(0.35, 0.55), height_m=(0.66, 0.18),
+                 scene_size=("height", (0.5, 0.65))),
+        Category("sofa", 1, "none", ("x",),
+                 # a two-seater 1.4 x 0.8 x 0.8 m to 2.5 x 0.95 x 1.0 m
+                 real_radius_m=(0.85, 1.45), height_m=(0.83, 0.18),
+                 scene_size=("length", (1.7, 2.2))),
+        Category("table", 1, "yaw180", ("x", "z"), confusions="yaw90",
+                 # a coffee table 0.9 x 0.45 x 0.5 m to a dining table 2.0 x 0.76 x 1.0 m
+                 real_radius_m=(0.55, 1.2), height_m=(0.73, 0.27),
+                 scene_size=("length", (1.0, 1.8))),
+        Category("toilet", 0, "none", ("x",),
+                 # 0.36 x 0.7 x 0.6 m to 0.45 x 0.85 x 0.75 m
+                 real_radius_m=(0.48, 0.62), height_m=(0.77, 0.25),
+                 scene_size=("height", (0.7, 0.8))),
     )
-}
-
+}  # fmt: skip
+"""Every fact about a ModelNet10 category, in one place: its frame's turn, symmetry, mirror
+planes, the turns its views are mistaken by, its real sizes, its height and its size in the
+development scenes (see ``Category``)."""
 
 REAL_RADIUS_M: dict[str, tuple[float, float]] = {
-    "bathtub": (0.55, 1.05),  # 0.9 x 0.5 x 0.6 m (a small tub) to 1.8 x 0.6 x 0.9 m
-    "bed": (1.1, 1.6),  # single 0.9 x 1.0 x 2.0 m (with headboard) to king 1.9 x 1.2 x 2.2 m
-    "chair": (0.48, 0.75),  # 0.42 x 0.78 x 0.45 m to an armchair's 0.65 x 1.1 x 0.7 m
-    "desk": (0.65, 1.1),  # 1.0 x 0.72 x 0.5 m to 1.8 x 0.76 x 0.9 m
-    "dresser": (0.58, 1.0),  # 0.8 x 0.75 x 0.45 m to 1.6 x 1.1 x 0.55 m
-    "monitor": (0.28, 0.55),  # 0.45 x 0.35 x 0.18 m to 0.85 x 0.6 x 0.25 m, stand included
-    "night_stand": (0.35, 0.55),  # 0.4 x 0.5 x 0.35 m to 0.6 x 0.75 x 0.5 m
-    "sofa": (0.85, 1.45),  # a two-seater 1.4 x 0.8 x 0.8 m to 2.5 x 0.95 x 1.0 m
-    "table": (0.55, 1.2),  # a coffee table 0.9 x 0.45 x 0.5 m to a dining table 2.0 x 0.76 x 1.0 m
-    "toilet": (0.48, 0.62),  # 0.36 x 0.7 x 0.6 m to 0.45 x 0.85 x 0.75 m
+    name: c.real_radius_m for name, c in MODELNET10.items()
 }
 """Per category, the bounding radius (half the box's diagonal) of small and large real pieces,
 width x height x depth as furniture is made (Neufert, Architects' Data, 4th ed., 2012; Panero

@@ -38,22 +38,16 @@ from itnet.model.data import load_shapes, split_files
 from itnet.model.shapes import Shape
 from itnet.scene.camera import Intrinsics
 
-# Each category a scene may hold: (which extent, its range in metres): 'height' or 'length'
-# (the longest horizontal extent).
-SIZES: dict[str, tuple[str, tuple[float, float]]] = {
-    "chair": ("height", (0.8, 1.0)),
-    "table": ("length", (1.0, 1.8)),
-    "toilet": ("height", (0.7, 0.8)),
-    "bed": ("length", (1.9, 2.1)),
-    "bathtub": ("length", (1.5, 1.8)),
-    "sofa": ("length", (1.7, 2.2)),
-    "night_stand": ("height", (0.5, 0.65)),
-    "dresser": ("height", (0.8, 1.2)),
-    "desk": ("length", (1.0, 1.6)),
-}
 # The development scenes' categories (the default), in the order they are drawn: the desk joins
 # where asked (make_scene's ``categories``); the monitor stands on a desk, not on the floor.
 DEVELOPMENT = ("chair", "table", "toilet", "bed", "bathtub", "sofa", "night_stand", "dresser")
+# Each category a scene may hold, in that order: (which extent, its range in metres): 'height'
+# or 'length' (the longest horizontal extent): ``Category.scene_size``.
+SIZES: dict[str, tuple[str, tuple[float, float]]] = {
+    name: size
+    for name in (*DEVELOPMENT, "desk")
+    if (size := MODELNET10[name].scene_size) is not None
+}
 WITH_DESKS = (*DEVELOPMENT, "desk")
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")

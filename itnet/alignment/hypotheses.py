@@ -33,9 +33,6 @@ from itnet.symmetry import symmetry_group
 # Hypothesis sets are the symmetry groups of itnet.symmetry ('none', 'yaw180', 'yaw90', 'yaw');
 # the continuous 'yaw' is tried every 30 degrees.
 HYPOTHESIS_YAW_SAMPLES = 12
-CATEGORY_SYMMETRY = {"chair": "yaw90", "sofa": "yaw180", "bed": "yaw180", "toilet": "yaw180",
-                     "monitor": "yaw180", "bathtub": "yaw180", "table": "yaw90",
-                     "desk": "yaw180", "night_stand": "yaw90", "dresser": "yaw90"}  # fmt: skip
 
 
 def relative_pose(canonical_from_a: ArrayLike, canonical_from_b: ArrayLike) -> NDArray[np.float64]:
@@ -51,14 +48,17 @@ def symmetry_rotations(name: str) -> NDArray[np.float64]:
     return out
 
 
-def category_symmetry(category: str, declared: str = "none") -> str:
-    """The hypothesis set for a category whose model card declares the symmetry ``declared``
-    (``itnet.symmetry``): the declared group's turns when it has more than the category's usual
-    confusions (``yaw180`` when unknown). A chair's seat is nearly square, so a partial view of
-    it is often explained as well by a quarter turn."""
+def rival_turns(category: str, declared: str = "none") -> str:
+    """The symmetric turns an alignment tries as rivals for a category whose model card declares
+    the symmetry ``declared`` (``itnet.symmetry``): the declared group where it is wider than
+    the turns the category's views are often mistaken by (``Category.confusions``, in
+    ``itnet.model.categories``; ``yaw180`` for a category it does not know)."""
+    from itnet.model.categories import MODELNET10
+
     if declared in ("yaw", "yaw90"):
         return declared
-    return CATEGORY_SYMMETRY.get(category, "yaw180")
+    known = MODELNET10.get(category)
+    return "yaw180" if known is None else known.confusions
 
 
 @dataclass

@@ -98,12 +98,12 @@ class AlignRequest(BaseModel):
 
     def options(self, card: ModelCard, refine: bool) -> AlignOptions:
         """The alignment's knobs on the model of ``card``: its symmetry turns where ``auto``."""
-        from itnet.alignment.hypotheses import category_symmetry
+        from itnet.alignment.hypotheses import rival_turns
         from itnet.alignment.pipeline import AlignOptions
 
         symmetry = self.symmetry
         if symmetry == "auto":
-            symmetry = category_symmetry(card.category, card.symmetry)
+            symmetry = rival_turns(card.category, card.symmetry)
         return AlignOptions(symmetry=symmetry, refine=refine, budget_ms=self.budget_ms,
                             rivals=self.rivals, candidates=self.candidates,
                             finalists=self.finalists)  # fmt: skip

@@ -10,7 +10,8 @@ in metres (heavy-tailed, so an odd piece of furniture is not overruled), and::
 
 renormalised over the categories.
 
-The table is measured on ModelNet10's training shapes, their units read as inches (as the
+The table (``Category.height_m`` in ``itnet.model.categories``) is measured on ModelNet10's
+training shapes, their units read as inches (as the
 classifier's size prior reads them), the height their extent along ModelNet's up (+z):
 ``python -m itnet.model.heights --data ../shared/data/modelnet10`` measures it again.
 """
@@ -22,19 +23,11 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.model.categories import MODELNET10
 from itnet.size_prior import log_student_t
 
 HEIGHTS_M: dict[str, tuple[float, float]] = {
-    "bathtub": (0.63, 0.34),
-    "bed": (1.0, 0.39),
-    "chair": (0.94, 0.21),
-    "desk": (0.76, 0.09),
-    "dresser": (0.99, 0.37),
-    "monitor": (0.5, 0.47),
-    "night_stand": (0.66, 0.18),
-    "sofa": (0.83, 0.18),
-    "table": (0.73, 0.27),
-    "toilet": (0.77, 0.25),
+    name: c.height_m for name, c in MODELNET10.items() if c.height_m is not None
 }
 """Per category: (median height in metres, robust spread of its log: 1.4826 x MAD)."""
 

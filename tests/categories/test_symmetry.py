@@ -75,11 +75,11 @@ def test_symmetric_point_loss_takes_the_best_equivalent_target(rng):
 
 
 def test_alignment_hypotheses_cover_the_declared_symmetry():
-    from itnet.alignment.hypotheses import category_symmetry, symmetry_rotations
+    from itnet.alignment.hypotheses import rival_turns, symmetry_rotations
 
-    assert category_symmetry("chair") == "yaw90"  # the chair's usual confusions
-    assert category_symmetry("mug") == "yaw180"  # unknown category, no declared symmetry
-    assert category_symmetry("mug", "yaw") == "yaw"  # round: every 30 degrees
-    assert category_symmetry("table", "yaw180") == "yaw90"  # the table's confusions include it
+    assert rival_turns("chair") == "yaw90"  # the chair's usual confusions
+    assert rival_turns("mug") == "yaw180"  # unknown category, no declared symmetry
+    assert rival_turns("mug", "yaw") == "yaw"  # round: every 30 degrees
+    assert rival_turns("table", "yaw180") == "yaw90"  # the table's confusions include it
     turns = symmetry_rotations("yaw")
     assert len(turns) == 11 and np.allclose(turns @ [0.0, 1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0])
