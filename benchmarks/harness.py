@@ -202,6 +202,7 @@ class ClientPlan:
     fresh: bool = False  # a new TCP connection per request
     retry_s: float | None = None  # after a 503: None honours Retry-After, else this long
     cap: int = 10**9  # requests per process (at most)
+    threaded: bool = False  # a thread per client with a synchronous httpx.Client (else asyncio)
 
 
 async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float,
@@ -250,12 +251,59 @@ async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float
     return {"rows": rows, "health": health}
 
 
+def _client_threads(plan: ClientPlan, clients: int, start: float, stop: float) -> dict:
+    """``clients`` threads, each a synchronous ``httpx.Client`` in a closed loop, as many users
+    write them: send, read, send again at once; after a 503 wait ``retry_s`` (or Retry-After)."""
+    import math
+    import threading
+
+    rows: list[Row] = []
+    lock = threading.Lock()
+
+    def client() -> None:
+        with httpx.Client(base_url=plan.url, timeout=60) as http:
+            time.sleep(max(0.0, start - time.time()))
+            while time.time() < stop and len(rows) < plan.cap:
+                begin = time.perf_counter()
+                try:
+                    reply = http.post("/v1/estimate", content=plan.body, params=plan.params,
+                                      headers={"content-type": plan.content_type})  # fmt: skip
+                except httpx.HTTPError:
+                    with lock:
+                        rows.append((0, (time.perf_counter() - begin) * 1e3, math.nan, 0, 0.0))
+                    time.sleep(0.05)
+                    continue
+                ms = (time.perf_counter() - begin) * 1e3
+                if reply.status_code == 200:
+                    data = reply.json()
+                    last = data["estimates"][-1]["elapsed_ms"] if data["estimates"] else 0.0
+                    with lock:
+                        rows.append((200, ms, data["elapsed_ms"], data["iterations"], last))
+                    continue
+                with lock:
+                    rows.append((reply.status_code, ms, math.nan, 0, 0.0))
+                if reply.status_code == 503:
+                    wait = plan.retry_s
+                    time.sleep(float(reply.headers.get("retry-after", 1)) if wait is None
+                               else wait)  # fmt: skip
+
+    threads = [threading.Thread(target=client) for _ in range(clients)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return {"rows": rows, "health": []}
+
+
 def _client_process(plan: ClientPlan, clients: int, start: float, stop: float, probe: bool,
                     out: Any) -> None:  # fmt: skip
     import asyncio
     import resource
 
-    result = asyncio.run(_client_loop(plan, clients, start, stop, probe))
+    if plan.threaded:
+        result = _client_threads(plan, clients, start, stop)
+    else:
+        result = asyncio.run(_client_loop(plan, clients, start, stop, probe))
     usage = resource.getrusage(resource.RUSAGE_SELF)
     out.put({**result, "cpu_s": usage.ru_utime + usage.ru_stime})
 

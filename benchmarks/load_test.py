@@ -3,6 +3,8 @@
     python benchmarks/load_test.py                                  # 1, 4, 16, 64 clients
     python benchmarks/load_test.py --concurrency 1,4,16 --duration-s 20 --budget-ms 50
     python benchmarks/load_test.py --concurrency 1,16,64 --budget-ms 20 --batching on,off
+    python benchmarks/load_test.py --clients-kind threads --binary --chair --points 800 \
+        --budget-ms 20 --concurrency 1,4,16,64 --retry-s 0.05 --duration-s 8
 
 Starts a real ``itnet serve`` (uvicorn, the CLI's settings) on a free loopback port, then for
 each client count runs that many closed-loop clients (each sends its next request as soon as its
@@ -11,7 +13,9 @@ first. Every request is a JSON cloud of ``--points`` points with ``budget_ms``. 
 in processes of their own, ``--per-process`` to a process (one process's event loop driving 64
 clients on the server's cores counted its own queueing as the server's), keep their
 connections (``--fresh``: a new one per request) and honour ``Retry-After`` after a 503
-(``--retry-s 0.01``: retry after 10 ms instead). The machine's busy share and the CPU cores
+(``--retry-s 0.01``: retry after 10 ms instead). ``--clients-kind threads`` runs the clients as
+plain scripts do instead: a thread each with a synchronous ``httpx.Client``, all in one process.
+The machine's busy share and the CPU cores
 the server and the clients used are printed with each row.
 
 Per row: replies by status (200, 503 = refused by the concurrency gate), throughput, client
@@ -46,6 +50,15 @@ from itnet.service.benchmark import GOOD_ITERATIONS
 from itnet.service.settings import Settings
 
 JSON = {"content-type": "application/json"}
+
+
+def chair_cloud(points: int, seed: int = 0) -> np.ndarray:
+    """The example chair scan (itnet/examples/chair_a.ply) resampled to ``points`` (float32)."""
+    from itnet.cloud_io import read_cloud
+
+    scan = read_cloud(Path(__file__).resolve().parents[1] / "itnet/examples/chair_a.ply")
+    rng = np.random.default_rng(seed)
+    return scan[rng.choice(len(scan), points, replace=len(scan) < points)].astype(np.float32)
 
 
 def summarise(result: dict, clients: int, budget_ms: float) -> dict:
@@ -84,6 +97,7 @@ def summarise(result: dict, clients: int, budget_ms: float) -> dict:
         "overrun_p99_ms": percentile(overrun, 99),
         "overrun_max_ms": float(overrun.max()) if len(ok) else float("nan"),
         "iterations_mean": float(np.mean([r[3] for r in ok])) if ok else float("nan"),
+        "iterations_median": float(np.median([r[3] for r in ok])) if ok else float("nan"),
         "zero_iteration_share": float(np.mean([r[3] == 0 for r in ok])) if ok else float("nan"),
         "overruns_over_1ms": causes,
         **result["cpu"],
@@ -95,7 +109,7 @@ def table(rows: list[dict], margin_ms: float) -> str:
     lines = [
         "| batching | clients | requests | 200 / 503 / other | ok/s | ≥5 iterations/s | share of the "
         "first row's | round trip p50 / p99 ms | engine p50 / p99 / max ms | overrun p99 / max ms "
-        "| wall - budget p99 ms | iterations (mean) | budget held "
+        "| wall - budget p99 ms | iterations (mean / median) | budget held "
         "| CPU busy (machine) / server / clients |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -113,7 +127,8 @@ def table(rows: list[dict], margin_ms: float) -> str:
             f"{r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
             f"{r['engine_p50_ms']:.1f} / {r['engine_p99_ms']:.1f} / {r['engine_max_ms']:.1f} | "
             f"{r['overrun_p99_ms']:+.1f} / {r['overrun_max_ms']:+.1f} | "
-            f"{r['wall_minus_budget_p99_ms']:+.1f} | {r['iterations_mean']:.2f} | {held} | "
+            f"{r['wall_minus_budget_p99_ms']:+.1f} | {r['iterations_mean']:.2f} / "
+            f"{r.get('iterations_median', float('nan')):.0f} | {held} | "
             f"{r['machine_busy_share']:.0%} / {r['server_cores']:.2f} / {r['client_cores']:.2f} |"
         )
     return "\n".join(lines)
@@ -140,6 +155,15 @@ def main(
         -1.0, help="After a 503, wait this long (negative: honour Retry-After)."
     ),
     fresh: bool = typer.Option(False, help="A new connection per request (else keep-alive)."),
+    clients_kind: str = typer.Option(
+        "async",
+        help="'async' (asyncio loops, --per-process to a process) or 'threads' (a thread per "
+        "client with a synchronous httpx.Client, all in one process, as plain scripts do).",
+    ),
+    binary: bool = typer.Option(False, help="float32 bodies (the budget in the query)."),
+    chair: bool = typer.Option(
+        False, help="the cloud: the example chair scan resampled to --points (else a box)."
+    ),
     ensemble: int | None = typer.Option(
         None,
         min=1,
@@ -158,9 +182,15 @@ def main(
         max_concurrent = Settings().limits.max_concurrent_requests  # what the server will use
     env = {"ITNET_THREADS": str(threads), "ITNET_GC_FREEZE": str(gc_freeze).lower(),
            "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max_concurrent)}  # fmt: skip
-    cloud = sample_cloud(points)
+    if clients_kind not in ("async", "threads"):
+        raise typer.BadParameter(f"--clients-kind: 'async' or 'threads', not {clients_kind!r}")
+    cloud = chair_cloud(points) if chair else sample_cloud(points)
     fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
     body = json.dumps({"points": cloud.tolist(), **fields}).encode()
+    sent, content_type, params = body, JSON["content-type"], None
+    if binary:
+        sent, content_type = cloud.astype("<f4").tobytes(), "application/octet-stream"
+        params = {k: str(v) for k, v in fields.items()}
     rows = []
     settings = [b.strip() for b in batching.split(",") if b.strip()]
     if not settings or set(settings) - {"on", "off"}:
@@ -174,20 +204,22 @@ def main(
                                   timeout=30).status_code == 200  # fmt: skip
             rss_before = server.rss_mb()
             for clients in (int(c) for c in concurrency.split(",")):
-                procs = -(-clients // per_process)
-                plan = ClientPlan(server.url, body, fresh=fresh,
+                threaded = clients_kind == "threads"
+                per = clients if threaded else per_process
+                procs = -(-clients // per)
+                plan = ClientPlan(server.url, sent, content_type, params, fresh=fresh,
                                   retry_s=None if retry_s < 0 else retry_s,
-                                  cap=max(1, max_requests // procs))  # fmt: skip
+                                  cap=max(1, max_requests // procs), threaded=threaded)  # fmt: skip
                 meter = CpuMeter(server.process.pid)
                 meter.start()
-                result = run_clients(plan, clients, duration_s, per_process)
+                result = run_clients(plan, clients, duration_s, per)
                 result["cpu"] = meter.stop()
                 rows.append({"batching": setting, **summarise(result, clients, budget_ms)})
                 typer.echo(f"{clients} clients: {json.dumps(rows[-1])}", err=True)
             health[setting] = httpx.get(f"{server.url}/healthz", timeout=5).status_code
             rss[setting] = f"{rss_before:.0f} -> {server.rss_mb():.0f} MiB"
-    typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points (JSON, "
-               f"{len(body):,} bytes); budget {budget_ms:g} ms; ensemble {ensemble or 'by the card'}; "
+    typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points "
+               f"({'float32' if binary else 'JSON'}, {len(sent):,} bytes); {clients_kind} clients; budget {budget_ms:g} ms; ensemble {ensemble or 'by the card'}; "
                f"{workers} server process(es), "
                f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip

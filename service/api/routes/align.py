@@ -117,7 +117,7 @@ def _align(state: ServiceState, body: bytes, arrived: float) -> dict[str, Any]:
             raise ServiceError(422, "refine_unavailable", str(err)) from None
         refine = False
     options = request.options(model.card, refine)
-    estimate = in_process_estimator(state.catalog, request.pose_request(model.card.name))
+    estimate = in_process_estimator(state.catalog, request.pose_request(model.card.name), arrived)
     ups = {"up_a": request.up_a, "up_b": request.up_b}
     try:
         result = align_clouds(clouds[0], clouds[1], estimate, options, **ups, started=arrived)
