@@ -3,11 +3,12 @@ doubt, the likeliest.
 
 The steps::
 
-    pose_a, pose_b = estimate(A), estimate(B)   # together: both clouds' steps share the calls
+    pose_a, pose_b = estimate(A), estimate(B)   # admitted as one request, run in turn
     composed = inv(T_b) · T_a                   # the prior: the two served poses composed
     composed+icp = ICP(composed)                # with refine=True
     p = probability(evidence)                   # ``itnet.alignment.choice``: calibrated
-    if max p < sure:                            # in doubt: the rivals
+    if max p < sure or a rival lands            # in doubt: the rivals
+            clearly more of A on B (loosely):
         hypotheses = inv(T_b[j]) · S · T_a[i]   # every run of A and of B, every symmetry turn
         rivals = the distinct ones that overlap best, each refined by ICP
     chosen = the likeliest (the composed pose unless a rival is more likely right; refined by
@@ -26,8 +27,9 @@ Where the caller knows which way is up in a cloud (``up_a``, ``up_b``: gravity f
 floor's normal), its pose is estimated held upright (``itnet.upright``). Models whose card
 requires up (the night stand) align only this way.
 
-The pose estimator is passed in (a callable), so this module does no I/O and loads no model: the
-CLI gives it an in-process pipeline or an HTTP client, the benchmark the same.
+The pose estimator is passed in (a callable; ``itnet.alignment.estimators`` has the in-process
+one that every path uses, ``POST /v1/align`` included), so this module does no I/O and loads no
+model, and the tests give it estimators that know the truth.
 """
 
 from __future__ import annotations
