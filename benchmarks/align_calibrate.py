@@ -23,16 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.align_pairs import GENERATORS, make_pairs, split_shapes
+from benchmarks.report import reliability
 from itnet.alignment.choice import FEATURES, Calibration, fit_logistic, probability
 from itnet.alignment.estimators import in_process_estimator
 from itnet.alignment.hypotheses import rival_turns
 from itnet.alignment.pipeline import AlignOptions, align_clouds
+from itnet.metrics import paired_accuracy
 from itnet.pose.catalog import Catalog
 from itnet.pose.request import PoseRequest
 
 ROOT = Path(__file__).resolve().parents[1]
 SURE = (0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
-BINS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 
 
 def collect(catalog: Catalog, category: str, generator: str, pairs: int, seed: int,
@@ -80,23 +81,6 @@ def replay(records: list[dict], calibration: Calibration, sure: float) -> dict:
         composed.append(r["right"][0])
     return {"right": np.array(chosen), "probability": np.array(probs),
             "rivals": np.array(rivals), "composed": np.array(composed)}  # fmt: skip
-
-
-def paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """Mean and standard error of the paired difference a - b (booleans)."""
-    d = a.astype(float) - b.astype(float)
-    return float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
-
-
-def reliability(probs: np.ndarray, right: np.ndarray) -> list[dict]:
-    rows = []
-    for lo, hi in zip(BINS[:-1], BINS[1:]):
-        inside = (probs >= lo) & ((probs < hi) | (hi == 1.0))
-        if inside.any():
-            rows.append({"from": lo, "to": hi, "pairs": int(inside.sum()),
-                         "mean_probability": round(float(probs[inside].mean()), 3),
-                         "right": round(float(right[inside].mean()), 3)})  # fmt: skip
-    return rows
 
 
 def main() -> None:
@@ -162,7 +146,14 @@ def main() -> None:
             f"{k} {v['right']:.1%} vs {v['composed']:.1%} ({v['gain']:+.1%} ± {v['se']:.1%}), "
             f"rivals {v['rivals']:.0%}" for k, v in line.items() if k in ("all", *groups)))  # fmt: skip
     out = replay(records, fitted, 0.9)
-    report["reliability"] = reliability(out["probability"], out["right"])
+    report["reliability"] = [
+        {
+            **row,
+            "mean_probability": round(row["mean_probability"], 3),
+            "right": round(row["right"], 3),
+        }
+        for row in reliability(out["probability"], out["right"])
+    ]
     for row in report["reliability"]:
         print(row)
     if args.write is not None:
@@ -173,9 +164,10 @@ def main() -> None:
 
 
 def _summary(out: dict, mask: np.ndarray) -> dict:
-    gain, se = paired(out["right"][mask], out["composed"][mask])
+    paired = paired_accuracy(out["right"][mask], out["composed"][mask])
     return {"pairs": int(mask.sum()), "right": float(out["right"][mask].mean()),
-            "composed": float(out["composed"][mask].mean()), "gain": gain, "se": se,
+            "composed": float(out["composed"][mask].mean()), "gain": paired["gain"] / 100,
+            "se": paired["gain_stderr"] / 100,
             "rivals": float(out["rivals"][mask].mean())}  # fmt: skip
 
 

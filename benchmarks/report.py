@@ -7,8 +7,9 @@ import re
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
-from itnet.metrics import ROTATION_THRESHOLD_DEG, TRANSLATION_THRESHOLD
+from itnet.metrics import ROTATION_THRESHOLD_DEG, TRANSLATION_THRESHOLD, paired_accuracy
 
 
 def summary(outcome) -> dict:  # type: ignore[no-untyped-def]
@@ -26,19 +27,29 @@ def summary(outcome) -> dict:  # type: ignore[no-untyped-def]
 RELIABILITY_BINS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 
 
+def reliability(probabilities: NDArray, right: NDArray) -> list[dict]:
+    """Of the answers given each probability (RELIABILITY_BINS), how many were right: is the
+    probability calibrated? -> a row per bin that holds any."""
+    rows = []
+    for lo, hi in zip(RELIABILITY_BINS[:-1], RELIABILITY_BINS[1:]):
+        inside = (probabilities >= lo) & ((probabilities < hi) | (hi == 1.0))
+        if inside.any():
+            rows.append({"from": lo, "to": hi, "pairs": int(inside.sum()),
+                         "mean_probability": float(probabilities[inside].mean()),
+                         "right": float(right[inside].mean())})  # fmt: skip
+    return rows
+
+
 def reliability_table(outcome) -> list[str]:  # type: ignore[no-untyped-def]
-    """Of the answers given each probability, how many were right: is it calibrated?"""
+    """``reliability`` of an itnet-align Outcome as markdown lines ([] without probabilities)."""
     prob = np.array([i.get("probability", np.nan) for i in outcome.info])
     if np.isnan(prob).all():
         return []
-    ok = outcome.success()
-    rows = ["| probability | pairs | mean probability | right |", "|---|---|---|---|"]
-    for lo, hi in zip(RELIABILITY_BINS[:-1], RELIABILITY_BINS[1:]):
-        sel = (prob >= lo) & ((prob < hi) | (hi == 1.0))
-        if sel.any():
-            rows.append(f"| {lo:.2f}–{hi:.2f} | {int(sel.sum())} | {prob[sel].mean():.2f} | "
-                        f"{ok[sel].mean():.0%} |")  # fmt: skip
-    return rows
+    lines = ["| probability | pairs | mean probability | right |", "|---|---|---|---|"]
+    for row in reliability(prob, outcome.success()):
+        lines.append(f"| {row['from']:.2f}–{row['to']:.2f} | {row['pairs']} | "
+                     f"{row['mean_probability']:.2f} | {row['right']:.0%} |")  # fmt: skip
+    return lines
 
 
 def hypothesis_counts(outcome) -> str:  # type: ignore[no-untyped-def]
@@ -77,13 +88,13 @@ def _subset(outcome, keep: np.ndarray):  # type: ignore[no-untyped-def]
 
 
 def paired_line(results: dict, name: str, reference: str) -> str:
-    """'+x.x ± s.e. points' of ``name`` over ``reference`` on the same pairs."""
-    a = results[name].success().astype(float)
-    b = results[reference].success().astype(float)
+    """'+x.x ± s.e. points' of ``name`` over ``reference`` on the same pairs
+    (``itnet.metrics.paired_accuracy``)."""
+    a, b = results[name].success(), results[reference].success()
     if len(a) != len(b) or len(a) < 2:
         return "–"
-    d = a - b
-    return f"{100 * d.mean():+.1f} ± {100 * d.std(ddof=1) / np.sqrt(len(d)):.1f} points"
+    paired = paired_accuracy(a, b)
+    return f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f} points"
 
 
 def method_rows(results: dict) -> list[str]:

@@ -49,17 +49,11 @@ def align(
     refused."""
     from itnet.alignment.estimators import in_process_estimator
     from itnet.alignment.pipeline import align_clouds
-    from itnet.alignment.refine import RefineUnavailable, require_open3d
+    from itnet.alignment.refine import refine_wanted
     from itnet.alignment.request import AlignRequest
 
     request = request or AlignRequest()
-    refine = request.refine if refine is None else refine
-    if refine is None:
-        try:
-            require_open3d()
-            refine = True
-        except RefineUnavailable:
-            refine = False
+    refine = refine_wanted(request.refine if refine is None else refine)
     card = catalog.model(request.model).card
     estimate = in_process_estimator(catalog, request.pose_request(card.name))
     return align_clouds(points_a, points_b, estimate, request.options(card, refine),

@@ -16,8 +16,8 @@ Pure numpy. A candidate T_b_from_a is judged by what can be measured without the
   a rival must explain the geometry better than the prior to be believed.
 
 ``probability`` maps these through a logistic model fitted on validation pairs of every pair
-generator and several categories (``CALIBRATION``, ``python -m benchmarks.bench_align
---calibrate``), so that of the alignments it calls 90% sure about 90% are right
+generator and several categories (``CALIBRATION``, ``python -m benchmarks.align_calibrate``),
+so that of the alignments it calls 90% sure about 90% are right
 (docs/align.md). ``choose`` keeps the composed poses unless a rival is more likely right.
 """
 

@@ -1,8 +1,8 @@
 """Pose estimators for ``itnet.alignment.pipeline``: the served pose, in-process or from a service.
 
 ``InProcessEstimator`` is a callable ``(cloud (N, 3), up (3,) or None) -> PoseEstimate``, and
-poses an alignment's two clouds together (``together``: admitted as one request, their steps in
-the same network calls): each cloud's pose as
+poses an alignment's two clouds together (``together``: admitted as one request, run in turn on
+one clock): each cloud's pose as
 ``itnet pose`` serves it for the request ``cloud_request`` makes of the alignment's (its share
 of the alignment's budget, ``ALIGN_RUNS`` fused runs unless the request names its ensemble; the
 verifier, mirror and centre finishes, ``up`` where given), with each run's own pose as the
@@ -74,19 +74,17 @@ class InProcessEstimator:
         self.request = cloud_request(request)
 
     def __call__(self, points: NDArray[np.float64], up: NDArray | None = None) -> PoseEstimate:
-        """One cloud's pose. Raises ``itnet.pose.errors.PoseError`` for a cloud or request the
-        pipeline refuses."""
-        asked = _with_up(self.request, up)
-        replies = [self.catalog.pose(points, asked, self.started)]
-        if int(replies[0]["ensemble"]) < self.alternatives:
-            more = asked.model_copy(update={"ensemble": self.alternatives})
-            replies.append(self.catalog.pose(points, more, self.started))
-        return _estimate(replies)
+        """One cloud's pose (``together`` of one). Raises ``itnet.pose.errors.PoseError`` for a
+        cloud or request the pipeline refuses."""
+        try:
+            return self.together([points], [up])[0]
+        except CloudEstimateError as err:
+            raise err.__cause__ from None  # type: ignore[misc]
 
     def together(self, clouds: list[NDArray[np.float64]],
                  ups: list[NDArray | None]) -> list[PoseEstimate]:  # fmt: skip
-        """The poses of an alignment's clouds, admitted together and run at once. Raises
-        CloudEstimateError naming the cloud refused (``__cause__``: the PoseError)."""
+        """The poses of an alignment's clouds, admitted together as one request and run in turn.
+        Raises CloudEstimateError naming the cloud refused (``__cause__``: the PoseError)."""
         asked = [_with_up(self.request, up) for up in ups]
         replies = [[r] for r in self._together(clouds, asked)]
         if int(replies[0][0]["ensemble"]) < self.alternatives:

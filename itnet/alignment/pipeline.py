@@ -98,7 +98,7 @@ class CloudEstimateError(Exception):
 # The composed pose at or above this calibrated probability is answered without scoring rivals
 # (docs/align.md: chosen on validation pairs of every generator).
 SURE = 0.9
-POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses (run together)
+POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses
 DOUBT_LOOSE = 0.1  # a rival landing this much more of A on B (loosely) puts the composed in doubt
 
 
@@ -197,7 +197,7 @@ def _pose(estimate: PoseEstimator, points: NDArray, name: str, up: NDArray | Non
 def _poses(estimate: PoseEstimator, a: NDArray, b: NDArray,
            ups: list[NDArray | None]) -> tuple[PoseEstimate, PoseEstimate]:  # fmt: skip
     """Both clouds' served poses: together where the estimator can (``together``: admitted as
-    one request, their steps batched into the same network calls), else one after the other."""
+    one request), else each on its own."""
     together = getattr(estimate, "together", None)
     if together is not None:
         pose_a, pose_b = together([a, b], ups)

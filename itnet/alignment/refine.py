@@ -9,6 +9,7 @@ T_target_from_source = T_b_from_a (4x4, B's units).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,6 +34,23 @@ class RefineResult:
 def require_open3d() -> None:
     """Import open3d now (about half a second), or raise RefineUnavailable saying how to get it."""
     _open3d()
+
+
+def refine_wanted(asked: bool | None, note: Callable[[str], None] | None = None) -> bool:
+    """Whether an alignment refines with ICP: ``asked`` False: no; True: yes, RefineUnavailable
+    where open3d is absent; None (the default): where open3d imports (imported now, so that no
+    request's time pays for it), else no, with the reason told to ``note``."""
+    if asked is False:
+        return False
+    try:
+        require_open3d()
+    except RefineUnavailable as err:
+        if asked:
+            raise
+        if note is not None:
+            note(str(err))
+        return False
+    return True
 
 
 def _open3d() -> Any:

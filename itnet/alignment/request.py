@@ -32,8 +32,8 @@ class AlignRequest(BaseModel):
     budget_ms: float = Field(
         default=DEFAULT_BUDGET_MS,
         gt=0,
-        description="time budget of the whole alignment, ms: both clouds' poses (run together) "
-        "and the choice between the hypotheses",
+        description="time budget of the whole alignment, ms: both clouds' poses and the choice "
+        "between the hypotheses",
     )
     max_iterations: int | None = Field(
         default=None, ge=1, description="iteration cap of each pose (default: the model's)"
@@ -49,7 +49,7 @@ class AlignRequest(BaseModel):
     )
     symmetry: str = Field(
         default="auto",
-        pattern="^(auto|none|yaw180|yaw90|yaw)$",
+        pattern=f"^({'|'.join(SYMMETRY_CHOICES)})$",
         description="symmetry turns tried as rivals: auto (the model's category and card), "
         "none, yaw180, yaw90, yaw",
     )

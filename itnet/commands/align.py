@@ -17,7 +17,7 @@ import numpy as np
 import typer
 
 from itnet.alignment.request import DEFAULT_BUDGET_MS, AlignRequest, align_help
-from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.commands import UNITS_HELP, check_units, check_xyz, from_options
 
 LOW_PROBABILITY = 0.5
 
@@ -91,7 +91,7 @@ def align(
     ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
     if model == "auto":
         model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups)
-    request = _request(model=model, budget_ms=budget_ms, max_iterations=max_iterations,
+    request = from_options(AlignRequest, model=model, budget_ms=budget_ms, max_iterations=max_iterations,
                        starts=starts, refine=refine, symmetry=symmetry, rivals=rivals,
                        candidates=candidates,
                        finalists=finalists, viewpoint=viewpoint, units=units, **ups)  # fmt: skip
@@ -118,33 +118,16 @@ def align(
         )
 
 
-def _request(**options: Any) -> AlignRequest:
-    """The CLI's options -> AlignRequest, or a typer error (exit 2) naming the option."""
-    from pydantic import ValidationError
-
-    try:
-        return AlignRequest.model_validate(options)
-    except ValidationError as err:
-        first = err.errors(include_url=False)[0]
-        name = "--" + str(first["loc"][0]).replace("_", "-") if first["loc"] else "options"
-        _fail(f"{name}: {first['msg']}")
-
-
 def _refine(asked: bool | None) -> bool:
-    """Whether ICP runs: asked for and open3d importable (fail where asked for by name and
-    absent), or not."""
-    from itnet.alignment.refine import RefineUnavailable, require_open3d
+    """Whether ICP runs (``itnet.alignment.refine.refine_wanted``): exit 1 where it was asked for
+    by name and open3d is absent; a note on stderr where the default finds it absent."""
+    from itnet.alignment.refine import RefineUnavailable, refine_wanted
 
-    if asked is False:
-        return False
     try:
-        require_open3d()  # imported up front, so the reported time is the work's
-        return True
+        return refine_wanted(asked, lambda why: typer.echo(f"note: no ICP refinement: {why}",
+                                                           err=True))  # fmt: skip
     except RefineUnavailable as err:
-        if asked:
-            _fail(str(err), code=1)
-        typer.echo(f"note: no ICP refinement: {err}", err=True)
-        return False
+        _fail(str(err), code=1)
 
 
 def _align_here(request: AlignRequest, model_dir: Path | None, points_a: Any, points_b: Any,

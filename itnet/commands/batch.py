@@ -106,7 +106,7 @@ def align(
 ) -> None:
     """T_b_from_a of every pair of a manifest, as `itnet align --json` gives it, in one table."""
     _require_ray()
-    from itnet.alignment.refine import RefineUnavailable, require_open3d
+    from itnet.alignment.refine import RefineUnavailable, refine_wanted
     from itnet.alignment.request import SYMMETRY_CHOICES
     from itnet.commands.in_process import get_model
     from itnet.scale.inputs import InputError, read_manifest
@@ -118,15 +118,11 @@ def align(
         pairs = read_manifest(manifest)
     except InputError as err:
         _fail(str(err))
-    if refine is not False:
-        try:
-            require_open3d()
-            refine = True
-        except RefineUnavailable as err:
-            if refine:
-                _fail(str(err))
-            typer.echo(f"note: no ICP refinement: {err}", err=True)
-            refine = False
+    try:
+        refine = refine_wanted(refine, lambda why: typer.echo(f"note: no ICP refinement: {why}",
+                                                              err=True))  # fmt: skip
+    except RefineUnavailable as err:
+        _fail(str(err))
     request = {"budget_ms": budget_ms, "max_iterations": max_iterations, "starts": starts,
                "refine": refine, "symmetry": symmetry, "candidates": candidates,
                "finalists": finalists}  # fmt: skip

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.commands import UNITS_HELP, check_units, check_xyz, from_options
 from itnet.commands import recordings as rec
 from itnet.pose.request import field_help
 
@@ -128,16 +128,7 @@ def pose_row(path: Path, start: Callable[[NDArray[np.float64]], AnytimeRun]) -> 
 
 
 def request_from_options(**options: Any) -> PoseRequest:
-    """The CLI's options (text for 'x,y,z' directions) -> PoseRequest, or a typer error (exit 2)
-    saying which option is wrong."""
-    from pydantic import ValidationError
-
+    """The CLI's options -> PoseRequest (``itnet.commands.from_options``)."""
     from itnet.pose.request import PoseRequest
 
-    try:
-        return PoseRequest.model_validate(options, strict=False)
-    except ValidationError as err:
-        first = err.errors(include_url=False)[0]
-        name = "--" + str(first["loc"][0]).replace("_", "-") if first["loc"] else "options"
-        typer.echo(f"error: {name}: {first['msg']}", err=True)
-        raise typer.Exit(2) from None
+    return from_options(PoseRequest, **options)

@@ -121,7 +121,7 @@ class Catalog:
         """Hold ``runs`` (one request's) among the admitted while they run, then check that each
         served a pose. Raises OverloadedError (the work admitted leaves them no room, or no step
         fit a budget) or BudgetTooSmallError (one step is longer than the budget, or, with no
-        other run admitted, the request's own decoding left no room for one)."""
+        other run admitted, the request's own decoding alone passed its budget)."""
         alone = self.admission.running == 0
         with self.admission.admit(*runs):
             yield
@@ -134,18 +134,13 @@ class Catalog:
         both quaternions, ``iterations``, ``stopped_by``, ...), admitted beside the runs this
         catalog poses at once, its budget counted from ``started`` (default now); never a start
         without a step. Raises PoseError subclasses."""
-        run = self.start(points, request or PoseRequest(), started)
-        with self.serving(run):
-            run.run_to_end()
-        return run.result()
+        return self.pose_together([self.start(points, request or PoseRequest(), started)])[0]
 
     def pose_together(self, runs: list[AnytimeRun]) -> list[dict]:
         """The finished poses of ``runs`` (started by ``start``: one request's clouds, such as an
         alignment's two), admitted together as one request, run one after the other on their
-        shared clock. (In a thread each their steps would share the network calls, but on two
-        cores the threads cost more than the calls save: two 4-run chair poses took 69 ms
-        together against 53 ms in turn.) Raises PoseError subclasses, those of the first run
-        that served no pose first."""
+        shared clock (in a thread each, on two cores, they took longer: docs/align.md). Raises
+        PoseError subclasses, those of the first run that served no pose first."""
         with self.serving(*runs):
             for run in runs:
                 run.run_to_end()

@@ -270,8 +270,8 @@ class AnytimeRun(Iterator[Estimate]):
         than the whole budget on an idle machine, or where the run was ``alone`` (no other run
         admitted beside it) and its own decoding (``decode_ms``) alone passed the budget:
         retrying the same request cannot succeed. (Decoding that left too little for a step,
-        but did not pass the budget itself, is a busy moment: a retry may succeed.) Else OverloadedError (503: the machine was
-        too busy, or the request too slow to arrive)."""
+        but did not pass the budget itself, is a busy moment: a retry may succeed.) Else
+        OverloadedError (503: the machine was too busy, or the request too slow to arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
         step_ms = self.plan.first_step_ms(len(self.cloud))  # on an idle machine: not the load

@@ -88,7 +88,7 @@ def _align(state: ServiceState, body: bytes, arrived: float) -> dict[str, Any]:
     """Decode, check against the limits, align (CPU: runs in a worker thread)."""
     from itnet.alignment.estimators import in_process_estimator
     from itnet.alignment.pipeline import CloudEstimateError, align_clouds
-    from itnet.alignment.refine import RefineUnavailable, require_open3d
+    from itnet.alignment.refine import RefineUnavailable, refine_wanted
 
     request = _parse(body)
     model = state.model(request.model)
@@ -107,15 +107,10 @@ def _align(state: ServiceState, body: bytes, arrived: float) -> dict[str, Any]:
             clouds.append(validate_cloud(points, limits.engine_limits()))
         except BadCloudError as err:
             raise ServiceError(422, "bad_cloud", f"cloud {label}: {err}") from None
-    refine = request.refine
     try:
-        if refine is not False:
-            require_open3d()
-            refine = True
+        refine = refine_wanted(request.refine)
     except RefineUnavailable as err:
-        if refine:
-            raise ServiceError(422, "refine_unavailable", str(err)) from None
-        refine = False
+        raise ServiceError(422, "refine_unavailable", str(err)) from None
     options = request.options(model.card, refine)
     estimate = in_process_estimator(state.catalog, request.pose_request(model.card.name), arrived)
     ups = {"up_a": request.up_a, "up_b": request.up_b}
