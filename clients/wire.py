@@ -20,15 +20,17 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.pose.request import PoseRequest
+from itnet.pose.request import PoseRequest, Xyz
 
 if TYPE_CHECKING:
+    from pydantic import BaseModel
+
     from itnet.alignment.request import AlignRequest
 
 ESTIMATE_PATH = "/v1/estimate"
@@ -141,37 +143,41 @@ def as_cloud(points: ArrayLike) -> NDArray[np.float64]:
     return cloud
 
 
+Request = TypeVar("Request", bound="BaseModel")
+
+
+def _with_fields(kind: type[Request], what: str, request: Request | None,
+                 fields: dict[str, Any]) -> Request:  # fmt: skip
+    """``request`` (default: the service's defaults) with ``fields`` (any of ``kind``'s) set on
+    top; arrays and tuples of a direction field (``Xyz``) as the JSON lists it takes. Raises
+    TypeError naming an unknown field (``what`` says whose), ValueError (pydantic's) for a value
+    it refuses."""
+    unknown = sorted(set(fields) - set(kind.model_fields))
+    if unknown:
+        raise TypeError(f"unknown {what} option(s) {', '.join(map(repr, unknown))}")
+    base = {} if request is None else request.model_dump(exclude_unset=True)
+    values = {k: v for k, v in {**base, **fields}.items() if v is not None}
+    for name, spec in kind.model_fields.items():
+        if name in values and spec.annotation == Xyz:
+            values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
+    return kind.model_validate(values, strict=False)
+
+
 def pose_request(request: PoseRequest | None, fields: dict[str, Any]) -> PoseRequest:
     """The request to send: ``request`` (default: the service's defaults) with ``fields`` (any
     of PoseRequest's: budget_ms, max_iterations, model, ensemble, mirror, verify, recheck,
     centre, viewpoint, up, units) set on top. Raises TypeError for a name PoseRequest does not
     have, ValueError (pydantic's) for a value it refuses."""
-    unknown = sorted(set(fields) - set(PoseRequest.model_fields))
-    if unknown:
-        raise TypeError(f"unknown request option(s) {', '.join(map(repr, unknown))}")
-    base = {} if request is None else request.model_dump(exclude_unset=True)
-    values = {k: v for k, v in {**base, **fields}.items() if v is not None}
-    for name in ("viewpoint", "up"):  # arrays and tuples as the JSON lists PoseRequest takes
-        if name in values:
-            values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
-    return PoseRequest.model_validate(values, strict=False)
+    return _with_fields(PoseRequest, "request", request, fields)
 
 
 def align_request(request: AlignRequest | None, fields: dict[str, Any]) -> AlignRequest:
     """The alignment request to send: ``request`` (default: the service's defaults) with
-    ``fields`` (any of AlignRequest's) set on top; directions as lists. Raises TypeError for a
-    name AlignRequest does not have, ValueError (pydantic's) for a value it refuses."""
+    ``fields`` (any of AlignRequest's) set on top. Raises TypeError for a name AlignRequest
+    does not have, ValueError (pydantic's) for a value it refuses."""
     from itnet.alignment.request import AlignRequest
 
-    unknown = sorted(set(fields) - set(AlignRequest.model_fields))
-    if unknown:
-        raise TypeError(f"unknown alignment option(s) {', '.join(map(repr, unknown))}")
-    base = {} if request is None else request.model_dump(exclude_unset=True)
-    values = {k: v for k, v in {**base, **fields}.items() if v is not None}
-    for name in ("up_a", "up_b", "viewpoint"):
-        if name in values:
-            values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
-    return AlignRequest.model_validate(values)
+    return _with_fields(AlignRequest, "alignment", request, fields)
 
 
 def request_fields(request: PoseRequest) -> dict[str, Any]:
