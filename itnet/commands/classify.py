@@ -358,7 +358,8 @@ def classify_train(
     views: str = typer.Option(
         "occluded,paper",
         help="View rules of training, validation and test, comma-separated: occluded, paper, "
-        "surface (docs/training.md).",
+        "surface, base_hidden, each as rendered or by a depth camera (RULE+SENSOR, e.g. "
+        "occluded+kinect_v2: at real sizes; docs/training.md).",
     ),
     elevation: str | None = typer.Option(
         None,
@@ -423,12 +424,14 @@ def classify_train(
     ),
 ) -> None:
     """Train one classifier (resumable), e.g. the shipped one: a table row trained longer."""
+    from itnet.model.classify.data import view_configs
     from itnet.model.classify.train import ClassifyConfig, train
-    from itnet.model.scanner import VIEW_RULES
 
     rules = tuple(rule.strip() for rule in views.split(",") if rule.strip())
-    if not rules or any(rule not in VIEW_RULES for rule in rules):
-        raise typer.BadParameter(f"view rules among {', '.join(VIEW_RULES)}", param_hint="--views")
+    try:
+        view_configs(rules or ("",))
+    except ValueError as error:
+        raise typer.BadParameter(str(error), param_hint="--views") from error
     low_high = None if elevation is None else _degrees_range(elevation, "--elevation")
     config = ClassifyConfig(
         data=data,

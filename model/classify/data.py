@@ -5,7 +5,8 @@
   frame does not matter for the label).
 * Views: the project's scanner, half occluded views, half ``PAPER_VIEWS`` (as pose training), or
   other view rules, from any direction or from a camera above the shape's horizon
-  (``view_configs``).
+  (``view_configs``), as rendered or by a depth camera (``RULE+SENSOR``, ``model.sensor``): each
+  shape then at its class's real size (``model.categories.real_radius_m``), seen from 1-6 m.
   Training views are fresh every step (seeded per step, so a resumed run sees the same data);
   validation and test views are fixed and cached.
 * Every view is normalised as the runtime does (``itnet.preprocess``) and resampled to a fixed
@@ -18,14 +19,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.model.categories import real_radius_m
 from itnet.model.data import cached_scan_set, load_shapes, split_files
-from itnet.model.scanner import VIEW_RULES, ScanConfig, scan_config, scan_of
+from itnet.model.scanner import VIEW_RULES, ScanConfig, scan_config, scan_of, sensor_views
 from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
 from itnet.upright import levelled, sensed_ups, tilted
@@ -41,10 +43,21 @@ def class_names(data: Path) -> list[str]:
 
 @dataclass
 class LabelledShapes:
-    """Shapes of one split with their class index (labels (S,) int64)."""
+    """Shapes of one split with their class index (labels (S,) int64) and the class names
+    (``names[label]``; what gives views by a depth camera their real size)."""
 
     shapes: list[Shape]
     labels: NDArray[np.int64]
+    names: tuple[str, ...] = ()
+
+    def sized(self, config: ScanConfig, label: int) -> ScanConfig:
+        """``config`` for a shape of class ``label``: by a depth camera, at the class's real
+        size; a rendered view as it is."""
+        if config.sensor == "clean":
+            return config
+        if not self.names:
+            raise ValueError("views by a depth camera need the class names (LabelledShapes.names)")
+        return replace(config, radius_m=tuple(real_radius_m(self.names[label])))
 
 
 def load_splits(
@@ -59,7 +72,7 @@ def load_splits(
             loaded, _ = load_shapes(files[split], "modelnet", cache, check_orientation=False)
             shapes += loaded
             labels += [label] * len(loaded)
-        splits[split] = LabelledShapes(shapes, np.array(labels, dtype=np.int64))
+        splits[split] = LabelledShapes(shapes, np.array(labels, dtype=np.int64), tuple(classes))
     return splits
 
 
@@ -109,7 +122,7 @@ def training_batch(
         shape = data.shapes[i]
         if stretch > 1:
             shape = stretched(shape, random_stretch(rng, stretch))
-        config = configs[int(rng.integers(len(configs)))]
+        config = data.sized(configs[int(rng.integers(len(configs)))], int(data.labels[i]))
         cloud, canonical_from_view = scan_of(shape, rng, config)
         x[b] = normalised_view(cloud, points, rng)  # a shift and a scale: directions keep
         up[b] = canonical_from_view[1, :3]  # R^T e_y: the canonical +y in the view's frame
@@ -122,10 +135,18 @@ def training_batch(
 def view_configs(
     rules: tuple[str, ...] = ("occluded", "paper"), elevation: tuple[float, float] | None = None
 ) -> list[ScanConfig]:
-    """The scanner settings of named view rules (``VIEW_RULES``), each from any direction or, with
+    """The scanner settings of named view rules (``VIEW_RULES``; ``RULE+SENSOR``: by that depth
+    camera, the size left to ``LabelledShapes.sized``), each from any direction or, with
     ``elevation`` (degrees), from a camera that high over the shape's horizon."""
     extra = {} if elevation is None else {"elevation": tuple(elevation)}
-    return [scan_config(VIEW_RULES[rule], extra) for rule in rules]
+    configs = []
+    for name in rules:
+        rule, _, sensor = name.partition("+")
+        if rule not in VIEW_RULES:
+            raise ValueError(f"unknown view rule {rule!r} (known: {', '.join(VIEW_RULES)})")
+        camera = {"sensor": sensor_views(sensor, (0.5, 0.5))["sensor"]} if sensor else {}
+        configs.append(scan_config(VIEW_RULES[rule], camera, extra))
+    return configs
 
 
 def fixed_views(
@@ -146,11 +167,20 @@ def fixed_views(
     xs, ys = [], []
     rng = np.random.default_rng(seed + 11)
     for k, config in enumerate(configs):
-        scans = cached_scan_set(data.shapes, per_config, seed + k, config, cache)
-        clouds = [normalised_view(c, points, rng) for c in scans.clouds]
-        if upright is not None:
-            ups = sensed_ups(scans.poses, upright, np.random.default_rng(seed + 17 + k))
-            clouds = [levelled(c, u).astype(np.float32) for c, u in zip(clouds, ups, strict=True)]
-        xs += clouds
-        ys.append(np.repeat(data.labels, per_config))
+        # a rendered view's scans in one set; a camera's per class (each at its real size)
+        groups = [np.arange(len(data.shapes))] if config.sensor == "clean" else [
+            np.flatnonzero(data.labels == label) for label in np.unique(data.labels)
+        ]  # fmt: skip
+        for g, group in enumerate(groups):
+            sized = data.sized(config, int(data.labels[group[0]]))
+            shapes = [data.shapes[i] for i in group]
+            scans = cached_scan_set(shapes, per_config, seed + k + 101 * g, sized, cache)
+            clouds = [normalised_view(c, points, rng) for c in scans.clouds]
+            if upright is not None:
+                ups = sensed_ups(scans.poses, upright, np.random.default_rng(seed + 17 + k + g))
+                clouds = [
+                    levelled(c, u).astype(np.float32) for c, u in zip(clouds, ups, strict=True)
+                ]
+            xs += clouds
+            ys.append(np.repeat(data.labels[group], per_config))
     return np.stack(xs), np.concatenate(ys)

@@ -549,3 +549,29 @@ def test_a_run_can_hold_the_test_split_back_until_it_is_exported(
     assert "torch: not measured" in run.output
     graph = load_any(out, warm_up=False)
     assert isinstance(graph, LoadedClassifier) and 0 <= graph.card.accuracy <= 1
+
+
+def test_views_by_a_depth_camera_take_each_class_at_its_real_size(tmp_path: Path) -> None:
+    from itnet.model.categories import real_radius_m
+    from itnet.model.classify.data import LabelledShapes, fixed_views, training_batch, view_configs
+    from itnet.model.shapes import Shape
+
+    rng = np.random.default_rng(5)
+    shapes = [Shape(f"s{i}", SHAPES["ball"](rng, 400)) for i in range(4)]
+    data = LabelledShapes(shapes, np.array([0, 1, 1, 0]), ("bed", "night_stand"))
+    clean, camera = view_configs(("occluded", "occluded+kinect_v2"))
+    assert clean.sensor == "clean" and camera.sensor == "kinect_v2"
+    assert data.sized(clean, 1) is clean  # a render has no size
+    assert data.sized(camera, 0).radius_m == tuple(real_radius_m("bed"))
+    assert data.sized(camera, 1).radius_m == tuple(real_radius_m("night_stand"))
+    x, y = fixed_views(data, 2, 64, 0, tmp_path, configs=[camera])
+    assert x.shape == (8, 64, 3) and np.isfinite(x).all()
+    assert sorted(y.tolist()) == [0, 0, 0, 0, 1, 1, 1, 1]  # every shape's views, per class
+    x, y, _ = training_batch(data, 8, 64, np.random.default_rng(1), [camera])
+    assert x.shape == (8, 64, 3) and np.isfinite(x).all()
+    with pytest.raises(ValueError, match="class names"):
+        LabelledShapes(shapes, data.labels).sized(camera, 0)
+    with pytest.raises(ValueError, match="unknown sensor"):
+        view_configs(("occluded+kinect_v9",))
+    with pytest.raises(ValueError, match="unknown view rule"):
+        view_configs(("sideways",))
