@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +46,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             mirror: bool | None = None, centre: bool | None = None,
             baseline: dict | None = None, viewpoint: bool = False,
             up_error_deg: float | None = None, verify: bool | None = None,
-            verifier: str = "beside", recheck: bool | None = None) -> dict:  # fmt: skip
+            verifier: str = "beside", recheck: bool | None = None,
+            halving: tuple[int, int] | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -91,7 +93,10 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 verify=verify if k != 1 else None,
                 recheck=recheck if k == 1 else None,
             )
-            run = AnytimeRun(plan(model, request), cloud)
+            planned = plan(model, request)
+            if halving is not None:  # the runs the verifier likes best go on after halving[0]
+                planned = replace(planned, halving=halving)
+            run = AnytimeRun(planned, cloud)
             last = run.run_to_end()
             result = run.result()
             verified.append(result.get("verified"))
@@ -227,6 +232,13 @@ def main() -> None:
         "in the model's folder, as the service loads it), 'none' (verify runs the probes; no "
         "recheck), or a path (.onnx of itnet verifier-export)",
     )
+    parser.add_argument(
+        "--halving",
+        default=None,
+        metavar="AT,KEEP",
+        help="successive halving: after AT iterations only the KEEP runs the verifier finds "
+        "likeliest go on (default: the plan's)",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("runs/ensemble_benchmark.json"))
@@ -234,6 +246,9 @@ def main() -> None:
     views = args.views or (4 if args.split == "val" else 5)
     mirror, centre = SWITCH[args.mirror], SWITCH[args.centre]
     baseline = json.loads(args.baseline.read_text()) if args.baseline else None
+    halving = None if args.halving is None else tuple(int(v) for v in args.halving.split(","))
+    if halving is not None and (len(halving) != 2 or min(halving) < 1):
+        parser.error("--halving takes AT,KEEP: two positive integers")
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores",
         "model": str(args.model),
@@ -247,6 +262,7 @@ def main() -> None:
         "verify": args.verify,
         "recheck": args.recheck,
         "verifier": args.verifier,
+        "halving": args.halving,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -266,6 +282,7 @@ def main() -> None:
                 SWITCH[args.verify],
                 args.verifier,
                 SWITCH[args.recheck],
+                halving,
             )
             for s in args.scanners
         },

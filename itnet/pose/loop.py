@@ -24,6 +24,7 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.basin import canonical_points
 from itnet.fusion import fuse_poses
 from itnet.geometry import invert_rigid, rotation_angle_deg
 from itnet.pose.cloud import normalization_of, validate_cloud
@@ -99,11 +100,34 @@ class AnytimeRun(Iterator[Estimate]):
                 np.float32
             )
         self.iteration += 1
+        if self.iteration == self.plan.halving_at:
+            self._halve()
         if self.plan.fuse:
             self.last = self._moved_to(fuse_poses(self.pose_normalized, self.model.card.symmetry))
         else:
             self.last = self._update_of(self.pose_normalized[0], delta[0])
         return self._converged_or(self.last)
+
+    def _halve(self) -> None:
+        """Successive halving: keep the ``plan.halving`` runs the category's verifier finds
+        likeliest (one call over every run), drop the rest; where the verifier's call would not
+        fit the budget, every run goes on."""
+        verifier, keep = self.model.verifier, self.plan.halving_keep
+        if verifier is None or keep >= len(self.points):
+            return
+        if (
+            self.left_ms()
+            < verifier.predicted_ms(*self.points.shape[:2]) + self.predicted_step_ms()
+        ):
+            return
+        scores = verifier.scores(canonical_points(self.points, self.pose_normalized))
+        kept = np.sort(np.argsort(-np.asarray(scores), kind="stable")[:keep])
+        self.points, self.pose_normalized = self.points[kept], self.pose_normalized[kept]
+
+    @property
+    def runs(self) -> int:
+        """The runs stepping now: the plan's, or those kept after the halving."""
+        return len(self.points)
 
     def extra_step(self, points: NDArray, poses: NDArray) -> tuple[NDArray, NDArray] | None:
         """One network step of ``points`` (B, N, 3) from ``poses`` (B, 4, 4), batched with the
@@ -167,15 +191,15 @@ class AnytimeRun(Iterator[Estimate]):
     def predicted_step_ms(self) -> float:
         """The next step of this run's runs: the model's running prediction (or the last step's
         time, if longer)."""
-        return max(self.model.run_step_ms(self.plan.runs, self._size), self._last_step_ms)
+        return max(self.model.run_step_ms(self.runs, self._size), self._last_step_ms)
 
     def needed_work_ms(self) -> float:
         """The steps this run still needs at the model's current step time: its plan's, up to
         the model's recommended iterations (a request for more takes those as the budget
         allows). Runs are admitted by it (``itnet.pose.admission``)."""
         needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
-        left = max(0, needed - self.iteration)
-        return left * self.model.run_step_ms(self.plan.runs, self._size)
+        steps = self.plan.run_steps(needed, start=self.iteration, now=self.runs)
+        return steps * self.model.run_step_ms(1, self._size)
 
     def _slack_ms(self) -> float:
         """Budget left after the predicted next step and the reserve (negative: the step would

@@ -47,12 +47,35 @@ class PosePlan:
     stages: tuple[Stage, ...]
     limits: Limits
     seed: int = 0
+    # successive halving: after this many iterations, the runs the verifier finds likeliest
+    # go on, this many of them (None: every run to the end)
+    halving: tuple[int, int] | None = None
     # an update below (degrees, normalised distance: the cloud's RMS radius) ends the run
     converge: tuple[float, float] = (CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION)
 
     @property
     def runs(self) -> int:
         return len(self.starts)
+
+    @property
+    def halving_at(self) -> int:
+        """The iteration after which the runs are halved (0: never)."""
+        return 0 if self.halving is None or self.halving[1] >= self.runs else self.halving[0]
+
+    @property
+    def halving_keep(self) -> int:
+        """The runs kept at the halving (all of them without one)."""
+        return self.runs if self.halving_at == 0 else min(self.runs, self.halving[1])  # type: ignore[index]
+
+    def run_steps(self, iterations: int, start: int = 0, now: int | None = None) -> int:
+        """Run steps (one run, one iteration each) from iteration ``start`` to ``iterations``
+        with ``now`` runs stepping (default: the plan's): the halving's runs after it."""
+        runs = self.runs if now is None else now
+        at = self.halving_at
+        if at <= start or at == 0:
+            return max(0, iterations - start) * runs
+        before = max(0, min(at, iterations) - start)
+        return before * runs + max(0, iterations - at) * self.halving_keep
 
     @property
     def stage_names(self) -> tuple[str, ...]:

@@ -204,3 +204,46 @@ def test_the_same_request_gives_the_same_pose_every_way(model, cloud):
     estimates = list(again)
     assert again.result()["T_canonical_from_input"] == first["T_canonical_from_input"]
     assert first["ensemble"] == 4 and len(estimates) == first["iterations"]
+
+
+class _FixedVerifier:
+    """A verifier that likes runs by a fixed score each, and records what it was shown."""
+
+    def __init__(self, scores):
+        self.fixed, self.seen = np.asarray(scores, np.float32), []
+
+    def scores(self, points):
+        self.seen.append(len(points))
+        return self.fixed[: len(points)]
+
+    def predicted_ms(self, runs, points):
+        return 0.01
+
+
+def test_successive_halving_steps_on_only_the_runs_the_verifier_likes_best(model, cloud):
+    request = PoseRequest(budget_ms=10_000, ensemble=8, max_iterations=6, verify=False)
+    full = plan(model, request)
+    halved = replace(full, halving=(2, 3))
+    assert (halved.halving_at, halved.halving_keep) == (2, 3)
+    assert halved.run_steps(6) == 2 * 8 + 4 * 3 and full.run_steps(6) == 6 * 8
+    assert halved.run_steps(6, start=4, now=3) == 2 * 3
+    assert replace(full, halving=(2, 8)).halving_at == 0  # keeping every run is no halving
+
+    verifier = _FixedVerifier([0.0, 5.0, -1.0, 4.0, 0.5, 3.0, -2.0, 1.0])
+    judged = replace(model, verifier=verifier)
+    judged.idle_ms, judged.baseline_ms = model.idle_ms, model.baseline_ms
+    run = AnytimeRun(replace(halved, model=judged), cloud)
+    drawn = run.points.copy()
+    next(run)
+    assert run.runs == 8 and verifier.seen == []
+    work_before = run.needed_work_ms()
+    next(run)  # the second iteration ends with the halving
+    assert run.runs == 3 and verifier.seen == [8]
+    assert np.array_equal(run.points, drawn[[1, 3, 5]])  # scores 5, 4 and 3
+    assert run.needed_work_ms() < work_before
+    run.run_to_end()
+    assert run.iteration == 6 and run.result()["ensemble"] == 8
+
+    alone = AnytimeRun(halved, cloud)  # no verifier: every run goes on
+    alone.run_to_end()
+    assert alone.runs == 8
