@@ -15,7 +15,11 @@ frame warms up and is not counted. Scoring, per annotated box (grown by ``--grow
   ottoman, a mirror, are right when answered unknown or not at all, and false when named);
 * turn: the angle about up between the object's canonical front (+z) and the box's, modulo the
   category's turns (180 degrees for a night stand or dresser, whose two long sides are alike
-  to a depth camera), for objects found with a pose.
+  to a depth camera), for objects found with a pose;
+* crops: each box of our categories cut out of the frame (grown by ``--grow``: a strip of the
+  floor and of what stands beside it comes along, as from a user's own box) and named by
+  ``itnet.pose.recognition.classify`` in metres with the frame's up, as ``itnet classify
+  crop.ply --units m --up x,y,z`` names it.
 """
 
 from __future__ import annotations
@@ -104,6 +108,24 @@ def score_frame(frame: dict[str, Any], result: Any, given: SceneInput, grow: flo
     return rows
 
 
+def crop_rows(frame: dict[str, Any], given: SceneInput, grow: float, classifier: Any) -> list[dict]:
+    """A row per box of our categories: its crop's answer (category, probability, unsure)."""
+    from itnet.pose.recognition import classify
+
+    rows = []
+    for box in frame["objects"]:
+        if box["category"] is None:
+            continue
+        crop = given.points[inside(given.points, box, grow)]
+        answer = classify(classifier, crop, units="m", up=frame["up"])
+        rows.append({
+            "category": box["category"], "points": len(crop), "answered": answer.category,
+            "probability": round(answer.probability, 3), "unsure": answer.unsure,
+            "named": answer.category == box["category"],
+        })  # fmt: skip
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
@@ -135,12 +157,15 @@ def main(argv: list[str] | None = None) -> None:
             "segment_ms": round(result.segment_ms, 1),
             "posed": sum(o.pose is not None for o in result.objects),
             "objects": len(result.objects), "rows": rows,
+            "crops": crop_rows(frame, given, args.grow, catalog.classifier),
         })  # fmt: skip
         print(f"{frame['frame']}: {len(result.objects)} objects, {statistics.median(times):.0f} ms "
               f"median ({max(times):.0f} max) of {result.budget_ms:g}, segmentation "
               f"{result.segment_ms:.0f} ms")  # fmt: skip
         for row in rows:
             print("   ", json.dumps(row))
+        for row in out["frames"][-1]["crops"]:
+            print("    crop", json.dumps(row))
     boxes = [r for f in out["frames"] for r in f["rows"] if r["kind"] == "box"]
     ours = [r for r in boxes if r["category"] is not None]
     out["summary"] = {
@@ -149,6 +174,8 @@ def main(argv: list[str] | None = None) -> None:
         "turn_within_20": sum(r.get("turn_deg", 999) <= 20 for r in ours),
         "others": len(boxes) - len(ours),
         "others_named_false": sum(bool(r.get("false")) for r in boxes if r["category"] is None),
+        "crops": sum(len(f["crops"]) for f in out["frames"]),
+        "crops_named": sum(r["named"] for f in out["frames"] for r in f["crops"]),
     }  # fmt: skip
     print(json.dumps(out["summary"]))
     if args.json:

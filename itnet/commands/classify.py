@@ -499,21 +499,39 @@ def classify_size_prior(
     ),
     write: bool = typer.Option(False, help="Write the prior and its measurement into the card."),
     cache: Path = typer.Option(Path("cache"), help="Cache of shapes."),
+    sizes: str = typer.Option(
+        "inches",
+        help="The shapes' sizes: 'inches' (ModelNet's units read as inches) or 'real' (each "
+        "view at a real piece's size, drawn from the category's range: docs/training.md).",
+    ),
+    rules: str = typer.Option(
+        "occluded,paper",
+        help="View rules of the fitting and measuring views, in turn (RULE or RULE+SENSOR, "
+        "as classify-train --views).",
+    ),
 ) -> None:
     """Fit the classifier's size prior on views of the training shapes (ModelNet's units read
-    as inches), measure top-1 with and without it on views of the validation or test shapes
+    as inches, or real sizes), measure top-1 with and without it on views of the validation or test shapes
     (4 a shape, seeded), and with --write store both in the classifier's card: then a request
     that gives its cloud's unit (``units``) lets the size count (``itnet.size_prior``)."""
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model.classify.data import class_names, load_splits
+    from itnet.model.classify.data import class_names, load_splits, view_configs
     from itnet.model.classify.size_prior import accuracy_with_and_without, sized_views, source_radii
     from itnet.pose.runtime import LoadedClassifier, load_any
     from itnet.size_prior import fit_size_prior
 
     if split not in ("val", "test"):
         raise typer.BadParameter("--split must be val or test")
+    if sizes not in ("inches", "real"):
+        raise typer.BadParameter("--sizes must be inches or real")
+    view_rules = tuple(r.strip() for r in rules.split(",") if r.strip())
+    try:
+        view_configs(view_rules)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from None
+    real = sizes == "real"
     loaded = load_any(classifier, warm_up=False)
     if not isinstance(loaded, LoadedClassifier):
         raise typer.BadParameter(f"{classifier} is not a classifier")
@@ -521,25 +539,32 @@ def classify_size_prior(
     if classes != list(loaded.card.classes):
         raise typer.BadParameter(f"{data}'s classes {classes} are not the card's")
     splits = load_splits(data, classes, 0.1, 0, cache)
-    training = sized_views(splits["train"], source_radii(data, classes, "train"), views, seed=1)
-    source = (f"{data.name} training split, {views} views a shape (occluded and paper views), "
-              "its units read as inches")  # fmt: skip
+    training = sized_views(
+        splits["train"], source_radii(data, classes, "train"), views, seed=1, rules=view_rules,
+        real=real,
+    )  # fmt: skip
+    kinds = ", ".join(view_rules)
+    at = "at real sizes (docs/training.md#real-sizes)" if real else "its units read as inches"
+    source = f"{data.name} training split, {views} views a shape ({kinds} views), {at}"
     prior = fit_size_prior(
         training.labels, training.radii_m, len(classes), df, weight, source=source
     )
     measured = sized_views(
         splits[split], source_radii(data, classes, split), 4, {"val": 2, "test": 3}[split],
-        loaded.card.points,
+        loaded.card.points, rules=view_rules, real=real,
     )  # fmt: skip
     scores = accuracy_with_and_without(loaded, measured, prior)
     for name, median, scale in zip(classes, prior.log_median, prior.log_scale):
         typer.echo(f"{name:12s} RMS radius of a view: median {math.exp(median):.3f} m, "
                    f"log spread {scale:.2f}")  # fmt: skip
     typer.echo(f"{split}: {json.dumps(scores)}")
+    if loaded.card.size_prior is not None:  # what it would replace, on the same views
+        current = accuracy_with_and_without(loaded, measured, loaded.card.size_prior)
+        typer.echo(f"{split}, the card's prior now: {json.dumps(current)}")
     if write:
         evaluation = (
-            f"{split} views ({scores['views']}, 4 a shape, half occluded, half paper views, in "
-            f"inches): top-1 {100 * scores['top1']:.1f}% alone, "
+            f"{split} views ({scores['views']}, 4 a shape, {kinds} views in turn, "
+            f"{'at real sizes' if real else 'in inches'}): top-1 {100 * scores['top1']:.1f}% alone, "
             f"{100 * scores['top1_with_size']:.1f}% with the size (paired gain "
             f"{100 * scores['gain']:+.1f} ± {100 * scores['gain_stderr']:.1f}); mean class "
             f"{100 * scores['mean_class']:.1f}% -> {100 * scores['mean_class_with_size']:.1f}%"

@@ -8,6 +8,9 @@ of a shape in metres is the unit-radius scan times the model's radius times 0.02
 
 * Fit: ``views`` random views (half occluded, half the paper's, as the classifier was trained)
   of every training shape -> per class the robust centre and spread of log RMS radius.
+* Real sizes (``rules`` and ``real=True``): each view's shape drawn at a real piece's bounding
+  radius (uniform in ``model.categories.REAL_RADIUS_M``, as furniture is made, not as the file
+  was modelled), by the named view rules (``RULE+SENSOR``: by that depth camera at that size).
 * Measure: fixed views of the validation (or test) shapes, classified by the exported graph
   with and without the size (the same views, so the difference is paired).
 """
@@ -15,13 +18,14 @@ of a shape in metres is the unit-radius scan times the model's radius times 0.02
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from itnet.cloud_io import read_cloud
+from itnet.model.categories import real_radius_m
 from itnet.model.classify.data import (
     LabelledShapes,
     normalised_view,
@@ -65,16 +69,27 @@ def sized_views(
     seed: int,
     points: int | None = None,
     unit_m: float = INCH_M,
+    rules: tuple[str, ...] = ("occluded", "paper"),
+    real: bool = False,
 ) -> SizedViews:
-    """``views`` views per shape, alternately occluded and the paper's; with ``points``, also
-    each view normalised and resampled as the classifier sees it."""
+    """``views`` views per shape, by the view ``rules`` in turn (``view_configs``), each shape
+    at its file's size read in ``unit_m`` (``radii``: the files' bounding radii) or, ``real``,
+    at a real piece's size (``shapes.names`` needed); with ``points``, also each view
+    normalised and resampled as the classifier sees it."""
     rng = np.random.default_rng(seed)
-    configs = view_configs()
+    configs = view_configs(rules)
     xs, labels, sizes = [], [], []
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
         for v in range(views):
-            cloud, _ = scan_of(shape, rng, configs[v % len(configs)])
-            sizes.append(estimate_normalization(cloud).scale * radius * unit_m)
+            config = configs[v % len(configs)]
+            if real:  # the shape's bounding radius in metres, also the camera's
+                metres = float(rng.uniform(*real_radius_m(shapes.names[label])))
+                if config.sensor != "clean":
+                    config = replace(config, radius_m=(metres, metres))
+            else:
+                metres = radius * unit_m
+            cloud, _ = scan_of(shape, rng, config)
+            sizes.append(estimate_normalization(cloud).scale * metres)
             labels.append(label)
             if points is not None:
                 xs.append(normalised_view(cloud, points, rng))

@@ -139,3 +139,36 @@ def test_cli_classify_units(sized_dir: Path, tmp_path: Path) -> None:
     assert absurd["category"] == "table" and absurd["size_m"] == pytest.approx(30, rel=1e-3)
     refused = CliRunner().invoke(cli, [*args, "--units", "furlong"])
     assert refused.exit_code == 2 and "furlong" in refused.output
+
+
+def test_views_at_real_sizes_measure_each_class_in_its_range_of_real_pieces() -> None:
+    from itnet.model.categories import real_radius_m
+    from itnet.model.classify.data import LabelledShapes
+    from itnet.model.classify.size_prior import sized_views
+    from itnet.model.shapes import Shape
+
+    r = np.random.default_rng(3)
+    ball = r.normal(size=(600, 3))
+    ball /= np.linalg.norm(ball, axis=1, keepdims=True)  # a unit sphere: bounding radius 1
+    shapes = LabelledShapes([Shape(f"s{i}", ball) for i in range(4)], np.array([0, 0, 1, 1]),
+                            ("bed", "night_stand"))  # fmt: skip
+    rules = ("occluded", "occluded+kinect_v2")
+    views = sized_views(shapes, [1.0] * 4, 4, 0, 64, rules=rules, real=True)
+    assert views.points is not None and views.points.shape == (16, 64, 3)
+    for label, name in enumerate(("bed", "night_stand")):
+        low, high = real_radius_m(name)
+        own = views.radii_m[views.labels == label]
+        # a partial view of a sphere: its RMS radius about its centroid under the sphere's
+        assert (own > 0.2 * low).all() and (own < high).all(), (name, own)
+    # the same shapes at their files' size in inches: 1 inch of bounding radius
+    inches = sized_views(shapes, [1.0] * 4, 2, 0, rules=rules)
+    assert (inches.radii_m < 0.0254).all()
+    assert views.radii_m[views.labels == 0].mean() > 1.5 * views.radii_m[views.labels == 1].mean()
+
+
+def test_the_size_prior_command_refuses_unknown_sizes_and_view_rules() -> None:
+    runner = CliRunner()
+    for args, hint in [(["--sizes", "feet"], "--sizes"), (["--rules", "sideways"], "sideways"),
+                       (["--rules", "occluded+kinect_v9"], "kinect_v9")]:  # fmt: skip
+        result = runner.invoke(cli, ["classify-size-prior", *args])
+        assert result.exit_code == 2 and hint in result.output, result.output
