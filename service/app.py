@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
@@ -61,6 +62,7 @@ def create_app(
         # SIGTERM: streams in flight get their final result before uvicorn closes them.
         if state.drain.install():
             log.info("streams drain on SIGTERM")
+        sys.setswitchinterval(settings.switch_interval_ms / 1e3)
         if settings.gc_freeze:
             log.info("froze %d start-up objects out of garbage collection",
                      freeze_startup_objects())  # fmt: skip

@@ -173,6 +173,15 @@ class Settings(BaseSettings):
         description="after start-up, exclude the objects alive then from garbage collection "
         "(gc.freeze): full collections shrink from ~45 ms to ~1 ms (service/gc_tuning.py)",
     )
+    switch_interval_ms: float = Field(
+        default=0.5,
+        gt=0,
+        le=100,
+        description="the interpreter's thread switch interval (sys.setswitchinterval): how long "
+        "a run's thread, back from a network step, may wait for the GIL while the event loop "
+        "answers other clients; Python's own 5 ms is a quarter of a 20 ms budget "
+        "(docs/service.md)",
+    )
     classify_second_looks: int = Field(
         default=SECOND_LOOKS,
         ge=1,

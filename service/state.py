@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from numpy.typing import ArrayLike
 
-from itnet.pose.admission import Admission
+from itnet.pose.admission import Admission, DeliveryLimit
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import PoseError
 from itnet.pose.loop import AnytimeRun
@@ -40,23 +40,38 @@ log = logging.getLogger("itnet.service")
 
 
 class ConcurrencyGate:
-    """Counts estimates in flight; beyond ``limit`` a request is refused at once with a 503.
+    """Counts estimates in flight; beyond ``limit``, or beyond what the admission now serves
+    in full (``DeliveryLimit``), a request is refused at once with a 503, before its body.
 
     Used from the event loop only (acquire and release never race), so a plain counter suffices.
     """
 
-    def __init__(self, limit: int, retry_after_s: int, metrics: Metrics) -> None:
+    def __init__(
+        self,
+        limit: int,
+        retry_after_s: int,
+        metrics: Metrics,
+        delivery: DeliveryLimit | None = None,
+    ) -> None:
         self.limit, self.retry_after_s, self.metrics = limit, retry_after_s, metrics
+        self.delivery = delivery
         self.active = 0
+
+    def current_limit(self) -> int:
+        """Estimates admitted at once now: the configured limit, or fewer where the machine
+        lately served fewer in full."""
+        return self.limit if self.delivery is None else min(self.limit, self.delivery.allowed())
 
     def check(self) -> None:
         """The 503 now if every slot is taken (a slot is taken with ``slot``)."""
-        if self.active >= self.limit:
+        limit = self.current_limit()
+        if self.active >= limit:
+            said = "" if limit == self.limit else f", {limit} served in full now"
             raise ServiceError(
                 503,
                 "overloaded",
                 f"the server is busy ({self.active} estimates running, the limit is "
-                f"{self.limit}); retry in {self.retry_after_s} s",
+                f"{self.limit}{said}); retry in {self.retry_after_s} s",
                 headers={"Retry-After": str(self.retry_after_s)},
             )
 
@@ -84,11 +99,13 @@ class ServiceState:
         self._catalog: Catalog | None = None
         self._catalog_key: tuple[int, int, int] | None = None
         limits = self.settings.limits
+        # the runs admitted at once: at most the gate's, fewer while the machine serves fewer
+        self.admission = Admission(limits.retry_after_s, limits.max_concurrent_requests)
         self.gate = ConcurrencyGate(
-            limits.max_concurrent_requests, limits.retry_after_s, self.metrics
-        )
+            limits.max_concurrent_requests, limits.retry_after_s, self.metrics,
+            self.admission.delivery,
+        )  # fmt: skip
         self.handback = HandbackTimer()
-        self.admission = Admission(limits.retry_after_s)
         # Request bytes held at once (service/guards/byte_budget.py), and decoding under the limits.
         self.buffers = ByteBudget(limits.max_buffered_bytes)
         self.decoder = Decoder(limits.max_points, limits.heavy_json_bytes,

@@ -13,23 +13,82 @@ A run alone is always admitted: its plan was fitted to its budget on an idle mac
 loop stops before it overruns (with no step at all it is refused the same way). A ``Catalog``
 holds one: the service's requests, its alignments and every ``Catalog.pose`` of one process are
 admitted together.
+
+The work counted is the model's step time, which cannot see what else takes the cores (the
+clients on the same machine, the server's own parsing and replies). So the admission also
+learns from what it delivers (``DeliveryLimit``): each finished run says whether it got at
+least ``DELIVERED_SHARE`` of the iterations its budget gives on an idle machine; a run that
+did not lowers the number of runs admitted at once, runs that did raise it again (additive
+increase, multiplicative decrease, as TCP finds a link's rate). The service's gate refuses
+beyond it before reading a request's body.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 from itnet.pose.errors import OverloadedError
 from itnet.pose.loop import AnytimeRun
 
+DELIVERED_SHARE = 0.8  # a run served with less of its idle-machine iterations was starved
+DECREASE = 0.7  # the limit's cut after a starved run
+DEFAULT_CEILING = 64.0  # runs at once where no ceiling is given (the service gives its gate's)
+
+
+class DeliveryLimit:
+    """How many runs at once the machine now serves with their iterations: additive increase
+    (1 / limit a run served in full), multiplicative decrease (``DECREASE`` a starved run, at
+    most once per ``window`` of the starved run's budget, so one overloaded moment's runs cut it
+    once), within [1, ``ceiling``]. Thread-safe."""
+
+    def __init__(self, ceiling: float = DEFAULT_CEILING) -> None:
+        self.ceiling = float(ceiling)
+        self.value = self.ceiling
+        self._cut_at = float("-inf")
+        self._lock = threading.Lock()
+
+    def allowed(self) -> int:
+        """Runs that may be admitted at once now (at least 1)."""
+        return max(1, int(self.value))
+
+    def record(
+        self, delivered: int, expected: int, window_s: float, now: float | None = None
+    ) -> None:
+        """One finished run: ``delivered`` iterations of the ``expected`` an idle machine gives
+        its budget (``AnytimeRun.idle_iterations``)."""
+        if expected <= 0:
+            return
+        now = time.perf_counter() if now is None else now
+        with self._lock:
+            if delivered >= DELIVERED_SHARE * expected:
+                self.value = min(self.ceiling, self.value + 1.0 / self.value)
+            elif now - self._cut_at >= window_s:
+                self.value = max(1.0, self.value * DECREASE)
+                self._cut_at = now
+
+    def record_run(self, run: AnytimeRun) -> None:
+        """A finished run's delivery; a cancelled run, or one that never ran, says nothing."""
+        if run.stopped_by in (None, "cancelled") or (
+            run.iteration == 0 and run.stopped_by != "budget"
+        ):
+            return
+        if run.stopped_by in ("max_iterations", "converged"):
+            expected = run.iteration  # it got what it asked for
+        else:
+            expected = run.idle_iterations()
+        self.record(run.iteration, expected, run.plan.budget_ms / 1e3)
+
 
 class Admission:
-    """The runs admitted in one process, and the work they still need."""
+    """The runs admitted in one process, the work they still need, and how many at once the
+    machine now serves in full (``delivery``)."""
 
-    def __init__(self, retry_after_s: int = 1) -> None:
+    def __init__(self, retry_after_s: int = 1, ceiling: float = DEFAULT_CEILING) -> None:
         self.retry_after_s = retry_after_s
+        self.delivery = DeliveryLimit(ceiling)
         self._runs: list[AnytimeRun] = []
         self._lock = threading.Lock()
 
@@ -56,6 +115,13 @@ class Admission:
                     f"{first.plan.budget_ms:g} ms budget; retry in {self.retry_after_s} s",
                     self.retry_after_s,
                 )
+            if self._runs and len(self._runs) + len(runs) > self.delivery.allowed():
+                raise OverloadedError(
+                    f"the server is busy: {len(self._runs)} estimate(s) running, and it serves "
+                    f"about {self.delivery.allowed()} at once in full now; retry in "
+                    f"{self.retry_after_s} s",
+                    self.retry_after_s,
+                )
             self._runs.extend(runs)
         try:
             yield
@@ -63,3 +129,5 @@ class Admission:
             with self._lock:
                 for run in runs:
                     self._runs.remove(run)
+            if len(runs) == 1:  # a request's runs in turn (an alignment's) share one budget
+                self.delivery.record_run(runs[0])

@@ -201,6 +201,18 @@ class AnytimeRun(Iterator[Estimate]):
         steps = self.plan.run_steps(needed, start=self.iteration, now=self.runs)
         return steps * self.model.run_step_ms(1, self._size)
 
+    def idle_iterations(self) -> int:
+        """The iterations an idle machine gives this run: as many of its needed ones
+        (``needed_work_ms``) as fit its budget, less the reserve and its decoding, at the step
+        time measured at load (at least 1)."""
+        needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
+        available = self.plan.budget_ms - self.reserve_ms - self.decode_ms
+        one = self.model.run_step_ms(1, self._size, idle=True)
+        fits = 0
+        while fits < needed and self.plan.run_steps(fits + 1) * one <= available:
+            fits += 1
+        return max(1, fits)
+
     def _slack_ms(self) -> float:
         """Budget left after the predicted next step and the reserve (negative: the step would
         overrun)."""
