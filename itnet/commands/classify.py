@@ -424,14 +424,9 @@ def classify_train(
     ),
 ) -> None:
     """Train one classifier (resumable), e.g. the shipped one: a table row trained longer."""
-    from itnet.model.classify.data import view_configs
     from itnet.model.classify.train import ClassifyConfig, train
 
-    rules = tuple(rule.strip() for rule in views.split(",") if rule.strip())
-    try:
-        view_configs(rules or ("",))
-    except ValueError as error:
-        raise typer.BadParameter(str(error), param_hint="--views") from error
+    rules = _view_rules(views, "--views")
     low_high = None if elevation is None else _degrees_range(elevation, "--elevation")
     config = ClassifyConfig(
         data=data,
@@ -473,6 +468,19 @@ def classify_train(
         else "not measured (held back, or no test shapes)"
     )
     typer.echo(f"{variant}: validation {100 * result['val']['accuracy']:.1f}%, test {measured}")
+
+
+def _view_rules(text: str, option: str) -> tuple[str, ...]:
+    """'RULE,RULE+SENSOR,...' -> the view rule names, each known (``view_configs``), at least
+    one; BadParameter otherwise."""
+    from itnet.model.classify.data import view_configs
+
+    rules = tuple(rule.strip() for rule in text.split(",") if rule.strip())
+    try:
+        view_configs(rules or ("",))
+    except ValueError as error:
+        raise typer.BadParameter(str(error), param_hint=option) from None
+    return rules
 
 
 def _degrees_range(text: str, option: str) -> tuple[float, float]:
@@ -517,7 +525,7 @@ def classify_size_prior(
     import onnx
 
     from itnet.export.onnx_export import save_with_card
-    from itnet.model.classify.data import class_names, load_splits, view_configs
+    from itnet.model.classify.data import class_names, load_splits
     from itnet.model.classify.size_prior import accuracy_with_and_without, sized_views, source_radii
     from itnet.pose.runtime import LoadedClassifier, load_any
     from itnet.size_prior import fit_size_prior
@@ -526,11 +534,7 @@ def classify_size_prior(
         raise typer.BadParameter("--split must be val or test")
     if sizes not in ("inches", "real"):
         raise typer.BadParameter("--sizes must be inches or real")
-    view_rules = tuple(r.strip() for r in rules.split(",") if r.strip())
-    try:
-        view_configs(view_rules)
-    except ValueError as err:
-        raise typer.BadParameter(str(err)) from None
+    view_rules = _view_rules(rules, "--rules")
     real = sizes == "real"
     loaded = load_any(classifier, warm_up=False)
     if not isinstance(loaded, LoadedClassifier):

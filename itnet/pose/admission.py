@@ -70,10 +70,9 @@ class DeliveryLimit:
                 self._cut_at = now
 
     def record_run(self, run: AnytimeRun) -> None:
-        """A finished run's delivery; a cancelled run, or one that never ran, says nothing."""
-        if run.stopped_by in (None, "cancelled") or (
-            run.iteration == 0 and run.stopped_by != "budget"
-        ):
+        """A finished run's delivery (one the budget stopped before a step: starved); a
+        cancelled or unfinished run says nothing."""
+        if run.stopped_by in (None, "cancelled"):
             return
         if run.stopped_by in ("max_iterations", "converged"):
             expected = run.iteration  # it got what it asked for

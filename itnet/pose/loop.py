@@ -193,23 +193,26 @@ class AnytimeRun(Iterator[Estimate]):
         time, if longer)."""
         return max(self.model.run_step_ms(self.runs, self._size), self._last_step_ms)
 
+    @property
+    def needed_iterations(self) -> int:
+        """The iterations this run needs: its plan's, up to the model's recommended ones (a
+        request for more takes those as the budget allows)."""
+        return min(self.plan.max_iterations, self.model.card.recommended_iterations)
+
     def needed_work_ms(self) -> float:
         """The steps this run still needs at the model's current step time: its plan's, up to
         the model's recommended iterations (a request for more takes those as the budget
         allows). Runs are admitted by it (``itnet.pose.admission``)."""
-        needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
-        steps = self.plan.run_steps(needed, start=self.iteration, now=self.runs)
+        steps = self.plan.run_steps(self.needed_iterations, start=self.iteration, now=self.runs)
         return steps * self.model.run_step_ms(1, self._size)
 
     def idle_iterations(self) -> int:
-        """The iterations an idle machine gives this run: as many of its needed ones
-        (``needed_work_ms``) as fit its budget, less the reserve and its decoding, at the step
+        """The iterations an idle machine gives this run: as many of its needed ones as fit its budget, less the reserve and its decoding, at the step
         time measured at load (at least 1)."""
-        needed = min(self.plan.max_iterations, self.model.card.recommended_iterations)
         available = self.plan.budget_ms - self.reserve_ms - self.decode_ms
         one = self.model.run_step_ms(1, self._size, idle=True)
         fits = 0
-        while fits < needed and self.plan.run_steps(fits + 1) * one <= available:
+        while fits < self.needed_iterations and self.plan.run_steps(fits + 1) * one <= available:
             fits += 1
         return max(1, fits)
 

@@ -65,7 +65,7 @@ class PosePlan:
     @property
     def halving_keep(self) -> int:
         """The runs kept at the halving (all of them without one)."""
-        return self.runs if self.halving_at == 0 else min(self.runs, self.halving[1])  # type: ignore[index]
+        return self.halving[1] if self.halving is not None and self.halving_at else self.runs
 
     def run_steps(self, iterations: int, start: int = 0, now: int | None = None) -> int:
         """Run steps (one run, one iteration each) from iteration ``start`` to ``iterations``

@@ -11,17 +11,6 @@ from itnet.pose.admission import DECREASE, Admission, DeliveryLimit
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import OverloadedError
 from itnet.pose.request import PoseRequest
-from itnet.pose.runtime import load_model
-
-
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
-
-
-@pytest.fixture(scope="module")
-def cloud():
-    return np.random.default_rng(5).normal(size=(400, 3)) * [0.3, 0.2, 0.1]
 
 
 def test_starved_runs_cut_the_limit_once_a_moment_and_full_ones_raise_it_again() -> None:

@@ -20,16 +20,6 @@ from itnet.pose.runtime import load_model
 from itnet.pose.stages import STAGE_NAMES, Finish
 
 
-@pytest.fixture(scope="module")
-def model(tiny_model_dir):
-    return load_model(tiny_model_dir / "tiny.onnx", threads=1)
-
-
-@pytest.fixture(scope="module")
-def cloud():
-    return np.random.default_rng(5).normal(size=(400, 3)) * [0.3, 0.2, 0.1]
-
-
 def with_card(model, **fields):
     """The model under a card changed by ``fields`` (same graph, same measured step time)."""
     card = ModelCard.model_validate({**model.card.model_dump(), **fields})
