@@ -47,7 +47,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             baseline: dict | None = None, viewpoint: bool = False,
             up_error_deg: float | None = None, verify: bool | None = None,
             verifier: str = "beside", recheck: bool | None = None,
-            halving: tuple[int, int] | None = None) -> dict:  # fmt: skip
+            halving: tuple[int, int] | None = None,
+            points: int | None = None) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -65,6 +66,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     )
 
     model = load_model(model_path)
+    if points is not None:  # each run's points, as a card that says so would have them
+        model.card = model.card.model_copy(update={"points": points})
     if verifier == "beside":  # as the service loads the model's folder
         found = load_beside(model_path.parent, skip=frozenset({model_path.resolve()}))[1]
         attach_verifiers({model.card.name: model}, found, model_path.parent)
@@ -239,6 +242,12 @@ def main() -> None:
         help="successive halving: after AT iterations only the KEEP runs the verifier finds "
         "likeliest go on (default: the plan's)",
     )
+    parser.add_argument(
+        "--points",
+        type=int,
+        default=None,
+        help="the most points a run sees of a scan (default: the model card's)",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("runs/ensemble_benchmark.json"))
@@ -263,6 +272,7 @@ def main() -> None:
         "recheck": args.recheck,
         "verifier": args.verifier,
         "halving": args.halving,
+        "points": args.points,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -283,6 +293,7 @@ def main() -> None:
                 args.verifier,
                 SWITCH[args.recheck],
                 halving,
+                args.points,
             )
             for s in args.scanners
         },

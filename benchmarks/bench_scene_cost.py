@@ -78,8 +78,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
     parser.add_argument("--real", type=Path, default=None, help="also the real frames here")
+    parser.add_argument(
+        "--resolutions",
+        default=",".join(f"{w}x{h}" for w, h in RESOLUTIONS),
+        help="WxH,... (default: all four)",
+    )
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    sizes = [tuple(int(v) for v in size.split("x")) for size in args.resolutions.split(",")]
     catalog = scene_catalog()
     warm_up(catalog)
     shapes = split_shapes(args.data, "validation", args.cache)
@@ -87,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         "budget_ms": args.budget_ms, "scenes": args.scenes,
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
     }  # fmt: skip
-    for width, height in RESOLUTIONS:
+    for width, height in sizes:
         rng = np.random.default_rng(5)
         frames = []
         for _ in range(args.scenes):

@@ -24,7 +24,7 @@ classifier where it applies (``scene_classifier``), else by the classifier and t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -59,7 +59,10 @@ from itnet.scene.segment import (
 from itnet.scene.touching import load_cut_judge
 from itnet.scene.view_edges import ViewEdges
 
-DEFAULT_BUDGET_MS = 140.0
+# A usual frame (up to six objects, 640 x 480) segments in about 60-80 ms on 2 cores and each
+# object's naming and pose take 20-30 ms: at 250 ms every object of such frames is posed
+# (docs/scenes.md, "Cost at each resolution").
+DEFAULT_BUDGET_MS = 250.0
 
 
 @dataclass(frozen=True)
@@ -154,6 +157,23 @@ def find_objects(
 OBJECT_POINTS = 4096
 
 
+# What an object's steps after its pose take (standing it on the floor, the recheck's look at
+# its verifier, its box): about 1-4 ms on 2 cores. Each object's pose ends this much before its
+# share does, the most any object of the scene took so far (at least this), so that the last
+# object's finishing does not make the reply late.
+FINISH_MS = 4.0
+
+
+@dataclass
+class _FinishClock:
+    """The longest finishing an object of this scene took (ms): what the next one reserves."""
+
+    ms: float = FINISH_MS
+
+    def took(self, ms: float) -> None:
+        self.ms = max(self.ms, ms)
+
+
 @dataclass(frozen=True)
 class _Context:
     """What every object of one scene is answered with."""
@@ -164,6 +184,7 @@ class _Context:
     namer: SceneClassifier | None
     finishing: SceneFinishing
     categories: frozenset[str] | None
+    finish: _FinishClock = field(default_factory=_FinishClock)
 
 
 def _answered(
@@ -180,8 +201,9 @@ def _answered(
         rng.choice(len(points), OBJECT_POINTS, replace=False)]  # fmt: skip
     hidden = base_out_of_view(found.edges, seen_points, found.floor, finishing)
     height = None if found.floor is None else top_height(seen_points, found.floor)
+    pose_ms = max(share_ms - context.finish.ms, 0.0)
     try:
-        seen = pose_object(catalog, seen_points, found.up, VIEWPOINT, share_ms,
+        seen = pose_object(catalog, seen_points, found.up, VIEWPOINT, pose_ms,
                            categories=context.categories, floor=found.floor,
                            scene_classifier=context.namer, base_hidden=hidden,
                            base_hidden_models=finishing.base_hidden_models,
@@ -199,13 +221,15 @@ def _answered(
                     context, points[part], indices[part], left_ms / len(parts), rng, split=False
                 )
             ]
+    finishing_from = time.perf_counter()
     finish = partial(stood_on_floor, catalog=catalog, points=seen_points, height=height,
                      found=found, table=context.table, floor_centre=finishing.floor_centre)  # fmt: skip
     seen = finish(seen)
     if finishing.recheck:
-        seen = rechecked(catalog, seen, seen_points, found.up, VIEWPOINT, now + share_ms / 1e3,
+        seen = rechecked(catalog, seen, seen_points, found.up, VIEWPOINT, now + pose_ms / 1e3,
                          finish, hidden)  # fmt: skip
     box = object_box(points, found.up, found.floor, seen.pose)
+    context.finish.took((time.perf_counter() - finishing_from) * 1e3)
     return [SceneObject(indices, seen.category, seen.probability, seen.candidates, seen.unsure,
                         box, seen.pose, seen.result, seen.no_pose, seen.named_by, hidden,
                         seen.unknown)]  # fmt: skip

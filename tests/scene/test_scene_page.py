@@ -14,6 +14,7 @@ import pytest
 from benchmarks.harness import Server
 from itnet.model.scenes import Scene
 from itnet.scene.depth_io import depth_to_png
+from itnet.scene.pipeline import DEFAULT_BUDGET_MS
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 DONE = "['done', 'failed'].includes(document.body.dataset.run)"
@@ -57,7 +58,7 @@ def test_the_example_scene_runs_as_the_page_opens_it(
     live_server: Server, browser_page: Any
 ) -> None:
     """The scene tab opens on the shipped example scene, its intrinsics typed and the scene's
-    budget (140 ms) in the field: Run finds its three objects; a dropped file takes its place,
+    budget (the API's default) in the field: Run finds its three objects; a dropped file takes its place,
     and choosing the example again brings it back."""
     examples = Path(__file__).resolve().parents[2] / "itnet" / "examples"
     truth = json.loads((examples / "scene_truth.json").read_text())
@@ -66,7 +67,7 @@ def test_the_example_scene_runs_as_the_page_opens_it(
     page.goto(f"{live_server.url}/?tab=scene")
     page.wait_for_function("document.body.dataset.ready === 'true'")
     assert page.input_value("#example-scene") == "scene"
-    assert page.input_value("#budget") == "140"
+    assert float(page.input_value("#budget")) == DEFAULT_BUDGET_MS
     typed = [float(v) for v in page.input_value("#intrinsics").split(",")]
     assert typed == [camera[k] for k in ("fx", "fy", "cx", "cy")]
     page.click("#run")
@@ -77,7 +78,7 @@ def test_the_example_scene_runs_as_the_page_opens_it(
         o["category"] for o in truth["objects"]
     )
     assert page.locator("#scene-objects li").count() == 3
-    assert shown["budget_ms"] == 140
+    assert shown["budget_ms"] == DEFAULT_BUDGET_MS
     # the pose tab keeps its own budget
     page.click("button.tab[data-tab='pose']")
     assert page.input_value("#budget") == "50"
