@@ -430,8 +430,10 @@ def segment(
     judge = load_cut_judge() if options.split_touching else None
     if judge is not None:
         objects = split_touching(work, objects, floor, judge)
-    objects = [rows[off_planes(points[rows], floor, walls, options)]
-               for rows in cloud.spread(points, objects)]  # fmt: skip
+    # each object's points at the camera's resolution: those of its voxels, off the planes (the
+    # planes first: most of a frame is floor and wall, and looking a point up costs more)
+    off = np.flatnonzero(off_planes(points, floor, walls, options))
+    objects = [off[rows] for rows in cloud.spread(points[off], objects)]
     objects.sort(key=len, reverse=True)
     return Segmentation(floor, up, walls, objects, edges)
 

@@ -66,7 +66,7 @@ def test_a_block_too_large_for_any_category_is_answered_unknown_not_dropped() ->
     """A 4 m block: left whole, it is unknown (too large), with its box and points; with the
     recognition's split it may be parted, but never answered as one object of a category too
     small for it; with unknown objects off it is named."""
-    block = boxes_shape([((0, 0, 0), (4.0, 1.1, 0.6))], points=40000)
+    block = boxes_shape([((0, 0, 0), (4.0, 1.1, 0.6))], points=8000)
     radius = 0.5 * float(np.linalg.norm([4.0, 1.1, 0.6]))
     scene = make_test_scene([(block, radius, 0.0, 4.0, 0.0), (chair_shape(), 0.5, -1.5, 2.6, 160.0)],
                             wall_m=7.0)  # fmt: skip
@@ -98,7 +98,7 @@ def test_a_block_too_large_for_any_category_is_answered_unknown_not_dropped() ->
 def test_a_low_wide_object_alone_on_the_floor_is_found() -> None:
     """A tub 0.9 m long and 0.3 m high stays below the height of a standing object: with no
     object near it to belong to, it is an object of its own, not dropped."""
-    tub = boxes_shape([((0, 0, 0), (0.9, 0.3, 0.5))], points=20000)
+    tub = boxes_shape([((0, 0, 0), (0.9, 0.3, 0.5))], points=6000)
     radius = 0.5 * float(np.linalg.norm([0.9, 0.3, 0.5]))
     scene = make_test_scene([(tub, radius, 0.0, 2.4, 30.0)], wall_m=3.5)
     given = from_depth(scene.depth, scene.intrinsics)
