@@ -52,6 +52,8 @@ class PosePlan:
     halving: tuple[int, int] | None = None
     # an update below (degrees, normalised distance: the cloud's RMS radius) ends the run
     converge: tuple[float, float] = (CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION)
+    # the most points a run sees of the cloud (None: the model card's count)
+    points: int | None = None
 
     @property
     def runs(self) -> int:
@@ -86,22 +88,27 @@ class PosePlan:
     def fuse(self) -> bool:
         return self.runs > 1
 
+    @property
+    def most_points(self) -> int:
+        """The most points a run sees: the plan's ``points``, else the model card's count."""
+        return self.model.card.points if self.points is None else self.points
+
     def run_points(self, cloud_points: int) -> int:
-        """Points each run sees of a cloud of ``cloud_points``: the model's count for a single
+        """Points each run sees of a cloud of ``cloud_points``: ``most_points`` for a single
         run (a smaller cloud whole); fused runs each their own subset (``subset_points``)."""
         if self.fuse:
             return self.subset_points(cloud_points)
-        return min(self.model.card.points, cloud_points)
+        return min(self.most_points, cloud_points)
 
     def subset_points(self, cloud_points: int) -> int:
-        """One fused run's subset: ENSEMBLE_SUBSET of the cloud, within [min_points, the
-        model's count]."""
+        """One fused run's subset: ENSEMBLE_SUBSET of the cloud, within [min_points,
+        ``most_points``]."""
         share = max(self.limits.min_points, int(ENSEMBLE_SUBSET * cloud_points))
-        return min(self.model.card.points, share)
+        return min(self.most_points, share)
 
     def first_step_ms(self, cloud_points: int | None = None) -> float:
         """One step of every run on an idle machine: the least a served pose costs."""
-        points = self.run_points(cloud_points or self.model.card.points)
+        points = self.run_points(cloud_points or self.most_points)
         return self.model.run_step_ms(self.runs, points, idle=True)
 
 

@@ -10,7 +10,7 @@ classification restricted to the scene's categories, then the one pose pipeline
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,12 @@ SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior cou
 # on 150 validation scenes the dresser's single run had 27 of 37 right, 4 runs 30, 8 runs 28
 # (the other objects then left less time).
 SCENE_LEAST_RUNS = 4
+# The most points each of a scene object's runs sees (the models' cards say 256, what they
+# were trained on). A depth camera's object is noisy, and half the points per step fit the
+# runs in half the time: on 150 validation scenes, 128 points were right for +2.0 +- 1.3 /
+# +0.7 +- 1.5 points more objects at 320x240 / 640x480 (paired), the replies 47 ms sooner
+# (docs/scenes.md, "Poses").
+SCENE_RUN_POINTS = 128
 # The pose model of a category's objects whose base lies below the view, where the models have
 # one: ``<category>_base_hidden`` (trained on such views: ``itnet train --base-hidden``).
 BASE_HIDDEN_SUFFIX = "_base_hidden"
@@ -202,8 +208,9 @@ def posed_as(
 ) -> ObjectPose:
     """``seen`` (its category) with its pose: the category's anytime pipeline (or ``model``'s)
     run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs,
-    or one where the budget holds no more), within ``budget_ms`` from ``started``; ``no_pose``
-    says why not where it has none (no model for the category, or the budget)."""
+    or one where the budget holds no more; each run on at most SCENE_RUN_POINTS points), within
+    ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model for the
+    category, or the budget)."""
     model = model or (
         None if seen.category is None else pose_model_for(seen.category, catalog.models)
     )
@@ -220,7 +227,8 @@ def posed_as(
         request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
                               viewpoint=[float(v) for v in viewpoint], ensemble=ensemble)  # fmt: skip
         try:
-            run = AnytimeRun(plan(model, request, catalog.limits), points, started)
+            planned = replace(plan(model, request, catalog.limits), points=SCENE_RUN_POINTS)
+            run = AnytimeRun(planned, points, started)
             break
         except BudgetTooSmallError:
             continue

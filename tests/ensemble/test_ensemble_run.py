@@ -225,3 +225,23 @@ def test_alignment_through_the_service_weighs_the_same_poses_as_in_process(fused
             assert np.allclose(remote["T_b_from_a"], local.T_b_from_a, atol=1e-6)
             pose_a = remote["T_canonical_from_a"]["T_canonical_from_input"]
             assert np.allclose(pose_a, local.pose_a.T_canonical_from_input, atol=1e-6)
+
+
+def test_a_plans_points_cap_what_each_run_sees(model, cloud):
+    """A plan with ``points`` gives every run at most that many of the cloud (single and fused
+    runs alike), each fused run its own subset; without it, the card's count."""
+    from dataclasses import replace
+
+    from itnet.pose.loop import AnytimeRun
+    from itnet.pose.plan import plan
+    from itnet.pose.request import PoseRequest
+
+    cloud = np.asarray(cloud)
+    assert len(cloud) > model.card.points
+    for ensemble in (1, 4):
+        planned = plan(model, PoseRequest(budget_ms=5000, max_iterations=2, ensemble=ensemble))
+        assert AnytimeRun(planned, cloud).points.shape[1] == model.card.points
+        run = AnytimeRun(replace(planned, points=64), cloud)
+        assert run.points.shape == (ensemble, 64, 3)
+        assert [e.iteration for e in run] == [1, 2]
+    assert not np.allclose(run.points[0], run.points[1])

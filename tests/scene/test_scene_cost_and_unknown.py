@@ -173,3 +173,23 @@ def test_every_object_of_a_usual_frame_is_posed_within_the_default_budget() -> N
     assert took_ms <= DEFAULT_BUDGET_MS * 1.04 + 5.0
     assert len(result.objects) == 4
     assert all(o.pose is not None for o in result.objects), [o.no_pose for o in result.objects]
+
+
+def test_a_scene_objects_runs_each_see_at_most_the_scenes_points(monkeypatch) -> None:
+    """Every run that poses a scene's object sees at most SCENE_RUN_POINTS of its points."""
+    import itnet.scene.posing as posing
+
+    seen: list[tuple[int, ...]] = []
+
+    class Recorded(posing.AnytimeRun):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            seen.append(self.points.shape)
+
+    monkeypatch.setattr(posing, "AnytimeRun", Recorded)
+    warm_up()
+    scene = make_test_scene([(chair_shape(), 0.5, 0.0, 2.8, 160.0)], width=640, height=480)
+    result = find_objects(scene.depth, scene.intrinsics, budget_ms=1000)
+    assert result.objects and result.objects[0].pose is not None
+    assert seen and all(shape[1] <= posing.SCENE_RUN_POINTS for shape in seen)
+    assert max(shape[1] for shape in seen) == posing.SCENE_RUN_POINTS
