@@ -207,8 +207,9 @@ class AnytimeRun(Iterator[Estimate]):
         return steps * self.model.run_step_ms(1, self._size)
 
     def idle_iterations(self) -> int:
-        """The iterations an idle machine gives this run: as many of its needed ones as fit its budget, less the reserve and its decoding, at the step
-        time measured at load (at least 1)."""
+        """The iterations an idle machine gives this run: as many of its needed ones as fit
+        its budget, less the reserve and its decoding, at the step time measured at load (at
+        least 1)."""
         available = self.plan.budget_ms - self.reserve_ms - self.decode_ms
         one = self.model.run_step_ms(1, self._size, idle=True)
         fits = 0

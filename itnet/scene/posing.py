@@ -42,9 +42,9 @@ SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior cou
 SCENE_LEAST_RUNS = 4
 # The most points each of a scene object's runs sees (the models' cards say 256, what they
 # were trained on). A depth camera's object is noisy, and half the points per step fit the
-# runs in half the time: on 150 validation scenes, 128 points were right for +2.0 +- 1.3 /
-# +0.7 +- 1.5 points more objects at 320x240 / 640x480 (paired), the replies 47 ms sooner
-# (docs/scenes.md, "Poses").
+# runs in half the time: on 150 validation scenes, 128 points were right for +2.7 +- 1.3 /
+# +0.0 +- 1.5 points more objects at 320x240 / 640x480 (paired), the replies 47-56 ms sooner
+# (docs/scenes.md, "Posing").
 SCENE_RUN_POINTS = 128
 # The pose model of a category's objects whose base lies below the view, where the models have
 # one: ``<category>_base_hidden`` (trained on such views: ``itnet train --base-hidden``).
