@@ -11,6 +11,9 @@ A stage is one class with one interface (``Stage``), switched by the request fie
                                     to the reply
     not_run(run)                    what the reply says when it did not run
 
+A stage sees the run through ``StageRun``: its points, its pose so far, its model and plan, the
+time left, and a way to take extra network steps inside the budget. Nothing else of the loop.
+
 ``STAGES`` is their order: recheck (a doubted single run's second opinion), verify (fused runs
 anchored on the likeliest), mirror (the category's mirror planes), centre (the object centre's
 correction). A new finishing step is one class here and one field of ``PoseRequest``; every path
@@ -20,8 +23,9 @@ correction). A new finishing step is one class here and one field of ``PoseReque
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,9 +47,9 @@ from itnet.preprocess import cap_points
 from itnet.upright import held_upright
 
 if TYPE_CHECKING:
-    from itnet.pose.loop import AnytimeRun
     from itnet.pose.request import PoseRequest
     from itnet.pose.runtime import LoadedModel
+    from itnet.preprocess import Normalization
 
 RECHECK_RUNS = 4  # runs a doubted single run is rechecked with, where the card gives none
 CENTRE_MS = 0.2  # a centre correction's cost: one small linear map
@@ -60,14 +64,61 @@ class Finish:
     fields: dict = field(default_factory=dict)
 
 
+T = TypeVar("T")
+
+
+class StagePlan(Protocol):
+    """What a stage reads of the run's plan."""
+
+    @property
+    def up(self) -> NDArray[np.float64] | None: ...  # the cloud's up, where the request gave one
+    @property
+    def viewpoint(self) -> NDArray[np.float64] | None: ...  # the sensor (cloud's frame, units)
+    @property
+    def seed(self) -> int: ...
+
+    def subset_points(self, cloud_points: int) -> int: ...
+
+
+class StagePose(Protocol):
+    @property
+    def pose_normalized(self) -> NDArray[np.float32]: ...  # (4, 4), the network's frame
+
+
+class StageRun(Protocol):
+    """What a stage sees of the run it finishes (``itnet.pose.loop.AnytimeRun`` is one)."""
+
+    @property
+    def model(self) -> LoadedModel: ...
+    @property
+    def plan(self) -> StagePlan: ...
+    @property
+    def cloud(self) -> NDArray: ...  # (N, 3) as sent, input units
+    @property
+    def normalization(self) -> Normalization: ...  # input units -> the network's frame
+    @property
+    def points(self) -> NDArray[np.float32]: ...  # (runs, P, 3) each run's subset, network frame
+    @property
+    def pose_normalized(self) -> NDArray[np.float32]: ...  # (runs, 4, 4) each run's pose so far
+    @property
+    def last(self) -> StagePose: ...  # the estimate so far (fused where runs are)
+    @property
+    def iteration(self) -> int: ...
+
+    def left_ms(self) -> float: ...
+    def predicted_step_ms(self) -> float: ...
+    def extra_step(self, points: NDArray, poses: NDArray) -> tuple[NDArray, NDArray] | None: ...
+    def extra_call(self, work: Callable[[], T], predicted_ms: float) -> T | None: ...
+
+
 class Stage(Protocol):
     name: ClassVar[str]
 
     def default(self, model: LoadedModel, request: PoseRequest, runs: int) -> bool: ...
     def refusal(self, model: LoadedModel, request: PoseRequest, runs: int) -> str | None: ...
-    def predicted_ms(self, run: AnytimeRun) -> float: ...
-    def apply(self, run: AnytimeRun) -> Finish: ...
-    def not_run(self, run: AnytimeRun) -> dict: ...
+    def predicted_ms(self, run: StageRun) -> float: ...
+    def apply(self, run: StageRun) -> Finish: ...
+    def not_run(self, run: StageRun) -> dict: ...
 
 
 class Recheck:
@@ -88,11 +139,11 @@ class Recheck:
             return "recheck is for a single run (no ensemble or up)"
         return None
 
-    def predicted_ms(self, run: AnytimeRun) -> float:
+    def predicted_ms(self, run: StageRun) -> float:
         assert run.model.verifier is not None
         return run.model.verifier.predicted_ms(1, run.points.shape[1])
 
-    def apply(self, run: AnytimeRun) -> Finish:
+    def apply(self, run: StageRun) -> Finish:
         verifier, card = run.model.verifier, run.model.card
         assert verifier is not None
         doubt = float(verifier.scores(canonical_points(run.points[:1], run.pose_normalized[:1]))[0])
@@ -119,7 +170,7 @@ class Recheck:
         fused = fuse_poses(runs, card.symmetry, anchor=likeliest_run(scores))
         return Finish(fused, {"rechecked": True})
 
-    def not_run(self, run: AnytimeRun) -> dict:
+    def not_run(self, run: StageRun) -> dict:
         return {}  # not doubted, as far as anyone knows
 
 
@@ -149,13 +200,13 @@ class Verify:
         2° off, 50 ms, paired: paper +1.7 ± 0.8, occluded +3.9 ± 1.2, surface +1.1 ± 0.6)."""
         return request.up is None or model.verifier is not None
 
-    def predicted_ms(self, run: AnytimeRun) -> float:
+    def predicted_ms(self, run: StageRun) -> float:
         verifier = run.model.verifier
         if verifier is not None:
             return verifier.predicted_ms(*run.points.shape[:2])
         return PROBE_STEPS * len(probe_turns(PROBE_DEG)) * run.predicted_step_ms()
 
-    def apply(self, run: AnytimeRun) -> Finish:
+    def apply(self, run: StageRun) -> Finish:
         verifier, symmetry = run.model.verifier, run.model.card.symmetry
         if verifier is not None:
             anchor = likeliest_run(
@@ -177,7 +228,7 @@ class Verify:
             anchor = firm_anchor(drift, medoid_index(run.pose_normalized, symmetry))
         return Finish(fuse_poses(run.pose_normalized, symmetry, anchor=anchor), {"verified": True})
 
-    def not_run(self, run: AnytimeRun) -> dict:
+    def not_run(self, run: StageRun) -> dict:
         return {"verified": False}
 
 
@@ -198,10 +249,10 @@ class Mirror:
             "mirror_planes): mirror cannot finish its poses"
         )
 
-    def predicted_ms(self, run: AnytimeRun) -> float:
+    def predicted_ms(self, run: StageRun) -> float:
         return run.model.predicted_mirror_ms()
 
-    def apply(self, run: AnytimeRun) -> Finish:
+    def apply(self, run: StageRun) -> Finish:
         pose = run.last.pose_normalized.astype(np.float64)
         points = run.points[0].astype(np.float64)
         planes: list[str] = []
@@ -216,7 +267,7 @@ class Mirror:
             planes.append(plane)
         return Finish(pose if planes else None, {"mirror": bool(planes), "mirror_planes": planes})
 
-    def not_run(self, run: AnytimeRun) -> dict:
+    def not_run(self, run: StageRun) -> dict:
         return {"mirror": False, "mirror_planes": []}
 
 
@@ -255,10 +306,10 @@ class Centre:
             )
         )
 
-    def predicted_ms(self, run: AnytimeRun) -> float:
+    def predicted_ms(self, run: StageRun) -> float:
         return CENTRE_MS
 
-    def apply(self, run: AnytimeRun) -> Finish:
+    def apply(self, run: StageRun) -> Finish:
         model, plan, norm = run.model, run.plan, run.normalization
         pose, points = run.last.pose_normalized.astype(np.float64), run.points[0]
         finished, by_viewpoint, by_up = None, False, False
@@ -278,11 +329,11 @@ class Centre:
             finished = centre_finished(points, pose, model.centre)
         return Finish(finished, self._fields(run, finished is not None, by_viewpoint, by_up))
 
-    def not_run(self, run: AnytimeRun) -> dict:
+    def not_run(self, run: StageRun) -> dict:
         return self._fields(run, False, False, False)
 
     @staticmethod
-    def _fields(run: AnytimeRun, centred: bool, by_viewpoint: bool, by_up: bool) -> dict:
+    def _fields(run: StageRun, centred: bool, by_viewpoint: bool, by_up: bool) -> dict:
         return {
             "centre": centred,
             **({"centre_viewpoint": by_viewpoint} if run.plan.viewpoint is not None else {}),
