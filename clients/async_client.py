@@ -17,7 +17,7 @@ import json
 from collections.abc import AsyncIterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 from numpy.typing import ArrayLike
@@ -42,6 +42,9 @@ from itnet.clients.wire import (
     websocket_url,
 )
 from itnet.pose.request import PoseRequest
+
+if TYPE_CHECKING:
+    from itnet.scene.request import SceneRequest
 
 
 class AsyncEstimateStream(AsyncIterator[Estimate]):
@@ -156,25 +159,12 @@ class AsyncItnetClient:
         self,
         scene: ArrayLike | bytes | str | Path,
         intrinsics: tuple[float, float, float, float] | None = None,
-        budget_ms: float | None = None,
-        depth_scale: float | None = None,
+        request: SceneRequest | None = None,
         indices: bool = True,
-        floor_centre: bool = True,
-        along_floor: bool = True,
-        recheck: bool = True,
-        scene_classifier: bool = True,
-        split_touching: bool = True,
-        unknown: bool = True,
-        named_split: bool = True,
-        up: tuple[float, float, float] | None = None,
+        **fields: Any,
     ) -> Any:
         """``POST /v1/scene`` -> the reply (see ``ItnetClient.scene``)."""
-        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier, "split_touching": split_touching,
-                    "unknown": unknown, "named_split": named_split}  # fmt: skip
-        body, query, headers = scene_request(
-            scene, intrinsics, budget_ms, depth_scale, indices, switches, up
-        )
+        body, query, headers = scene_request(scene, intrinsics, request, indices, fields)
         try:
             reply = await self._http.post(SCENE_PATH, content=body, params=query, headers=headers)
         except httpx.TransportError as err:

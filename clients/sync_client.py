@@ -19,7 +19,7 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 from numpy.typing import ArrayLike
@@ -47,6 +47,9 @@ from itnet.clients.wire import (
     websocket_url,
 )
 from itnet.pose.request import PoseRequest
+
+if TYPE_CHECKING:
+    from itnet.scene.request import SceneRequest
 
 
 class EstimateStream(Iterator[Estimate]):
@@ -166,35 +169,20 @@ class ItnetClient:
         self,
         scene: ArrayLike | bytes | str | Path,
         intrinsics: tuple[float, float, float, float] | None = None,
-        budget_ms: float | None = None,
-        depth_scale: float | None = None,
+        request: SceneRequest | None = None,
         indices: bool = True,
-        floor_centre: bool = True,
-        along_floor: bool = True,
-        recheck: bool = True,
-        scene_classifier: bool = True,
-        split_touching: bool = True,
-        unknown: bool = True,
-        named_split: bool = True,
-        up: tuple[float, float, float] | None = None,
+        **fields: Any,
     ) -> Any:
         """``POST /v1/scene``: every object of a depth image or a scene cloud -> the reply (a
         dict: ``objects``, each with ``category``, ``T_canonical_from_input``, ``box``, ...;
         ``up``, ``floor``, ``walls``; docs/scenes.md). ``scene``: a ``.png`` (16-bit, depth
         units) or ``.npy`` file, PNG bytes, a depth image (H, W) (float: metres) or a cloud
         (N, 3) in the camera's frame (metres); ``intrinsics`` (fx, fy, cx, cy) for an image.
-        ``floor_centre``, ``along_floor``, ``recheck``: the finishing steps (on by default);
-        ``scene_classifier``: objects named by their shape on the floor too; ``split_touching``:
-        a cluster cut where it holds two objects standing against each other; ``unknown``: a
-        cluster no category fits answered with category None; ``named_split``: such a cluster
-        parted where the recognition finds two objects (all on by default); ``up``: which way is up in the camera's frame (default: the service's −y, a
-        camera held about level). Raises ItnetRequestError (refused), ItnetConnectionError."""
-        switches = {"floor_centre": floor_centre, "along_floor": along_floor, "recheck": recheck,
-                    "scene_classifier": scene_classifier, "split_touching": split_touching,
-                    "unknown": unknown, "named_split": named_split}  # fmt: skip
-        body, query, headers = scene_request(
-            scene, intrinsics, budget_ms, depth_scale, indices, switches, up
-        )
+        ``request`` (a SceneRequest) and ``fields`` (any of its fields by name: ``budget_ms``,
+        ``depth_scale``, ``up``, the finishing switches, ...) say how; ``indices``: each
+        object's point indices in the reply. Raises TypeError for an unknown field,
+        ItnetRequestError (refused), ItnetConnectionError."""
+        body, query, headers = scene_request(scene, intrinsics, request, indices, fields)
         try:
             reply = self._http.post(SCENE_PATH, content=body, params=query, headers=headers)
         except httpx.TransportError as err:

@@ -26,12 +26,14 @@ from urllib.parse import urlsplit, urlunsplit
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.pose.request import PoseRequest, Xyz
+from itnet.pose.request import PoseRequest
+from itnet.request_fields import is_xyz
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
     from itnet.alignment.request import AlignRequest
+    from itnet.scene.request import SceneRequest
 
 ESTIMATE_PATH = "/v1/estimate"
 SCENE_PATH = "/v1/scene"
@@ -158,7 +160,7 @@ def _with_fields(kind: type[Request], what: str, request: Request | None,
     base = {} if request is None else request.model_dump(exclude_unset=True)
     values = {k: v for k, v in {**base, **fields}.items() if v is not None}
     for name, spec in kind.model_fields.items():
-        if name in values and spec.annotation == Xyz:
+        if name in values and is_xyz(spec.annotation):
             values[name] = [float(v) for v in np.asarray(values[name], dtype=np.float64).ravel()]
     return kind.model_validate(values, strict=False)
 
@@ -220,27 +222,22 @@ def scene_body(scene: ArrayLike | bytes | str | Path) -> tuple[bytes, str]:
 def scene_request(
     scene: ArrayLike | bytes | str | Path,
     intrinsics: tuple[float, float, float, float] | None,
-    budget_ms: float | None,
-    depth_scale: float | None,
+    request: SceneRequest | None,
     indices: bool,
-    switches: dict[str, bool],
-    up: tuple[float, float, float] | None = None,
+    fields: dict[str, Any],
 ) -> tuple[bytes, dict[str, str], dict[str, str]]:
     """``POST /v1/scene``'s body (``scene_body``), query and headers: the intrinsics (fx, fy,
-    cx, cy), the budget, depth scale and up where given (else the service's), ``indices`` and
-    the switches (finishing steps, scene classifier, touching cuts) in the query."""
+    cx, cy) where given, ``indices``, and ``request`` (default: the service's defaults) with
+    ``fields`` (any of SceneRequest's) set on top, in the query. Raises TypeError for a name
+    SceneRequest does not have, ValueError (pydantic's) for a value it refuses."""
+    from itnet.scene.request import SceneRequest
+
+    asked = _with_fields(SceneRequest, "scene", request, fields)
     body, kind = scene_body(scene)
-    query: dict[str, str] = {"indices": str(indices).lower()}
+    query: dict[str, str] = {"indices": str(indices).lower(), **asked.to_query()}
     if intrinsics is not None:
         fx, fy, cx, cy = (float(v) for v in intrinsics)
         query.update(fx=repr(fx), fy=repr(fy), cx=repr(cx), cy=repr(cy))
-    if budget_ms is not None:
-        query["budget_ms"] = repr(float(budget_ms))
-    if depth_scale is not None:
-        query["depth_scale"] = repr(float(depth_scale))
-    if up is not None:
-        query["up"] = ",".join(repr(float(v)) for v in up)
-    query.update({name: str(bool(on)).lower() for name, on in switches.items()})
     return body, query, {"Content-Type": kind}
 
 

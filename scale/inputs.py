@@ -84,14 +84,14 @@ def read_manifest(path: Path) -> list[tuple[str, str, str, str]]:
 def _up(manifest: Path, number: int, value: object) -> str:
     """A row's up direction -> 'x,y,z' ('' where none); InputError unless it is three finite
     numbers, not all zero."""
+    from itnet.request_fields import parse_xyz
     from itnet.upright import unit_up
 
     if value is None or value == "":
         return ""
     try:
-        parts = value.split(",") if isinstance(value, str) else list(value)  # type: ignore[call-overload]
-        numbers = [float(v) for v in parts]
-    except (TypeError, ValueError):
+        numbers = parse_xyz(value)  # type: ignore[arg-type]
+    except ValueError:
         numbers = []  # not numbers: unit_up says what an up must be
     try:
         unit_up(numbers)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from itnet.request_fields import parse_xyz
 from itnet.scale.inputs import InputError
 
 
@@ -28,9 +29,9 @@ def _load(model: str, model_dir: str | None, threads: int):  # type: ignore[no-u
 
     folder = Path(model_dir) if model_dir else default_model_dir()
     models, classifier = load_all(folder, threads, True, 1)
-    if model not in models:
+    if model != "auto" and model not in models:  # 'auto': the classifier names each cloud's
         raise InputError(f"unknown model {model!r} (available: {', '.join(sorted(models))})")
-    return Catalog(models, classifier), models[model]
+    return Catalog(models, classifier), models.get(model)
 
 
 def _error_row(fields: dict[str, Any], model: str, err: Exception) -> dict[str, Any]:
@@ -49,13 +50,14 @@ class PoseWorker:
     ) -> None:  # fmt: skip
         from itnet.pose.request import PoseRequest
 
-        self.catalog, self.model = _load(model, model_dir, threads)
+        self.catalog, _ = _load(model, model_dir, threads)
         self.request = PoseRequest.model_validate({**request, "model": model})
+        self.model = model
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         from itnet.cloud_io import CloudReadError
-        from itnet.commands.pose import pose_row
         from itnet.pose.errors import PoseError
+        from itnet.pose.files import pose_row
         from itnet.pose.loop import AnytimeRun
 
         def start(cloud: np.ndarray) -> AnytimeRun:
@@ -66,7 +68,7 @@ class PoseWorker:
             try:
                 row = pose_row(Path(str(file)), start)
             except (CloudReadError, PoseError) as err:
-                row = _error_row({"file": str(file)}, self.model.card.name, err)
+                row = _error_row({"file": str(file)}, self.model, err)
             rows.append(json.dumps(row))
         return _batch(rows)
 
@@ -86,6 +88,7 @@ class AlignWorker:
         asked = AlignRequest.model_validate({**request, "model": loaded.card.name})
         self.estimate = in_process_estimator(catalog, asked.pose_request())
         self.options = asked.options(loaded.card, bool(asked.refine))
+        self.asked = asked
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         from itnet.alignment.pipeline import CloudEstimateError, align_clouds
@@ -96,7 +99,7 @@ class AlignWorker:
             fields = {"cloud_a": str(a), "cloud_b": str(b)}
             # which way is up in each cloud ('x,y,z', '' where the manifest does not say)
             given = {k: str(batch[k][i]) if k in batch else "" for k in ("up_a", "up_b")}
-            ups = {k: [float(v) for v in u.split(",")] if u else None for k, u in given.items()}
+            ups = {k: parse_xyz(u) if u else getattr(self.asked, k) for k, u in given.items()}
             try:
                 points_a, points_b = read_cloud(str(a)), read_cloud(str(b))
                 result = align_clouds(points_a, points_b, self.estimate, self.options,
@@ -116,7 +119,7 @@ class SceneWorker:
     """``{"file": [...]}`` -> ``{"row": [json, ...]}``, one ``itnet scene --json`` row a depth
     image or scene cloud, and one a frame of a recording (with its ``topic``, ``frame`` and
     ``header``; ``selection``: ``itnet.recordings.Selection``'s fields) (``arguments``:
-    ``find_objects``' keywords, as ``itnet.commands.scene.scene_arguments`` makes them); a file
+    ``find_objects``' keywords, as ``itnet.commands.scene.scene_arguments`` makes them from a ``SceneRequest``); a file
     or frame that cannot be used becomes a row with ``file`` and ``error``."""
 
     def __init__(
@@ -133,9 +136,9 @@ class SceneWorker:
         self.selection = Selection(**(selection or {}))
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        from itnet.commands.scene import scene_row
         from itnet.recordings import is_recording
         from itnet.scene import SceneInputError, find_objects
+        from itnet.scene.result import scene_row
 
         rows = []
         for file in batch["file"]:

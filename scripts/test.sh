@@ -10,7 +10,7 @@ fi
 .venv/bin/mypy itnet/geometry.py itnet/preprocess.py itnet/metrics.py itnet/cloud_io.py itnet/alignment/overlap.py \
   itnet/alignment/hypotheses.py itnet/symmetry.py itnet/fusion.py itnet/cpu.py itnet/size_prior.py itnet/atomic_write.py \
   itnet/pose/request.py itnet/pose/plan.py itnet/pose/stages.py itnet/pose/loop.py itnet/pose/step_batcher.py \
-  itnet/pose/admission.py itnet/pose/catalog.py \
+  itnet/pose/admission.py itnet/pose/catalog.py itnet/request_fields.py itnet/commands/request_options.py \
   itnet/scene itnet/recordings
 .venv/bin/itnet --version
 # Three processes. tests/hardening resizes process-wide thread pools and handles signals (one

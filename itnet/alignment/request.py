@@ -8,12 +8,14 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from numpy.typing import ArrayLike
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
-from itnet.pose.request import PoseRequest, Unit, Xyz
+from itnet.pose.request import PoseRequest
+from itnet.request_fields import RequestModel, Xyz
+from itnet.size_prior import Unit
 
 if TYPE_CHECKING:
     from itnet.alignment.pipeline import AlignOptions
@@ -23,10 +25,12 @@ SYMMETRY_CHOICES = ("auto", "none", "yaw180", "yaw90", "yaw")
 DEFAULT_BUDGET_MS = 100.0
 
 
-class AlignRequest(BaseModel):
+class AlignRequest(RequestModel):
     """How to align cloud A onto cloud B (the clouds travel beside it)."""
 
     model_config = ConfigDict(extra="forbid", protected_namespaces=())
+    CLI_DEFAULTS: ClassVar[dict[str, Any]] = {"model": "chair"}  # a command line names its model
+    CLI_ALIASES: ClassVar[dict[str, tuple[str, ...]]] = {"starts": ("--ensemble",)}
 
     model: str | None = Field(default=None, description="model name (default: the server's)")
     budget_ms: float = Field(
@@ -107,9 +111,3 @@ class AlignRequest(BaseModel):
         return AlignOptions(symmetry=symmetry, refine=refine, budget_ms=self.budget_ms,
                             rivals=self.rivals, candidates=self.candidates,
                             finalists=self.finalists)  # fmt: skip
-
-
-def align_help(name: str) -> str:
-    """A field's description, for the help texts of the CLI."""
-    description = AlignRequest.model_fields[name].description or ""
-    return description[:1].upper() + description[1:] + "." if description else ""

@@ -16,67 +16,35 @@ from typing import Any, NoReturn
 import numpy as np
 import typer
 
-from itnet.alignment.request import DEFAULT_BUDGET_MS, AlignRequest, align_help
-from itnet.commands import UNITS_HELP, check_units, check_xyz, from_options
+from itnet.alignment.request import AlignRequest
+from itnet.commands.request_options import REQUEST, request_options, xyz_option
 
 LOW_PROBABILITY = 0.5
 
 
+@request_options(AlignRequest)
 def align(
     cloud_a: Path = typer.Argument(
         ..., help="Cloud A, the one to move (.ply .pcd .xyz .pts .npy)."
     ),
     cloud_b: Path = typer.Argument(..., help="Cloud B, the reference (same object, same unit)."),
-    model: str = typer.Option(
-        "chair",
-        help="Model name (a shipped one, or one in --model-dir); 'auto': classify the clouds "
-        "and use their category's model.",
-    ),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(DEFAULT_BUDGET_MS, help=align_help("budget_ms")),
-    max_iterations: int | None = typer.Option(None, help=align_help("max_iterations")),
     server: str | None = typer.Option(
         None,
         "--server",
         help="URL of a running itnet service: POST /v1/align there (default: run the models here).",
     ),
-    refine: bool | None = typer.Option(
-        None,
-        "--refine/--no-refine",
-        help="Refine the composed pose and its rivals with point-to-plane ICP (open3d). "
-        "Default: on when open3d is installed (the 'refine' extra), off otherwise.",
-        show_default=False,
-    ),
-    starts: int | None = typer.Option(
-        None, "--starts", "--ensemble", min=1, max=16, help=align_help("starts")
-    ),
-    rivals: bool = typer.Option(True, "--rivals/--no-rivals", help=align_help("rivals")),
-    candidates: int = typer.Option(6, min=1, max=64, help=align_help("candidates")),
-    symmetry: str = typer.Option("auto", help=align_help("symmetry")),
-    finalists: int = typer.Option(3, min=1, max=64, help=align_help("finalists")),
     up: str | None = typer.Option(
         None,
         help="Which way is up in both clouds, 'x,y,z' (scans from a sensor held level, e.g. "
         "'0,-1,0' for a camera whose image y points down): each pose is held upright, only its "
         "turn about up and its position are estimated. Needed by models that require up "
-        "(`itnet models`).",
-        callback=check_xyz,
-    ),
-    up_a: str | None = typer.Option(
-        None, help="Which way is up in cloud A, 'x,y,z' (overrides --up for A).", callback=check_xyz
-    ),
-    up_b: str | None = typer.Option(
-        None, help="Which way is up in cloud B, 'x,y,z' (overrides --up for B).", callback=check_xyz
-    ),
-    viewpoint: str | None = typer.Option(
-        None,
-        help="Where the sensor was in both clouds' frames, 'x,y,z' ('0,0,0' for depth-camera "
-        "clouds in their own frames): each pose's centre is finished by it.",
-        callback=check_xyz,
+        "(`itnet models`). --up-a and --up-b override it for one cloud.",
+        callback=xyz_option,
     ),
     output: Path | None = typer.Option(None, "--output", "-o", help="Write A moved onto B (.ply)."),
-    units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object."),
+    request: AlignRequest = REQUEST,
 ) -> None:
     """Estimate T_b_from_a (moves A onto B) from the two clouds' canonical poses and print it."""
     from itnet.cloud_io import CloudReadError, read_cloud, write_ply
@@ -88,24 +56,20 @@ def align(
         points_a, points_b = read_cloud(cloud_a), read_cloud(cloud_b)
     except CloudReadError as err:
         _fail(str(err))
-    ups = {"up_a": up if up_a is None else up_a, "up_b": up if up_b is None else up_b}
-    if model == "auto":
-        model = _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups)
-    request = from_options(AlignRequest, model=model, budget_ms=budget_ms, max_iterations=max_iterations,
-                       starts=starts, refine=refine, symmetry=symmetry, rivals=rivals,
-                       candidates=candidates,
-                       finalists=finalists, viewpoint=viewpoint, units=units, **ups)  # fmt: skip
+    request = request.model_copy(update={"up_a": request.up_a or up, "up_b": request.up_b or up})
+    if request.model == "auto":
+        chosen = _auto_model(server, model_dir, points_a, points_b, request)
+        request = request.model_copy(update={"model": chosen})
     if server is None:
         result = _align_here(request, model_dir, points_a, points_b, (cloud_a, cloud_b))
-        reply = {"model": model, "symmetry": result[1], **result[0].to_dict()}
+        reply = {"model": request.model, "symmetry": result[1], **result[0].to_dict()}
     else:
         reply = _align_there(server, request, points_a, points_b, (cloud_a, cloud_b))
-    t = np.asarray(reply["T_b_from_a"], dtype=np.float64)
     if output is not None:
-        write_ply(output, apply_rigid(t, points_a))
+        write_ply(output, apply_rigid(np.asarray(reply["T_b_from_a"], np.float64), points_a))
     if as_json:
-        typer.echo(json.dumps({"cloud_a": str(cloud_a), "cloud_b": str(cloud_b), **reply,
-                               **{k: v for k, v in ups.items() if v is not None},
+        ups = {k: v for k, v in (("up_a", request.up_a), ("up_b", request.up_b)) if v is not None}
+        typer.echo(json.dumps({"cloud_a": str(cloud_a), "cloud_b": str(cloud_b), **reply, **ups,
                                "output": None if output is None else str(output)}))  # fmt: skip
     else:
         _print_summary(reply)
@@ -188,7 +152,8 @@ def _exit_code(cause: BaseException | None) -> int:
     return 1
 
 
-def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) -> str:  # type: ignore[no-untyped-def]
+def _auto_model(server: str | None, model_dir: Path | None, points_a: Any, points_b: Any,
+                request: AlignRequest) -> str:  # fmt: skip
     """The pose model for ``--model auto``: in-process, both clouds classified together (one
     object; levelled by their ups where both are given); with ``--server``, the service's
     ``model: "auto"`` on cloud A (with A's up). Says which on stderr; fails (exit 2) when the
@@ -199,8 +164,8 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
         with ItnetClient(server) as client:
             try:
                 reply = client.estimate(
-                    points_a, budget_ms=budget_ms, max_iterations=1, model="auto", units=units,
-                    up=ups["up_a"],
+                    points_a, budget_ms=request.budget_ms, max_iterations=1, model="auto",
+                    units=request.units, up=request.up_a,
                 ).raw  # fmt: skip
             except ItnetClientError as err:
                 _fail(f"model auto at {server}: {err}", code=_exit_code(err))
@@ -214,8 +179,8 @@ def _auto_model(server, model_dir, points_a, points_b, budget_ms, units, ups) ->
 
         try:
             recognition = classify_together(
-                get_classifier(model_dir), [points_a, points_b], units=units,
-                ups=[ups["up_a"], ups["up_b"]],
+                get_classifier(model_dir), [points_a, points_b], units=request.units,
+                ups=[request.up_a, request.up_b],
             )  # fmt: skip
         except BadCloudError as err:
             _fail(str(err))

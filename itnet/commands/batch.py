@@ -14,9 +14,12 @@ from typing import Any, NoReturn
 
 import typer
 
-from itnet.alignment.request import DEFAULT_BUDGET_MS, align_help
+from itnet.alignment.request import AlignRequest
 from itnet.commands import recordings as rec
-from itnet.commands import scene as scene_options
+from itnet.commands import scene as scene_command
+from itnet.commands.request_options import REQUEST, request_options
+from itnet.pose.request import PoseRequest
+from itnet.scene.request import SceneRequest
 
 app = typer.Typer(
     help="Poses, alignments or scenes of many files on Ray Data (needs the 'ray' extra).",
@@ -44,22 +47,21 @@ def _require_ray() -> None:
 
 
 @app.command("pose")
+@request_options(PoseRequest)
 def pose(
     inputs: list[str] = typer.Argument(..., help="Cloud files, folders (recursive) or globs."),
     output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
     workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
     ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
-    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(1000.0, help="Time budget per cloud, in milliseconds."),
-    max_iterations: int | None = typer.Option(None, help="Iteration cap (default: the model's)."),
     threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
     batch_size: int = typer.Option(32, min=1, help="Clouds per worker call."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    request: PoseRequest = REQUEST,
 ) -> None:
     """The canonical pose of every cloud, as `itnet pose --json` gives it, in one table."""
     _require_ray()
-    from itnet.commands.in_process import get_model
+    from itnet.commands.in_process import get_catalog, get_classifier, get_model
     from itnet.scale.inputs import InputError, expand_inputs
     from itnet.scale.workers import PoseWorker
 
@@ -67,73 +69,60 @@ def pose(
         files = expand_inputs(inputs)
     except InputError as err:
         _fail(str(err))
-    request = {"budget_ms": budget_ms, "max_iterations": max_iterations}
-    args = {"model": model, "model_dir": _dir(model_dir), "request": request}
-    items = [{"file": f} for f in files]
-    get_model(model, model_dir)  # exit 2 if unknown
-    _run(PoseWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
-         progress, "clouds")  # fmt: skip
+    model = str(request.model)
+    if get_catalog(model_dir).is_auto(model):
+        get_classifier(model_dir)  # exit 2 for a folder without a classifier
+    else:
+        get_model(model, model_dir)  # exit 2 if unknown
+    args = {"model": model, "model_dir": _dir(model_dir), "request": request.model_dump()}
+    _run(PoseWorker, args, [{"file": f} for f in files], ("file",), output, workers,
+         ray_address, threads, batch_size, progress, "clouds")  # fmt: skip
 
 
 @app.command("align")
+@request_options(AlignRequest)
 def align(
     manifest: Path = typer.Argument(
         ...,
         help="Pairs: CSV with columns a,b, or .jsonl {a, b}; optional up_a, up_b ('x,y,z': which "
-        "way is up in each cloud, as itnet align --up-a/--up-b; a model that requires up needs "
-        "them).",
+        "way is up in each cloud, over --up-a/--up-b; a model that requires up needs them).",
     ),
     output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
     workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
     ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
-    model: str = typer.Option("chair", help="Model name (a shipped one, or one in --model-dir)."),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
-    budget_ms: float = typer.Option(DEFAULT_BUDGET_MS, help=align_help("budget_ms")),
-    max_iterations: int | None = typer.Option(None, help=align_help("max_iterations")),
-    refine: bool | None = typer.Option(
-        None,
-        "--refine/--no-refine",
-        show_default=False,
-        help="ICP refinement (open3d), as in itnet align: default on when open3d is installed.",
-    ),
-    starts: int | None = typer.Option(None, min=1, max=16, help=align_help("starts")),
-    candidates: int = typer.Option(6, min=1, max=64, help=align_help("candidates")),
-    symmetry: str = typer.Option("auto", help=align_help("symmetry")),
-    finalists: int = typer.Option(3, min=1, max=64, help=align_help("finalists")),
     threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
     batch_size: int = typer.Option(8, min=1, help="Pairs per worker call."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    request: AlignRequest = REQUEST,
 ) -> None:
     """T_b_from_a of every pair of a manifest, as `itnet align --json` gives it, in one table."""
     _require_ray()
     from itnet.alignment.refine import RefineUnavailable, refine_wanted
-    from itnet.alignment.request import SYMMETRY_CHOICES
     from itnet.commands.in_process import get_model
     from itnet.scale.inputs import InputError, read_manifest
     from itnet.scale.workers import AlignWorker
 
-    if symmetry not in SYMMETRY_CHOICES:
-        _fail(f"--symmetry must be one of {', '.join(SYMMETRY_CHOICES)}, got {symmetry!r}")
     try:
         pairs = read_manifest(manifest)
     except InputError as err:
         _fail(str(err))
     try:
-        refine = refine_wanted(refine, lambda why: typer.echo(f"note: no ICP refinement: {why}",
-                                                              err=True))  # fmt: skip
+        refine = refine_wanted(request.refine, lambda why: typer.echo(
+            f"note: no ICP refinement: {why}", err=True))  # fmt: skip
     except RefineUnavailable as err:
         _fail(str(err))
-    request = {"budget_ms": budget_ms, "max_iterations": max_iterations, "starts": starts,
-               "refine": refine, "symmetry": symmetry, "candidates": candidates,
-               "finalists": finalists}  # fmt: skip
-    args = {"model": model, "model_dir": _dir(model_dir), "request": request}
-    items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
+    model = str(request.model)
     get_model(model, model_dir)  # exit 2 if unknown
+    asked = request.model_copy(update={"refine": refine}).model_dump()
+    args = {"model": model, "model_dir": _dir(model_dir), "request": asked}
+    items = [{"cloud_a": a, "cloud_b": b, "up_a": ua, "up_b": ub} for a, b, ua, ub in pairs]
     _run(AlignWorker, args, items, ("cloud_a", "cloud_b"), output, workers, ray_address, threads,
          batch_size, progress, "pairs")  # fmt: skip
 
 
 @app.command("scene")
+@request_options(SceneRequest)
 def scene(
     inputs: list[str] = typer.Argument(
         ...,
@@ -143,23 +132,13 @@ def scene(
     output: Path = typer.Option(..., "--output", "-o", help=OUTPUT_HELP),
     workers: int = typer.Option(1, min=1, help=WORKERS_HELP),
     ray_address: str | None = typer.Option(None, "--ray", help=RAY_HELP),
-    model_dir: Path | None = scene_options.MODEL_DIR,
-    intrinsics: str | None = scene_options.INTRINSICS,
-    depth_scale: float | None = scene_options.DEPTH_SCALE,
-    budget_ms: float = scene_options.BUDGET_MS,
+    model_dir: Path | None = scene_command.MODEL_DIR,
+    intrinsics: str | None = scene_command.INTRINSICS,
     indices: bool = typer.Option(
         False,
         "--indices/--no-indices",
         help="Each object's point indices (thousands an object: off unless asked for).",
     ),
-    floor_centre: bool = scene_options.FLOOR_CENTRE,
-    along_floor: bool = scene_options.ALONG_FLOOR,
-    recheck: bool = scene_options.RECHECK,
-    scene_classifier: bool = scene_options.SCENE_CLASSIFIER,
-    split_touching: bool = scene_options.SPLIT_TOUCHING,
-    unknown: bool = scene_options.UNKNOWN,
-    named_split: bool = scene_options.NAMED_SPLIT,
-    up: str | None = scene_options.UP,
     topic: str | None = rec.TOPIC,
     camera_info: str | None = rec.CAMERA_INFO,
     every: int = rec.EVERY,
@@ -168,42 +147,45 @@ def scene(
     threads: int | None = typer.Option(None, min=1, help=THREADS_HELP),
     batch_size: int = typer.Option(8, min=1, help="Scenes (recordings) per worker call."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    request: SceneRequest = REQUEST,
 ) -> None:
     """Every object of every depth image or scene cloud, as `itnet scene --json` gives it: a row
     a file (a recording: a row a frame, with its topic and header), its objects in one column."""
     _require_ray()
     import dataclasses
 
-    from itnet.cloud_io import SUFFIXES
     from itnet.commands.in_process import get_classifier
+    from itnet.scale.workers import SceneWorker
+
+    chosen = rec.selection(topic, camera_info, every, start, end)
+    arguments = scene_command.scene_arguments(intrinsics, request)
+    files = _scene_files(inputs)
+    get_classifier(model_dir)  # exit 2 for a folder the workers could not name objects with
+    args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices,
+            "selection": dataclasses.asdict(chosen)}  # fmt: skip
+    _run(SceneWorker, args, [{"file": f} for f in files], ("file",), output, workers,
+         ray_address, threads, batch_size, progress, "scenes")  # fmt: skip
+
+
+def _scene_files(inputs: list[str]) -> list[str]:
+    """Depth images, clouds and recordings of ``inputs`` (a ROS 2 bag once, as its folder,
+    however many storage files it has); exit 2 where there are none."""
+    from itnet.cloud_io import SUFFIXES
     from itnet.recordings import is_recording
     from itnet.recordings.bag import RECORDING_SUFFIXES, bag_root
     from itnet.scale.inputs import InputError, expand_inputs
-    from itnet.scale.workers import SceneWorker
     from itnet.scene.inputs import IMAGE_SUFFIXES
 
-    chosen = rec.selection(topic, camera_info, every, start, end)
-    arguments = scene_options.scene_arguments(intrinsics, depth_scale, budget_ms, up,  # type: ignore[arg-type]
-                                              floor_centre, along_floor, recheck,
-                                              scene_classifier, split_touching, unknown,
-                                              named_split)  # fmt: skip
     try:
         files = expand_inputs(inputs, IMAGE_SUFFIXES + SUFFIXES + RECORDING_SUFFIXES,
                               "depth images, clouds or recordings")  # fmt: skip
     except InputError as err:
         _fail(str(err))
-    get_classifier(model_dir)  # exit 2 for a folder the workers could not name objects with
     if any(is_recording(Path(f)) for f in files):
         rec.require_rosbags()
-    # a ROS 2 bag is its folder, however many storage files it has
-    files = list(
+    return list(
         dict.fromkeys(str(bag_root(Path(f))) if is_recording(Path(f)) else f for f in files)
     )
-    args = {"model_dir": _dir(model_dir), "arguments": arguments, "indices": indices,
-            "selection": dataclasses.asdict(chosen)}  # fmt: skip
-    items = [{"file": f} for f in files]
-    _run(SceneWorker, args, items, ("file",), output, workers, ray_address, threads, batch_size,
-         progress, "scenes")  # fmt: skip
 
 
 def _dir(path: Path | None) -> str | None:

@@ -9,14 +9,18 @@ from pathlib import Path
 
 import typer
 
-from itnet.commands import UNITS_HELP, check_units, check_xyz
+from itnet.commands import check_units
+from itnet.commands.request_options import xyz_option
+from itnet.pose.request import PoseRequest
 
 
 def classify(
     files: list[Path] = typer.Argument(..., help="Cloud files: .ply .pcd .xyz .pts .txt .npy"),
     model_dir: Path | None = typer.Option(None, help="Folder of .onnx models (default: shipped)."),
     top: int = typer.Option(3, help="Candidates to print (most probable first)."),
-    units: str | None = typer.Option(None, help=UNITS_HELP, callback=check_units),
+    units: str | None = typer.Option(
+        None, help=PoseRequest.field_help("units"), callback=check_units
+    ),
     looks: int = typer.Option(
         1,
         min=1,
@@ -28,7 +32,7 @@ def classify(
         None,
         help="Which way is up in the clouds, 'x,y,z' (gravity): each is classified levelled, by "
         "the upright classifier where one is installed.",
-        callback=check_xyz,
+        callback=xyz_option,
     ),
     second_looks: int | None = typer.Option(
         None,

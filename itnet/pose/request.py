@@ -4,34 +4,22 @@ Every way in uses it: the JSON body and the binary body's query string of ``POST
 the WebSocket's first message, ``itnet pose``, alignment, batch, both Python clients and the web
 page (tests check that each of them offers every field). Validation is strict: a number is a
 JSON number (``"budget_ms": "50"`` and ``"budget_ms": true`` are refused), except in a query
-string, where every value is text (:meth:`PoseRequest.from_query`).
+string, where every value is text (``RequestModel.from_query``).
 
 Frames: ``viewpoint`` and ``up`` are in the cloud's own frame (and, for ``viewpoint``, units).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
+from itnet.request_fields import RequestModel, Xyz
 from itnet.size_prior import Unit
 
-# Three numbers, [x, y, z] in JSON; 'x,y,z' in a query string (PoseRequest.from_query).
-Xyz = Annotated[list[float], Field(min_length=3, max_length=3)] | None
-XYZ_FIELDS = ("viewpoint", "up")
 
-
-def _numbers(text: str) -> list[float] | str:
-    """'0,-1,0' -> [0.0, -1.0, 0.0]; text that is not numbers as it is (validation says why)."""
-    try:
-        return [float(v) for v in text.split(",")]
-    except ValueError:
-        return text
-
-
-class PoseRequest(BaseModel):
+class PoseRequest(RequestModel):
     """How long, with which model, and with which finishing stages to estimate a pose.
 
     ``None`` means "the model card's default" for every switch (``ensemble``, ``mirror``,
@@ -39,6 +27,9 @@ class PoseRequest(BaseModel):
     rest of the request, the same way for every caller."""
 
     model_config = ConfigDict(strict=True, extra="forbid", protected_namespaces=())
+    # A command line poses files and waits for the best pose: a second, and the chair model by
+    # name (``itnet pose``, ``itnet batch pose``).
+    CLI_DEFAULTS: ClassVar[dict[str, Any]] = {"budget_ms": 1000.0, "model": "chair"}
 
     budget_ms: float = Field(
         default=50.0,
@@ -110,37 +101,6 @@ class PoseRequest(BaseModel):
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "
         "toward its category as well as its form; the pose does not depend on it",
     )
-
-    @classmethod
-    def from_query(cls, query: Mapping[str, str]) -> PoseRequest:
-        """A query string's fields (every value text: '50', 'true', '0,-1,0') -> PoseRequest.
-        Raises pydantic.ValidationError."""
-        fields: dict[str, Any] = dict(query)
-        xyz = {k: _numbers(fields.pop(k)) for k in XYZ_FIELDS if k in fields}
-        return cls.model_validate({**cls.model_validate_strings(fields).options(), **xyz})
-
-    def to_query(self) -> dict[str, str]:
-        """The fields set to other than their default, as a query string's values (the binary
-        body's parameters; the inverse of :meth:`from_query`)."""
-        out = {}
-        for name, value in self.model_dump(exclude_defaults=True).items():
-            if isinstance(value, bool):
-                out[name] = "true" if value else "false"
-            elif isinstance(value, list):
-                out[name] = ",".join(f"{float(v):.9g}" for v in value)
-            else:
-                out[name] = str(value)
-        return out
-
-    def options(self) -> dict[str, Any]:
-        """The fields set to other than their default (a reply's or a log's view of it)."""
-        return self.model_dump(exclude_defaults=True)
-
-
-def field_help(name: str) -> str:
-    """A field's description, for the help texts of the CLI and the clients."""
-    description = PoseRequest.model_fields[name].description
-    return description[0].upper() + description[1:] + "." if description else ""
 
 
 REQUEST_FIELDS: tuple[str, ...] = tuple(PoseRequest.model_fields)

@@ -22,8 +22,9 @@ from itnet.scene.inputs import (
     from_file,
     from_png,
 )
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, find_objects
+from itnet.scene.pipeline import find_objects
 from itnet.scene.posing import scene_catalog
+from itnet.scene.request import DEFAULT_BUDGET_MS, SceneFinishing, SceneRequest
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import SegmentOptions
@@ -38,6 +39,7 @@ __all__ = [
     "SceneInputError",
     "SceneLimits",
     "SceneObject",
+    "SceneRequest",
     "SceneResult",
     "SceneTooLargeError",
     "SegmentOptions",

@@ -47,6 +47,7 @@ from itnet.scene.posing import (
     top_height,
     with_pose,
 )
+from itnet.scene.request import DEFAULT_BUDGET_MS, SceneFinishing, up_direction
 from itnet.scene.result import Box, SceneObject, SceneResult
 from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import (
@@ -58,33 +59,6 @@ from itnet.scene.segment import (
 )
 from itnet.scene.touching import load_cut_judge
 from itnet.scene.view_edges import ViewEdges
-
-# A usual frame (up to six objects, 640 x 480) segments in about 60-80 ms on 2 cores and each
-# object's naming and pose take 20-30 ms: at 250 ms every object of such frames is posed
-# (docs/scenes.md, "Cost at each resolution").
-DEFAULT_BUDGET_MS = 250.0
-
-
-@dataclass(frozen=True)
-class SceneFinishing:
-    """What each posed object of a scene gets after its pose pipeline, in order; each step a
-    switch, all on by default (docs/scenes.md)."""
-
-    floor_centre: bool = True  # stood on the floor: its height from the floor (floor_centred)
-    along_floor: bool = True  # its place along the floor by its pose model's scene correction
-    recheck: bool = True  # a pose its verifier doubts weighed against the second category's
-    # ... unless its base is out of view: it reaches within view_edge_deg of the view's bottom
-    # edge, and its lowest point seen stands above this share of its top (base_low_share)
-    view_edge_deg: float = 1.0
-    base_low_share: float = 0.2
-    # an object whose base is out of view posed by its category's network for such views
-    # (``<category>_base_hidden``) where the models have one
-    base_hidden_models: bool = True
-    # a cluster no category fits answered as unknown (``itnet.scene.unknown``), not named ...
-    unknown: bool = True
-    # ... unless the recognition parts it into two objects that categories fit (``named_split``)
-    named_split: bool = True
-
 
 VIEWPOINT = np.zeros(3)  # the camera, in its own frame
 
@@ -241,21 +215,6 @@ def _parts(context: _Context, points: NDArray, deadline: float) -> list[NDArray[
     namer = Namer(context.catalog, context.namer, context.categories, context.found.floor,
                   VIEWPOINT)  # fmt: skip
     return named_parts(points, namer, load_cut_judge(), deadline)
-
-
-def up_direction(value: NDArray | tuple[float, float, float] | str) -> NDArray[np.float64]:
-    """Which way is up, three numbers or 'x,y,z' -> (3,); ValueError unless they are three
-    finite numbers, not all 0."""
-    try:
-        up = np.asarray(
-            [float(v) for v in value.split(",")] if isinstance(value, str) else value,
-            dtype=np.float64,
-        )
-    except ValueError:
-        up = np.empty(0)
-    if up.shape != (3,) or not np.isfinite(up).all() or not up.any():
-        raise ValueError(f"up must be three finite numbers 'x,y,z', not all 0, got {value!r}")
-    return up
 
 
 _SHIPPED: Catalog | None = None

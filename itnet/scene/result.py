@@ -4,6 +4,7 @@ their JSON form (the CLI's line, the HTTP reply)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -116,3 +117,9 @@ def _plane(plane: Plane) -> dict[str, Any]:
 
 def _rounded(values: NDArray) -> list[Any]:
     return np.round(np.asarray(values, dtype=np.float64), 6).tolist()
+
+
+def scene_row(path: Path | str, result: SceneResult, indices: bool) -> dict[str, Any]:
+    """What ``itnet scene --json`` prints for a file (and ``itnet batch scene`` writes):
+    ``file`` and the result's JSON form."""
+    return {"file": str(path), **result.as_dict(indices)}

@@ -14,6 +14,7 @@ from fastapi import APIRouter, Request, Response
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.reply import estimates_to_dicts
 from itnet.pose.request import PoseRequest
+from itnet.request_fields import query_parameters
 from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError
 from itnet.service.schemas import EXAMPLE_REQUEST, ErrorResponse, EstimateRequest, EstimateResponse
@@ -31,24 +32,8 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 }
 
 
-def _query_parameters() -> list[dict[str, Any]]:
-    """PoseRequest as the query parameters of a binary request (one source for both bodies):
-    each field's JSON schema without its null branch; three numbers as the string 'x,y,z'."""
-    out = []
-    for name, field in PoseRequest.model_json_schema()["properties"].items():
-        branches = [b for b in field.get("anyOf", [field]) if b.get("type") != "null"]
-        schema = {k: v for k, v in branches[0].items() if k not in ("title", "description")}
-        if schema.get("type") == "array":
-            schema = {"type": "string", "pattern": r"^[^,]+,[^,]+,[^,]+$"}
-        if field.get("default") is not None:
-            schema["default"] = field["default"]
-        out.append({"name": name, "in": "query", "required": False, "schema": schema,
-                    "description": f"binary bodies only: {field['description']}"})  # fmt: skip
-    return out
-
-
 OPENAPI_EXTRA = {
-    "parameters": _query_parameters(),
+    "parameters": query_parameters(PoseRequest, "binary bodies only: "),
     "requestBody": {
         "required": True,
         "content": {

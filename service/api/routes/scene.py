@@ -18,12 +18,15 @@ budget counts from the request's arrival (its upload and decoding included), as 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Annotated, Any
 
 import anyio
 import numpy as np
 from fastapi import APIRouter, Query, Request
+from pydantic import ValidationError
 
+from itnet.request_fields import query_parameters
 from itnet.scene import (
     Intrinsics,
     SceneInputError,
@@ -34,11 +37,10 @@ from itnet.scene import (
 )
 from itnet.scene.depth_io import read_npy
 from itnet.scene.inputs import SceneInput, SceneLimits, from_png
-from itnet.scene.pipeline import DEFAULT_BUDGET_MS, SceneFinishing, up_direction
 from itnet.scene.posing import NoClassifierError
-from itnet.scene.segment import CAMERA_UP, SegmentOptions
+from itnet.scene.request import SceneRequest
 from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
-from itnet.service.errors import ServiceError, malformed_json
+from itnet.service.errors import ServiceError, describe_errors, malformed_json
 from itnet.service.schemas import ErrorResponse
 from itnet.service.state import ServiceState
 
@@ -56,7 +58,9 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     },
     503: {"model": ErrorResponse, "description": "not ready, or busy (see Retry-After)"},
 }
+ROUTE_PARAMETERS = ("fx", "fy", "cx", "cy", "indices", "points")  # the rest: SceneRequest's
 OPENAPI_EXTRA = {
+    "parameters": query_parameters(SceneRequest),
     "requestBody": {
         "required": True,
         "content": {
@@ -81,7 +85,7 @@ OPENAPI_EXTRA = {
                 }
             },
         },
-    }
+    },
 }
 Focal = Annotated[float | None, Query(gt=0, description="focal length in pixels (depth images)")]
 Centre = Annotated[float | None, Query(description="principal point in pixels (depth images)")]
@@ -101,12 +105,6 @@ async def scene(
     fy: Focal = None,
     cx: Centre = None,
     cy: Centre = None,
-    depth_scale: Annotated[
-        float | None, Query(gt=0, description="depth units per metre (default: 1000 for 16-bit)")
-    ] = None,
-    budget_ms: Annotated[
-        float, Query(gt=0, description="time budget for the whole scene, ms")
-    ] = DEFAULT_BUDGET_MS,
     indices: Annotated[bool, Query(description="each object's point indices")] = True,
     points: Annotated[
         int,
@@ -117,62 +115,36 @@ async def scene(
             "drawn at random, with the object each belongs to (for drawing; -1: none)",
         ),
     ] = 0,
-    floor_centre: Annotated[bool, Query(description="each object's height from the floor")] = True,
-    along_floor: Annotated[
-        bool, Query(description="each object's place along the floor (scene correction)")
-    ] = True,
-    recheck: Annotated[
-        bool, Query(description="a doubted pose weighed against the second category's")
-    ] = True,
-    scene_classifier: Annotated[
-        bool, Query(description="name objects by their shape on the floor too (else height only)")
-    ] = True,
-    split_touching: Annotated[
-        bool, Query(description="cut a cluster where the cut judge finds two objects touching")
-    ] = True,
-    unknown: Annotated[
-        bool, Query(description="a cluster no category fits answered as unknown (category null)")
-    ] = True,
-    named_split: Annotated[
-        bool, Query(description="a cluster too large for its category parted in two objects")
-    ] = True,
-    up: Annotated[
-        str | None,
-        Query(
-            description="which way is up in the camera's frame, 'x,y,z' (default 0,-1,0); "
-            "the floor is searched within 45 degrees of it"
-        ),
-    ] = None,
 ) -> dict[str, Any]:
     """The reply is ``itnet scene --json``'s object: ``objects`` (each with ``category``,
     ``category_probability``, ``T_canonical_from_input`` or null, ``box``, ``points``,
-    ``indices``), ``up``, ``floor``, ``walls`` and the times."""
-    limit = state.settings.limits.max_budget_ms
-    if budget_ms > limit:
-        raise ServiceError(422, "invalid_request",
-                           f"budget_ms {budget_ms:g} is over the limit of {limit:g} ms")  # fmt: skip
+    ``indices``), ``up``, ``floor``, ``walls`` and the times. The query's other fields are
+    ``SceneRequest``'s."""
+    asked = _scene_request(request.query_params, state.settings.limits.max_budget_ms)
     given = [v for v in (fx, fy, cx, cy) if v is not None]
     if given and len(given) != 4:
         raise ServiceError(422, "invalid_request", "give all four intrinsics: fx, fy, cx, cy")
     camera = Intrinsics(fx, fy, cx, cy) if fx and fy and cx is not None and cy is not None else None
-    expected_up = _direction(up) if up is not None else CAMERA_UP
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     with state.gate.slot():
         return await anyio.to_thread.run_sync(
-            _find, state, body, kind, camera, depth_scale, budget_ms, indices, points,
-            SceneFinishing(floor_centre, along_floor, recheck, unknown=unknown,
-                           named_split=named_split), scene_classifier,
-            SegmentOptions(split_touching=split_touching), expected_up, arrived,
-        )  # fmt: skip
+            _find, state, body, kind, camera, asked, indices, points, arrived
+        )
 
 
-def _direction(text: str) -> tuple[float, float, float]:
-    """'x,y,z' -> three finite numbers, not all 0 (else a 422)."""
+def _scene_request(query: Mapping[str, str], max_budget_ms: float) -> SceneRequest:
+    """The query's ``SceneRequest`` fields (the route's own parameters left out) -> the request;
+    a 422 saying what is wrong, or that the budget is over this service's limit."""
+    fields = {k: v for k, v in query.items() if k not in ROUTE_PARAMETERS}
     try:
-        x, y, z = up_direction(text)
-    except ValueError as err:
-        raise ServiceError(422, "invalid_request", str(err)) from None
-    return float(x), float(y), float(z)
+        asked = SceneRequest.from_query(fields)
+    except ValidationError as err:
+        errors = err.errors(include_input=False, include_url=False)
+        raise ServiceError(422, "invalid_request", describe_errors(errors)) from None
+    if asked.budget_ms > max_budget_ms:
+        raise ServiceError(422, "invalid_request",
+                           f"budget_ms {asked.budget_ms:g} is over the limit of {max_budget_ms:g} ms")  # fmt: skip
+    return asked
 
 
 def _decode(
@@ -202,22 +174,17 @@ def _decode(
 
 
 def _find(
-    state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None,
-    depth_scale: float | None, budget_ms: float, indices: bool, shown: int = 0,
-    finishing: SceneFinishing = SceneFinishing(), scene_classifier: bool = True,
-    options: SegmentOptions = SegmentOptions(),
-    expected_up: tuple[float, float, float] = CAMERA_UP, arrived: float | None = None,
+    state: ServiceState, body: bytes, kind: str, camera: Intrinsics | None, asked: SceneRequest,
+    indices: bool, shown: int = 0, arrived: float | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Decode and find the objects (CPU: a worker thread), the budget counted from the
     request's ``arrived`` (``time.perf_counter()``; default now)."""
     if not state.ready:
         raise ServiceError(503, "not_ready", f"no model is loaded: {state.load_error}")
+    arguments = asked.arguments()
     try:
-        given = _decode(body, kind, camera, depth_scale)
-        result = find_objects(given, budget_ms=budget_ms, catalog=state.catalog,
-                              finishing=finishing, scene_classifier=scene_classifier,
-                              options=options, expected_up=expected_up,
-                              started=arrived)  # fmt: skip
+        given = _decode(body, kind, camera, arguments.pop("depth_scale"))
+        result = find_objects(given, catalog=state.catalog, started=arrived, **arguments)
     except SceneTooLargeError as err:
         raise ServiceError(413, "too_large", str(err)) from None
     except SceneInputError as err:
