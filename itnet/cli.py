@@ -14,6 +14,7 @@ from itnet.commands import (
     classify,
     evaluate,
     export,
+    fit,
     models,
     pose,
     scene,
@@ -79,6 +80,12 @@ app.add_typer(
     name="batch",
     rich_help_panel=USE,
     short_help="Pose or align large collections of clouds on Ray Data.",
+)
+app.add_typer(
+    fit.app,
+    name="fit",
+    rich_help_panel=BUILD,
+    short_help="Fit the scene files (classifier, cut judge, corrections), measure the categories.",
 )
 
 align_app = typer.Typer(add_completion=False)

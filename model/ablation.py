@@ -10,14 +10,15 @@ on the chair test split at its own number of unrolled iterations and at 10:
 No choice is made on these numbers (every row takes its last step), so they come from the test
 split directly. One command reruns it and writes ``OUT/ablation.md`` and ``OUT/ablation.json``::
 
-    python -m itnet.model.ablation --steps 600 --out runs/ablation
+    itnet fit ablation --steps 600 --out runs/ablation
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
 
 PAPER = {  # Yuan et al., ICCV 2019, cars, accuracy % for 1-7 unrolled iterations
     "ours": [36.9, 41.7, 47.7, 61.1, 67.6, 62.6, 48.2],
@@ -31,7 +32,24 @@ ROWS: list[tuple[str, dict]] = [
 ]
 
 
-def run_row(name: str, overrides: dict, args: argparse.Namespace) -> dict:
+class Ablation(BaseModel):
+    """How the ablation is run: the data, where each row's run goes, and the training size."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: Path = Field(default=Path("../shared/data/modelnet10"), description="ModelNet10 root")
+    out: Path = Field(default=Path("runs/ablation"), description="the rows' runs and the table")
+    cache: Path = Field(default=Path("cache"), description="the views' cache")
+    steps: int = Field(default=600, ge=1, description="training steps per row")
+    batch: int = Field(default=32, ge=2, description="clouds a training step")
+    views: int = Field(default=2, ge=1, description="test views per chair")
+    threads: int = Field(default=0, ge=0, description="torch threads (0: torch's default)")
+    rows: str | None = Field(
+        default=None, description="row names to run, comma-separated (default: all)"
+    )
+
+
+def run_row(name: str, overrides: dict, args: Ablation) -> dict:
     """Train one row (resumable: its own run folder) and measure it on the test split."""
     import numpy as np
 
@@ -87,25 +105,13 @@ def table(results: list[dict], steps: int) -> str:
     return "\n".join(lines) + f"\n\n{steps} steps per row, {scans} occluded test scans of chairs.\n"
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--out", type=Path, default=Path("runs/ablation"))
-    parser.add_argument("--cache", type=Path, default=Path("cache"))
-    parser.add_argument("--steps", type=int, default=600)
-    parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--views", type=int, default=2, help="test views per chair")
-    parser.add_argument("--threads", type=int, default=0)
-    parser.add_argument("--rows", nargs="*", help="row names to run (default: all)")
-    args = parser.parse_args(argv)
-    rows = [r for r in ROWS if not args.rows or r[0] in args.rows]
-    results = [run_row(name, overrides, args) for name, overrides in rows]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "ablation.json").write_text(json.dumps(results, indent=1))
-    (args.out / "ablation.md").write_text(table(results, args.steps))
-    print(table(results, args.steps))
+def run_ablation(config: Ablation) -> list[dict]:
+    """Train and measure every row asked for; write ``OUT/ablation.json`` and ``OUT/ablation.md``
+    and return the rows."""
+    asked = None if config.rows is None else set(config.rows.split(","))
+    rows = [r for r in ROWS if asked is None or r[0] in asked]
+    results = [run_row(name, overrides, config) for name, overrides in rows]
+    config.out.mkdir(parents=True, exist_ok=True)
+    (config.out / "ablation.json").write_text(json.dumps(results, indent=1))
+    (config.out / "ablation.md").write_text(table(results, config.steps))
     return results
-
-
-if __name__ == "__main__":
-    main()

@@ -5,7 +5,7 @@ Canonical frame (SPEC.md): +y up, the object's front toward -z; a bed's head end
 category without a front has its longest horizontal extent along x. ModelNet10's files go
 through the chair's mapping ``(x, y, z) -> (-x, z, y)`` (``shapes.FRAME_ROTATIONS['modelnet']``),
 then a per-class number of quarter turns about +y (``quarter_turns``), measured on the training
-split (``python -m itnet.model.categories``):
+split (``itnet fit categories``):
 
 * chair, bed, toilet: the back (headboard, tank) is the upper part and leans to +z for 95-100%:
   no turn.
@@ -29,7 +29,9 @@ more for the others (the bed's head end, the chair's back).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -196,39 +198,33 @@ def frame_statistics(shapes: list[Shape]) -> dict[str, float]:
     }
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Print each category's measured self-match ratios, decided and declared symmetry, and how
-    its shapes sit in the canonical frame after the category's turn. Default: ModelNet10's
-    classes; ``--data DIR --category NAME --frame F``: a user's category."""
-    import argparse
-    from pathlib import Path
+FRAME_COLUMNS = ("class", "ratio 90", "ratio 180", "ratio other", "measured", "declared",
+                 "mirror x", "mirror z", "mirrors declared", "turn", "long axis along x",
+                 "upper part toward +z")  # fmt: skip
 
+
+def measured_frames(
+    data: Path, names: Sequence[str], frame: str = "modelnet", shapes: int = 80
+) -> list[tuple[str, ...]]:
+    """Each category's measured self-match ratios, decided and declared symmetry, and how its
+    shapes sit in the canonical frame after the category's turn, on ``shapes`` random training
+    shapes of ``data`` (a ModelNet-style root) read in ``frame``: one row of ``FRAME_COLUMNS``
+    a category."""
     from itnet.model.data import split_files
     from itnet.model.shapes import load_shape
 
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--category", nargs="*", default=list(MODELNET10))
-    parser.add_argument("--frame", default="modelnet")
-    parser.add_argument("--shapes", type=int, default=80, help="training shapes per category")
-    args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
-    print("| class | ratio 90 | ratio 180 | ratio other | measured | declared | mirror x | mirror z "
-          "| mirrors declared | turn | long axis along x | upper part toward +z |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for name in args.category:
+    rows = []
+    for name in names:
         cat = category(name)
-        files = split_files(args.data, name, 0.1, 0)["train"]
-        count = min(args.shapes, len(files))
+        files = split_files(data, name, 0.1, 0)["train"]
+        count = min(shapes, len(files))
         picked = [files[i] for i in rng.choice(len(files), count, replace=False)]
-        shapes = [load_shape(f, args.frame, cat.quarter_turns) for f in picked]
-        ratios, frame = self_match_ratios(shapes, rng), frame_statistics(shapes)
-        print(f"| {name} | {ratios['yaw90']} | {ratios['yaw180']} | {ratios['yaw']} | "
-              f"{decide_symmetry(ratios)} | {cat.symmetry} | {ratios['mirror_x']} | "
-              f"{ratios['mirror_z']} | {','.join(cat.mirror_planes) or '-'} | "
-              f"{90 * cat.quarter_turns}° | "
-              f"{frame['long_axis_x']:.0%} | {frame['leans_+z']:.0%} |")  # fmt: skip
-
-
-if __name__ == "__main__":
-    main()
+        loaded = [load_shape(f, frame, cat.quarter_turns) for f in picked]
+        ratios, sits = self_match_ratios(loaded, rng), frame_statistics(loaded)
+        rows.append((name, str(ratios["yaw90"]), str(ratios["yaw180"]), str(ratios["yaw"]),
+                     decide_symmetry(ratios), cat.symmetry, str(ratios["mirror_x"]),
+                     str(ratios["mirror_z"]), ",".join(cat.mirror_planes) or "-",
+                     f"{90 * cat.quarter_turns}°", f"{sits['long_axis_x']:.0%}",
+                     f"{sits['leans_+z']:.0%}"))  # fmt: skip
+    return rows

@@ -5,14 +5,13 @@ Reads the ``report.json`` files that ``itnet eval`` wrote for each category and 
 writes ``OUT/eval_categories.md`` (the README's table), ``OUT/eval_categories.json`` and
 ``OUT/anytime_categories.png`` (every category's anytime curve, one panel per kind of view)::
 
-    python -m itnet.model.category_report runs/eval_categories docs
+    itnet fit category-report runs/eval_categories docs
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 SCANNERS = ("occluded", "paper")  # every category has both
@@ -107,16 +106,14 @@ def plot(reports: dict[str, dict[str, dict]], path: Path) -> Path:
     return path
 
 
-def main(argv: list[str] | None = None) -> None:
-    evals, out = (Path(a) for a in (argv or sys.argv[1:]))
+def write_report(evals: Path, out: Path) -> str:
+    """The per-category evaluations under ``evals`` (``<category>/{occluded,paper}/report.json``)
+    -> ``OUT/eval_categories.md``, ``.json`` and the anytime plot; returns the table. ValueError
+    where there is none."""
     reports = load_reports(evals)
     if not reports:
-        raise SystemExit(f"{evals}: no <category>/{{occluded,paper}}/report.json found")
+        raise ValueError(f"{evals}: no <category>/{{occluded,paper}}/report.json found")
     (out / "eval_categories.md").write_text(table(reports))
     (out / "eval_categories.json").write_text(json.dumps(reports, indent=1))
     plot(reports, out / "anytime_categories.png")
-    print(table(reports))
-
-
-if __name__ == "__main__":
-    main()
+    return table(reports)

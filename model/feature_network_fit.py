@@ -3,7 +3,6 @@ samples' cache the fitting commands share."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from collections.abc import Callable
@@ -11,8 +10,8 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-import torch
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
 
 from itnet.scene.feature_network import FeatureNetwork
 
@@ -23,6 +22,8 @@ def fit_network(
 ) -> FeatureNetwork:  # fmt: skip
     """Features (S, F) and their labels (S,), each one of ``classes`` -> the network: full-batch
     Adam (lr 0.01, weight decay) on the cross-entropy, ``epochs`` steps from a seeded start."""
+    import torch
+
     torch.manual_seed(seed)
     mean, scale = features.mean(0), features.std(0) + 1e-6
     x = torch.tensor((features - mean) / scale, dtype=torch.float32)
@@ -57,26 +58,30 @@ def cached(
     return features, labels
 
 
-def add_fit_arguments(
-    parser: argparse.ArgumentParser, hidden: int, weight_decay: float, epochs: int,
-    threshold_seed: int, out: Path, threshold_help: str,
-) -> None:  # fmt: skip
-    """The options every fitting command shares, with its defaults: the network's (hidden,
-    weight decay, epochs), the validation scenes its threshold is chosen on, the data, the
-    samples' caches and the file written."""
-    parser.add_argument("--hidden", type=int, default=hidden, help="chosen on validation scenes")
-    parser.add_argument("--weight-decay", type=float, default=weight_decay,
-                        help="chosen on validation")  # fmt: skip
-    parser.add_argument("--epochs", type=int, default=epochs, help="chosen on validation")
-    parser.add_argument("--threshold-scenes", type=int, default=300, help=threshold_help)
-    parser.add_argument("--threshold-seed", type=int, default=threshold_seed)
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
-    parser.add_argument("--samples", type=Path, default=None,
-                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
-    parser.add_argument("--threshold-samples", type=Path, default=None,
-                        help="the same for the validation scenes")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=out)
+class FeatureFitConfig(BaseModel):
+    """What every fit of a feature network shares: the network (hidden units, weight decay,
+    epochs), the validation scenes its threshold is chosen on, the data, the samples' caches and
+    the file written. Each fit declares its own defaults for these."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    hidden: int = Field(default=32, ge=1, description="hidden units (chosen on validation scenes)")
+    weight_decay: float = Field(default=1e-4, ge=0, description="chosen on validation")
+    epochs: int = Field(default=1000, ge=1, description="chosen on validation")
+    threshold_scenes: int = Field(
+        default=300, ge=1, description="validation scenes the threshold is chosen on"
+    )
+    threshold_seed: int = Field(default=5, description="their seed")
+    data: Path = Field(default=Path("../shared/data/modelnet10"), description="ModelNet10 root")
+    cache: Path = Field(default=Path("cache/scenes"), description="the shapes' cache")
+    samples: Path | None = Field(
+        default=None,
+        description="an .npz of the scenes' samples: read where it exists, else written",
+    )
+    threshold_samples: Path | None = Field(
+        default=None, description="the same for the validation scenes"
+    )
+    out: Path = Field(description="the file written")
 
 
 class Fitted(Protocol):
@@ -96,4 +101,4 @@ def write_fitted(path: Path, fitted: Fitted, started: float) -> None:
     )
 
 
-__all__ = ["add_fit_arguments", "cached", "fit_network", "write_fitted"]
+__all__ = ["FeatureFitConfig", "cached", "fit_network", "write_fitted"]

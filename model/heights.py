@@ -2,12 +2,11 @@
 extent along ModelNet's up (+z), their units read as inches (as the classifier's size prior reads
 them).
 
-    python -m itnet.model.heights --data ../shared/data/modelnet10
+    itnet fit heights --data ../shared/data/modelnet10
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +26,3 @@ def measure(data: Path) -> dict[str, tuple[float, float]]:
         median, spread = log_median_and_spread(np.log(np.maximum(heights, 1e-6)))
         table[folder.name] = (round(float(np.exp(median)), 2), round(spread, 2))
     return table
-
-
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description="Measure the scenes' height table.")
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    for name, (median, spread) in measure(parser.parse_args().data).items():
-        print(f'    "{name}": ({median}, {spread}),')

@@ -8,14 +8,14 @@ named right and with its rotation within 20 degrees (the others are in a wrong b
 centre helps) gives the features of its moved points and where its true centre lies in that
 frame; a ridge regression per pose model is its correction::
 
-    python -m itnet.model.scene_centre_fit                       # writes the shipped table
-    python -m itnet.model.scene_centre_fit --model-dir DIR --out DIR/centre_along_floor.json
+    itnet fit scene-centre                       # writes the shipped table
+    itnet fit scene-centre --model-dir DIR --out DIR/centre_along_floor.json
 
 The networks for objects whose base is out of view (``<category>_base_hidden``) pose only such
 objects, which the usual scenes rarely hold: their corrections are fitted on scenes of a level
 camera with objects cut off by the view, and added to the table as it is::
 
-    python -m itnet.model.scene_centre_fit --only chair_base_hidden,toilet_base_hidden \
+    itnet fit scene-centre --only chair_base_hidden,toilet_base_hidden \
         --draw chair,toilet,bathtub --pitch 0,0 --most 2 --cut-off
 
 The table names each model's graph by its SHA-256, so it applies only to the graphs it was
@@ -24,7 +24,6 @@ fitted for. Choosing it and measuring it: ``benchmarks/bench_scene.py`` (``--no-
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
@@ -32,16 +31,16 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
 from itnet.centre import fit_centre_correction
 from itnet.model.categories import MODELNET10
 from itnet.model.scenes import (
     FIT_SPLIT,
     WITH_DESKS,
-    add_kind_arguments,
+    SceneKind,
     make_scene,
     matched_objects,
-    scene_kind,
     split_shapes,
 )
 from itnet.scene import find_objects, scene_catalog
@@ -113,52 +112,66 @@ def fit_table(samples: dict, catalog, ridge: float) -> tuple[CentreTable, dict]:
     return CentreTable(corrections), stats
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", type=int, default=2000)
-    parser.add_argument("--seed", type=int, default=11)
-    parser.add_argument("--shapes", type=int, default=150, help="training shapes a category")
-    parser.add_argument("--ridge", type=float, default=300.0, help="chosen on validation scenes")
-    parser.add_argument("--budget-ms", type=float, default=1000.0,
-                        help="each scene's (generous: the fit wants the served pose's finish)")  # fmt: skip
-    parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
-    parser.add_argument("--cache", type=Path, default=Path("cache/scenes"))
-    parser.add_argument("--model-dir", type=Path, default=None)
-    parser.add_argument("--samples", type=Path, default=None,
-                        help="an .npz of the scenes' samples: read where it exists, else written")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=TABLE)
-    parser.add_argument("--only", default=None,
-                        help="fit these models (comma-separated) and keep the others' from --out")  # fmt: skip
-    add_kind_arguments(parser, "all nine")
-    args = parser.parse_args(argv)
-    kind = scene_kind(args, parser, WITH_DESKS)
-    catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
-    if args.samples is not None and args.samples.exists():
-        with np.load(args.samples) as saved:
+class SceneCentreFit(SceneKind):
+    """How the pose models' scene corrections are fitted: the scenes (``SceneKind``: which) and
+    the ridge regression."""
+
+    scenes: int = Field(default=2000, ge=1, description="scenes of training shapes")
+    seed: int = Field(default=11, description="their seed")
+    shapes: int = Field(default=150, ge=1, description="training shapes a category")
+    ridge: float = Field(default=300.0, ge=0, description="chosen on validation scenes")
+    budget_ms: float = Field(
+        default=1000.0,
+        gt=0,
+        description="each scene's budget (generous: the fit wants the served pose's finish)",
+    )
+    data: Path = Field(default=Path("../shared/data/modelnet10"), description="ModelNet10 root")
+    cache: Path = Field(default=Path("cache/scenes"), description="the shapes' cache")
+    model_dir: Path | None = Field(
+        default=None, description="the models fitted (default: the shipped ones)"
+    )
+    samples: Path | None = Field(
+        default=None,
+        description="an .npz of the scenes' samples: read where it exists, else written",
+    )
+    out: Path = Field(default=TABLE, description="the table written (default: the shipped one)")
+    only: str | None = Field(
+        default=None,
+        description="fit these models (comma-separated) and keep the others' from out",
+    )
+
+
+def fit_centre_table(config: SceneCentreFit) -> tuple[CentreTable, dict]:
+    """Fit each pose model's correction on the scenes, write the table to ``config.out`` (the
+    models not in ``only`` keep theirs) and return it with each model's statistics. ValueError
+    for scenes ``SceneKind`` refuses."""
+    kind = config.keywords(WITH_DESKS)
+    catalog = shipped_catalog() if config.model_dir is None else scene_catalog(config.model_dir)
+    if config.samples is not None and config.samples.exists():
+        with np.load(config.samples) as saved:
             names = {key.rsplit("/", 1)[0] for key in saved.files}
             samples = {n: (list(saved[f"{n}/x"]), list(saved[f"{n}/y"])) for n in names}
     else:
-        shapes = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.shapes)
-        samples = scene_samples(shapes, args.scenes, args.seed, catalog, args.budget_ms, **kind)
-        if args.samples is not None:
+        shapes = split_shapes(config.data, FIT_SPLIT, config.cache, limit=config.shapes)
+        samples = scene_samples(
+            shapes, config.scenes, config.seed, catalog, config.budget_ms, **kind
+        )
+        if config.samples is not None:
             arrays = {f"{n}/{k}": np.array(v) for n, (x, y) in samples.items()
                       for k, v in (("x", x), ("y", y))}  # fmt: skip
-            np.savez(args.samples, **arrays)
-    if args.only is not None:
-        only = set(args.only.split(","))
+            np.savez(config.samples, **arrays)
+    if config.only is not None:
+        only = set(config.only.split(","))
         samples = {name: got for name, got in samples.items() if name in only}
-    table, stats = fit_table(samples, catalog, args.ridge)
-    if args.only is not None:  # the other models keep their corrections
+    table, stats = fit_table(samples, catalog, config.ridge)
+    if config.only is not None:  # the other models keep their corrections
         kept = (
-            CentreTable.from_dict(json.loads(args.out.read_text())) if args.out.exists() else None
+            CentreTable.from_dict(json.loads(config.out.read_text()))
+            if config.out.exists()
+            else None
         )
         if kept is not None:
             others = {n: c for n, c in kept.corrections.items() if n not in table.corrections}
             table = CentreTable({**others, **table.corrections})
-    args.out.write_text(json.dumps(table.to_dict(), indent=1) + "\n")
-    print(json.dumps(stats, indent=1))
-    print(f"wrote {args.out}: {len(table.corrections)} model(s)")
-
-
-if __name__ == "__main__":
-    main()
+    config.out.write_text(json.dumps(table.to_dict(), indent=1) + "\n")
+    return table, stats

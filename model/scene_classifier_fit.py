@@ -12,8 +12,8 @@ a network of one hidden layer is fitted to them (full batch, Adam, weight decay)
 threshold (below it an answer is ``unsure``) is the lowest at which 95% of the validation
 scenes' clusters above it are named right::
 
-    python -m itnet.model.scene_classifier_fit                     # writes the shipped file
-    python -m itnet.model.scene_classifier_fit --model-dir DIR --out FILE
+    itnet fit scene-classifier                     # writes the shipped file
+    itnet fit scene-classifier --model-dir DIR --out FILE
 
 The file names the classifier's graphs by their SHA-256, so it serves only them. Measuring it:
 ``benchmarks/bench_scene.py`` (``--no-scene-classifier``).
@@ -21,15 +21,15 @@ The file names the classifier's graphs by their SHA-256, so it serves only them.
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
-from itnet.model.feature_network_fit import add_fit_arguments, cached, fit_network, write_fitted
+from itnet.model.feature_network_fit import FeatureFitConfig, cached, fit_network, write_fitted
 from itnet.model.scenes import (
     FIT_SPLIT,
     HELD_OUT_SPLIT,
@@ -92,61 +92,76 @@ def precision_threshold(
     return float(probabilities[order][ok[-1]]) if len(ok) else 1.0
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", type=int, default=4000, help="of held-out shapes")
-    parser.add_argument("--seed", type=int, default=21)
-    parser.add_argument("--train-scenes", type=int, default=3000, help="of the others")
-    parser.add_argument("--train-seed", type=int, default=22)
-    parser.add_argument("--train-shapes", type=int, default=150, help="of the others, a category")
-    parser.add_argument("--cut-off-scenes", type=int, default=2000,
-                        help="of held-out shapes, objects' lower parts may lie below the view")  # fmt: skip
-    parser.add_argument("--cut-off-seed", type=int, default=23)
-    add_fit_arguments(parser, hidden=64, weight_decay=1e-3, epochs=1000, threshold_seed=5,
-                      out=FILE, threshold_help="validation scenes the threshold is chosen on")  # fmt: skip
-    parser.add_argument("--model-dir", type=Path, default=None)
-    args = parser.parse_args(argv)
-    catalog = shipped_catalog() if args.model_dir is None else scene_catalog(args.model_dir)
+class SceneClassifierFit(FeatureFitConfig):
+    """How the scene classifier is fitted: the scenes its samples come from and the network."""
+
+    scenes: int = Field(default=4000, ge=1, description="scenes of held-out shapes")
+    seed: int = Field(default=21, description="their seed")
+    train_scenes: int = Field(default=3000, ge=0, description="scenes of the other shapes")
+    train_seed: int = Field(default=22, description="their seed")
+    train_shapes: int = Field(default=150, ge=1, description="of the others, a category")
+    cut_off_scenes: int = Field(
+        default=2000,
+        ge=0,
+        description="scenes of held-out shapes whose objects' lower parts may lie below the view",
+    )
+    cut_off_seed: int = Field(default=23, description="their seed")
+    hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
+    weight_decay: float = Field(default=1e-3, ge=0, description="chosen on validation")
+    epochs: int = Field(default=1000, ge=1, description="chosen on validation")
+    threshold_scenes: int = Field(
+        default=300, ge=1, description="validation scenes the threshold is chosen on"
+    )
+    threshold_seed: int = Field(default=5, description="their seed")
+    out: Path = Field(default=FILE, description="the file written (default: the shipped one)")
+    model_dir: Path | None = Field(
+        default=None, description="the models whose classifier it names with (default: shipped)"
+    )
+
+
+def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
+    """Fit the scene classifier and its threshold, write it to ``config.out`` and return it."""
+    catalog = shipped_catalog() if config.model_dir is None else scene_catalog(config.model_dir)
     assert catalog.classifier is not None
     started = time.perf_counter()
 
     def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
-        held_out = split_shapes(args.data, HELD_OUT_SPLIT, args.cache)
-        trained = split_shapes(args.data, FIT_SPLIT, args.cache, limit=args.train_shapes)
-        x1, y1 = scene_samples(held_out, args.scenes, args.seed, catalog)
-        x2, y2 = scene_samples(trained, args.train_scenes, args.train_seed, catalog)
-        x3, y3 = scene_samples(held_out, args.cut_off_scenes, args.cut_off_seed, catalog, True)
+        held_out = split_shapes(config.data, HELD_OUT_SPLIT, config.cache)
+        trained = split_shapes(config.data, FIT_SPLIT, config.cache, limit=config.train_shapes)
+        x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog)
+        x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog)
+        x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True)
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
-        shapes = split_shapes(args.data, "validation", args.cache)
-        return scene_samples(shapes, args.threshold_scenes, args.threshold_seed, catalog)
+        shapes = split_shapes(config.data, "validation", config.cache)
+        return scene_samples(shapes, config.threshold_scenes, config.threshold_seed, catalog)
 
-    features, labels = cached(args.samples, fitting_samples)
+    features, labels = cached(config.samples, fitting_samples)
     classes = tuple(sorted(set(labels)))
-    network = fit_network(features, labels, classes, args.hidden, args.weight_decay, args.epochs)
+    network = fit_network(
+        features, labels, classes, config.hidden, config.weight_decay, config.epochs
+    )
     fitted = SceneClassifier(classes, tuple(catalog.classifier.card.classes),
                              classifier_graphs(catalog.classifier), network, threshold=1.0,
                              fit={})  # fmt: skip
-    x, y = cached(args.threshold_samples, threshold_samples)
+    x, y = cached(config.threshold_samples, threshold_samples)
     probabilities = fitted.probabilities(x)
     named = np.array(classes)[probabilities.argmax(1)]
     right = named == np.array(y)
     threshold = precision_threshold(probabilities.max(1), right)
     fit = {
-        "scenes": {HELD_OUT_SPLIT: [args.scenes, args.seed],
-                   FIT_SPLIT: [args.train_scenes, args.train_seed, args.train_shapes],
-                   "cut_off": [args.cut_off_scenes, args.cut_off_seed]},
+        "scenes": {HELD_OUT_SPLIT: [config.scenes, config.seed],
+                   FIT_SPLIT: [config.train_scenes, config.train_seed, config.train_shapes],
+                   "cut_off": [config.cut_off_scenes, config.cut_off_seed]},
         "clusters": {c: labels.count(c) for c in classes},
-        "network": {"hidden": args.hidden, "weight_decay": args.weight_decay,
-                    "epochs": args.epochs},
-        "threshold": {"precision": PRECISION, "validation_scenes": args.threshold_scenes,
-                      "seed": args.threshold_seed, "clusters": len(y),
+        "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
+                    "epochs": config.epochs},
+        "threshold": {"precision": PRECISION, "validation_scenes": config.threshold_scenes,
+                      "seed": config.threshold_seed, "clusters": len(y),
                       "named_right": round(float(right.mean()), 4)},
-        "command": "python -m itnet.model.scene_classifier_fit",
+        "command": "itnet fit scene-classifier",
     }  # fmt: skip
-    write_fitted(args.out, replace(fitted, threshold=threshold, fit=fit), started)
-
-
-if __name__ == "__main__":
-    main()
+    fitted = replace(fitted, threshold=threshold, fit=fit)
+    write_fitted(config.out, fitted, started)
+    return fitted

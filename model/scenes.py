@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model.categories import MODELNET10
@@ -369,44 +370,63 @@ def make_scene(
     return Scene(depth, intrinsics, labels, truths)
 
 
+class SceneKind(BaseModel):
+    """Which scenes ``make_scene`` makes (its keywords by :meth:`keywords`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    draw: str | None = Field(
+        default=None, description="the categories drawn, comma-separated (default: every one)"
+    )
+    pitch: str = Field(
+        default="0,25", description="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
+    )
+    most: int = Field(default=3, ge=1, description="objects a scene holds at most")
+    cut_off: bool = Field(default=False, description="objects' lower parts may lie below the view")
+    flying_pixels: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="the share of depth-edge pixels mixed with what lies behind them, as a "
+        "time-of-flight camera's are",
+    )
+
+    def keywords(self, drawn: tuple[str, ...]) -> dict[str, Any]:
+        """``make_scene``'s keywords (``categories``, ``pitch_deg``, ``most``, ``cut_off``,
+        ``flying_pixels``); ``drawn``: the categories without ``draw``. ValueError for a category
+        without scenes or a pitch that is not LOW,HIGH."""
+        if self.draw is not None:
+            drawn = tuple(self.draw.split(","))
+            if unknown := set(drawn) - set(WITH_DESKS):
+                raise ValueError(f"draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
+        try:
+            low, high = (float(x) for x in self.pitch.split(","))
+        except ValueError:
+            raise ValueError(f"pitch: expected LOW,HIGH in degrees, got {self.pitch!r}") from None
+        return {"categories": drawn, "pitch_deg": (low, high), "most": self.most,
+                "cut_off": self.cut_off, "flying_pixels": self.flying_pixels}  # fmt: skip
+
+
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:
-    """The options that choose which scenes ``make_scene`` makes (read back by ``scene_kind``):
-    ``--draw``, ``--pitch``, ``--most``, ``--cut-off``, ``--flying-pixels``; ``drawn_default`` says what is drawn
-    without ``--draw``."""
-    parser.add_argument(
-        "--draw", default=None,
-        help=f"the categories drawn, comma-separated (default: {drawn_default})",
-    )  # fmt: skip
-    parser.add_argument(
-        "--pitch", default="0,25", help="the camera's pitch down, degrees: LOW,HIGH (0,0: level)"
-    )
-    parser.add_argument("--most", type=int, default=3, help="objects a scene holds at most")
-    parser.add_argument(
-        "--cut-off", action="store_true", help="objects' lower parts may lie below the view"
-    )
-    parser.add_argument(
-        "--flying-pixels", type=float, default=0.0, metavar="SHARE",
-        help="the share of depth-edge pixels mixed with what lies behind them, as a "
-        "time-of-flight camera's are (default 0)",
-    )  # fmt: skip
+    """``SceneKind``'s fields as a benchmark's argparse options (read back by ``scene_kind``);
+    ``drawn_default`` says what is drawn without ``--draw``."""
+    for name, spec in SceneKind.model_fields.items():
+        flag = "--" + name.replace("_", "-")
+        help_text = (spec.description or "").replace("every one", drawn_default)
+        if spec.annotation is bool:
+            parser.add_argument(flag, action="store_true", help=help_text)
+        else:
+            kind = {int: int, float: float}.get(spec.annotation, str)  # type: ignore[call-overload]
+            parser.add_argument(flag, type=kind, default=spec.default, help=help_text)
 
 
 def scene_kind(
     args: argparse.Namespace, parser: argparse.ArgumentParser, drawn: tuple[str, ...]
 ) -> dict[str, Any]:
-    """The options of ``add_kind_arguments`` -> ``make_scene``'s keywords (``categories``,
-    ``pitch_deg``, ``most``, ``cut_off``, ``flying_pixels``); ``drawn``: the categories without
-    ``--draw``. A usage error (``parser.error``) for a category without scenes, a pitch that is
-    not LOW,HIGH or a share of flying pixels outside [0, 1]."""
-    if args.draw is not None:
-        drawn = tuple(args.draw.split(","))
-        if unknown := set(drawn) - set(WITH_DESKS):
-            parser.error(f"--draw: no scenes of {sorted(unknown)}; choose among {WITH_DESKS}")
+    """The options of ``add_kind_arguments`` -> ``make_scene``'s keywords (``SceneKind``); a
+    usage error (``parser.error``) for one that ``SceneKind`` refuses."""
     try:
-        low, high = (float(x) for x in args.pitch.split(","))
-    except ValueError:
-        parser.error(f"--pitch: expected LOW,HIGH in degrees, got {args.pitch!r}")
-    if not 0.0 <= args.flying_pixels <= 1.0:
-        parser.error(f"--flying-pixels: a share in [0, 1], got {args.flying_pixels}")
-    return {"categories": drawn, "pitch_deg": (low, high), "most": args.most,
-            "cut_off": args.cut_off, "flying_pixels": args.flying_pixels}  # fmt: skip
+        kind = SceneKind(**{name: getattr(args, name) for name in SceneKind.model_fields})
+        return kind.keywords(drawn)
+    except (ValueError, ValidationError) as err:
+        parser.error(str(err))

@@ -9,21 +9,22 @@ else ``one``. A network of one hidden layer is fitted to them (``fit_network``).
 is the lowest at which at most 0.5% of the clusters of ordinary validation scenes (every object
 apart from the others) would be cut::
 
-    python -m itnet.model.touching_cut_fit                  # writes the shipped file
+    itnet fit touching-cut                  # writes the shipped file
 
 Measuring it: ``benchmarks/bench_scene.py`` (``--touching``, ``--no-split-touching``).
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
-from itnet.model.feature_network_fit import add_fit_arguments, cached, fit_network, write_fitted
+from itnet.model.feature_network_fit import FeatureFitConfig, cached, fit_network, write_fitted
 from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, split_shapes
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, segment
@@ -79,43 +80,54 @@ def cut_threshold(judge: CutJudge, features: NDArray, labels: list[str]) -> tupl
     return min(max(threshold, 0.5), 1.0), len(ordered)
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", type=int, default=1500, help="of each kind")
-    parser.add_argument("--seed", type=int, default=41)
-    add_fit_arguments(parser, hidden=32, weight_decay=1e-4, epochs=1500, threshold_seed=32,
-                      out=FILE, threshold_help="ordinary validation scenes the threshold is chosen on")  # fmt: skip
-    args = parser.parse_args(argv)
+class TouchingCutFit(FeatureFitConfig):
+    """How the cut judge is fitted: scenes of each kind (touching and apart) and the network."""
+
+    scenes: int = Field(default=1500, ge=1, description="scenes of each kind")
+    seed: int = Field(default=41, description="their seed")
+    hidden: int = Field(default=32, ge=1, description="hidden units (chosen on validation scenes)")
+    weight_decay: float = Field(default=1e-4, ge=0, description="chosen on validation")
+    epochs: int = Field(default=1500, ge=1, description="chosen on validation")
+    threshold_scenes: int = Field(
+        default=300, ge=1, description="ordinary validation scenes the threshold is chosen on"
+    )
+    threshold_seed: int = Field(default=32, description="their seed")
+    out: Path = Field(default=FILE, description="the file written (default: the shipped one)")
+
+
+def fit_cut_judge(config: TouchingCutFit) -> CutJudge:
+    """Fit the cut judge and its threshold on scenes of training shapes, write it to
+    ``config.out`` and return it."""
     started = time.perf_counter()
 
     def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
-        shapes = split_shapes(args.data, FIT_SPLIT, args.cache)
-        x1, y1 = cut_samples(shapes, args.scenes, args.seed, touching=True)
-        x2, y2 = cut_samples(shapes, args.scenes, args.seed + 1, touching=False)
+        shapes = split_shapes(config.data, FIT_SPLIT, config.cache)
+        x1, y1 = cut_samples(shapes, config.scenes, config.seed, touching=True)
+        x2, y2 = cut_samples(shapes, config.scenes, config.seed + 1, touching=False)
         return np.concatenate([x1, x2]), y1 + y2
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
-        shapes = split_shapes(args.data, "validation", args.cache)
-        return cut_samples(shapes, args.threshold_scenes, args.threshold_seed, touching=False)
+        shapes = split_shapes(config.data, "validation", config.cache)
+        return cut_samples(shapes, config.threshold_scenes, config.threshold_seed, touching=False)
 
-    features, labels = cached(args.samples, fitting_samples)
+    features, labels = cached(config.samples, fitting_samples)
     kinds = [label.split(":")[1] for label in labels]
-    network = fit_network(features, kinds, CLASSES, args.hidden, args.weight_decay, args.epochs)
+    network = fit_network(
+        features, kinds, CLASSES, config.hidden, config.weight_decay, config.epochs
+    )
     judge = CutJudge(network, 1.0, {})
-    x, y = cached(args.threshold_samples, threshold_samples)
+    x, y = cached(config.threshold_samples, threshold_samples)
     threshold, clusters = cut_threshold(judge, x, y)
     fit = {
-        "scenes": {FIT_SPLIT: [args.scenes, args.seed, "touching"],
-                   f"{FIT_SPLIT} apart": [args.scenes, args.seed + 1]},
+        "scenes": {FIT_SPLIT: [config.scenes, config.seed, "touching"],
+                   f"{FIT_SPLIT} apart": [config.scenes, config.seed + 1]},
         "cuts": {c: kinds.count(c) for c in CLASSES},
-        "network": {"hidden": args.hidden, "weight_decay": args.weight_decay,
-                    "epochs": args.epochs},
-        "threshold": {"most_cut": MAX_CUT_SHARE, "validation_scenes": args.threshold_scenes,
-                      "seed": args.threshold_seed, "clusters": clusters},
-        "command": "python -m itnet.model.touching_cut_fit",
+        "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
+                    "epochs": config.epochs},
+        "threshold": {"most_cut": MAX_CUT_SHARE, "validation_scenes": config.threshold_scenes,
+                      "seed": config.threshold_seed, "clusters": clusters},
+        "command": "itnet fit touching-cut",
     }  # fmt: skip
-    write_fitted(args.out, replace(judge, threshold=threshold, fit=fit), started)
-
-
-if __name__ == "__main__":
-    main()
+    fitted = replace(judge, threshold=threshold, fit=fit)
+    write_fitted(config.out, fitted, started)
+    return fitted

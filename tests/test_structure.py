@@ -130,3 +130,11 @@ def test_no_import_cycle_in_the_package() -> None:
     graph = import_graph()
     assert len(graph) > 150  # every part of the package was read
     assert cycles(graph) == []
+
+
+def test_the_build_library_has_no_command_line_of_its_own() -> None:
+    """model/ and export/ are libraries: their commands are ``itnet``'s (``itnet fit`` ...)."""
+    for folder in ("model", "export"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            text = path.read_text()
+            assert "__main__" not in text and "argparse.ArgumentParser(" not in text, path

@@ -6,7 +6,7 @@ on the validation scenes the objects whose rotation was right still had their ce
 nearer the camera than the truth on average, and a centre off by more than 0.1 r was the
 largest kind of pose miss. The same linear map (``itnet.centre``: statistics of the object's
 points moved into its estimated canonical frame and the direction toward the camera), fitted
-per pose model on scenes of *training* shapes (``python -m itnet.model.scene_centre_fit``),
+per pose model on scenes of *training* shapes (``itnet fit scene-centre``),
 predicts where the centre lies. Only its move along the floor is kept: the floor already says
 how high the centre is (``pipeline.floor_centred``).
 

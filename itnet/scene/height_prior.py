@@ -13,7 +13,7 @@ renormalised over the categories.
 The table (``Category.height_m`` in ``itnet.model.categories``) is measured on ModelNet10's
 training shapes, their units read as inches (as the
 classifier's size prior reads them), the height their extent along ModelNet's up (+z):
-``python -m itnet.model.heights --data ../shared/data/modelnet10`` measures it again.
+``itnet fit heights --data ../shared/data/modelnet10`` measures it again.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ its height its points lie. The scene classifier is a small network (one hidden l
 classifier's log-probabilities (as ``model: "auto"`` serves them, upright classifier and size
 prior included) and those measures of the cluster (``cluster_features``), fitted on clusters
 that the segmentation found in scenes of shapes the classifier never saw in training (its
-validation carve-out of ModelNet10's training split): ``python -m itnet.model.scene_classifier_fit``.
+validation carve-out of ModelNet10's training split): ``itnet fit scene-classifier``.
 
 It names the categories of its fitting scenes: furniture that stands on the floor. The monitor,
 which stands on a desk, is not among them; a request restricted to categories it does not name

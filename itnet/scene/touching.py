@@ -10,7 +10,7 @@ candidate; the ``CANDIDATES`` best, at least ``SPREAD_DEG`` apart, are described
 ``cut_features`` (how empty the strip is; the two parts' heights, bases and extents; the cut
 against the camera's line of sight; ...). A plane through one object also crosses few points
 where occlusion left a gap in it, so the cut judge (a ``FeatureNetwork`` fitted on the clusters
-of scenes of training shapes, touching and not: ``python -m itnet.model.touching_cut_fit``)
+of scenes of training shapes, touching and not: ``itnet fit touching-cut``)
 gives each candidate the probability that it parts two objects. The likeliest cut is made where
 that probability reaches the judge's threshold, and each part is judged again (three objects in
 a row), down to ``MIN_POINTS`` points.

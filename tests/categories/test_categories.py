@@ -80,8 +80,10 @@ def test_orientation_check_leaves_yaw90_shapes_alone():
     assert counts == {"kept": 6, "turned": 0, "dropped": 0} and kept == shapes
 
 
-def test_the_measurement_command_decides_a_users_category(tmp_path, capsys):
-    from itnet.model.categories import main
+def test_the_measurement_command_decides_a_users_category(tmp_path):
+    from typer.testing import CliRunner
+
+    from itnet.cli import app
 
     rng = np.random.default_rng(5)
     for split, count in (("train", 6), ("test", 2)):
@@ -91,7 +93,9 @@ def test_the_measurement_command_decides_a_users_category(tmp_path, capsys):
             angle, height = rng.uniform(0, 2 * np.pi, 1000), rng.uniform(-0.5, 0.5, 1000)
             can = np.stack([0.6 * np.cos(angle), height, 0.6 * np.sin(angle)], 1)
             np.save(folder / f"mug_{i}.npy", can)
-    main(["--data", str(tmp_path), "--category", "mug", "--frame", "canonical"])
-    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| mug"))
+    result = CliRunner().invoke(app, ["fit", "categories", "--data", str(tmp_path),
+                                      "--category", "mug", "--frame", "canonical"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    row = next(line for line in result.stdout.splitlines() if line.startswith("| mug"))
     assert row.split("|")[5].strip() == "yaw"  # measured
     assert row.split("|")[6].strip() == "none"  # declared: unknown until given with --symmetry

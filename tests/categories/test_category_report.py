@@ -2,7 +2,7 @@
 
 import json
 
-from itnet.model.category_report import load_reports, main, table
+from itnet.model.category_report import load_reports, table, write_report
 
 
 def _report(accuracy, symmetry, scans=40):
@@ -27,7 +27,7 @@ def test_table_and_plot_cover_every_evaluated_category(tmp_path):
         json.dumps(_report([0.1], "none"))
     )
     assert sorted(load_reports(evals)) == ["sofa", "table"]
-    main([str(evals), str(out)])
+    write_report(evals, out)
     text = (out / "eval_categories.md").read_text()
     assert "| sofa | none | 9 / 1 / 0 | 40 | **50.0** ± 7.9 |" in text
     assert "| table | yaw180 |" in text and "**75.0** ± 6.8" in text
@@ -53,7 +53,7 @@ def test_surface_views_get_their_column_and_panel_where_measured(tmp_path):
     reports = load_reports(evals)
     assert set(reports["toilet"]) == {"occluded", "surface", "paper"}
     assert set(reports["sofa"]) == {"occluded", "paper"}
-    main([str(evals), str(out)])
+    write_report(evals, out)
     text = (out / "eval_categories.md").read_text()
     assert "| 0.050 | **62.5** ± 7.7 | **75.0** ± 6.8 |" in text
     assert "| sofa |" in text and "| – | **20.0**" in text

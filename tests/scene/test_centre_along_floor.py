@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 from itnet.centre import FEATURE_COUNTS, FEATURES, FEATURES_VIEWPOINT, CentreCorrection
+from itnet.cli import app
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
-from itnet.model import scene_centre_fit
 from itnet.model.scenes import Scene, matched_objects
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.centre_along_floor import (
@@ -105,6 +106,12 @@ def test_returned_objects_are_matched_once_each_by_overlap() -> None:
     assert matched_objects(returned, labels, 2) == [(0, 2), (1, 1)]
 
 
+def _fit(arguments: list[str]) -> None:
+    """``itnet fit scene-centre ARGUMENTS`` as a user runs it."""
+    result = CliRunner().invoke(app, ["fit", "scene-centre", *arguments])
+    assert result.exit_code == 0, result.output
+
+
 def test_the_fit_writes_a_table_for_the_models_it_has_enough_objects_of(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     x = rng.normal(size=(60, F))
@@ -112,7 +119,7 @@ def test_the_fit_writes_a_table_for_the_models_it_has_enough_objects_of(tmp_path
     samples = tmp_path / "samples.npz"
     np.savez(samples, **{"chair/x": x, "chair/y": y, "bed/x": x[:5], "bed/y": y[:5]})
     out = tmp_path / "table.json"
-    scene_centre_fit.main(["--samples", str(samples), "--out", str(out)])
+    _fit(["--samples", str(samples), "--out", str(out)])
     table = CentreTable.from_dict(json.loads(out.read_text()))
     assert set(table.corrections) == {"chair"}  # the bed's 5 objects are too few
     chair = shipped_catalog().models["chair"]
@@ -130,13 +137,13 @@ def test_a_fit_of_some_models_keeps_the_others_corrections(tmp_path: Path) -> No
               for k, v in (("x", x), ("y", np.tile(o, (60, 1))))}  # fmt: skip
     np.savez(samples, **arrays)
     out = tmp_path / "table.json"
-    scene_centre_fit.main(["--samples", str(samples), "--out", str(out), "--only", "chair"])
+    _fit(["--samples", str(samples), "--out", str(out), "--only", "chair"])
     assert set(CentreTable.from_dict(json.loads(out.read_text())).corrections) == {"chair"}
     y["chair"] = [0.2, 0.0, 0.0]
     arrays = {f"{n}/{k}": v for n, o in y.items()
               for k, v in (("x", x), ("y", np.tile(o, (60, 1))))}  # fmt: skip
     np.savez(samples, **arrays)
-    scene_centre_fit.main(["--samples", str(samples), "--out", str(out), "--only", "toilet"])
+    _fit(["--samples", str(samples), "--out", str(out), "--only", "toilet"])
     table = CentreTable.from_dict(json.loads(out.read_text()))
     assert set(table.corrections) == {"chair", "toilet"}
     chair = table.corrections["chair"][1]  # the first fit's, kept

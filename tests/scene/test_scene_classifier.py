@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from itnet.cli import app
 from itnet.geometry import axis_angle_to_matrix
 from itnet.model import scene_classifier_fit
 from itnet.model.scenes import Scene
@@ -166,8 +168,10 @@ def test_the_fit_learns_the_categories_from_features_and_sets_the_threshold(
     check = tmp_path / "check.npz"
     np.savez(check, features=features[:200], labels=np.array(labels[:200]))
     out = tmp_path / "scene_classifier.json"
-    scene_classifier_fit.main(["--samples", str(samples), "--threshold-samples", str(check),
-                               "--epochs", "200", "--out", str(out)])  # fmt: skip
+    fitted_by_cli = CliRunner().invoke(app, ["fit", "scene-classifier", "--samples", str(samples),
+                                             "--threshold-samples", str(check), "--epochs", "200",
+                                             "--out", str(out)])  # fmt: skip
+    assert fitted_by_cli.exit_code == 0, fitted_by_cli.output
     fitted = load_scene_classifier(out)
     assert fitted is not None and fitted.classes == names
     named = np.array(names)[fitted.probabilities(features).argmax(1)]

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scene_helpers import FEATURES, boxes_shape, make_test_scene, sure_judge
+from typer.testing import CliRunner
 
+from itnet.cli import app
 from itnet.model import touching_cut_fit
 from itnet.model.scenes import Scene
 from itnet.scene import segment as segment_module
@@ -145,8 +147,10 @@ def test_the_fit_learns_which_cuts_part_two_objects(tmp_path: Path) -> None:
     plain = rng.normal(size=(400, FEATURES))
     np.savez(check, features=plain, labels=np.array([f"{k}:one" for k in range(400)]))
     out = tmp_path / "judge.json"
-    touching_cut_fit.main(["--samples", str(samples), "--threshold-samples", str(check),
-                           "--epochs", "200", "--out", str(out)])  # fmt: skip
+    fitted_by_cli = CliRunner().invoke(app, ["fit", "touching-cut", "--samples", str(samples),
+                                             "--threshold-samples", str(check), "--epochs", "200",
+                                             "--out", str(out)])  # fmt: skip
+    assert fitted_by_cli.exit_code == 0, fitted_by_cli.output
     judge = load_cut_judge(out)
     assert judge is not None and judge.fit["threshold"]["clusters"] == 400
     assert ((judge.probabilities(features) >= 0.5) == two).mean() > 0.9
