@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, create_model
 
+from itnet.model_card import ModelCard
 from itnet.pose.request import PoseRequest
 
 # fail_fast: a million bad points give one error, not a million.
@@ -135,54 +136,26 @@ class EstimateResponse(Pose):
     )
 
 
-class ModelInfo(BaseModel):
-    """One loaded model and what its card says about it."""
+# What the model file keeps to itself: the correction tables, the graph's inputs and outputs,
+# the training record and the card's own format. Every other card field is in ModelInfo as the
+# card declares it.
+CARD_KEPT_IN_FILE = frozenset({
+    "kind", "version", "trained_points", "inputs", "outputs", "training", "up_free_steps",
+    "centre_correction", "centre_correction_viewpoint", "centre_correction_up",
+    "centre_correction_up_viewpoint",
+})  # fmt: skip
+
+
+class ServedModel(BaseModel):
+    """What this server knows of a loaded model beside its card."""
 
     model_config = ConfigDict(protected_namespaces=())
 
-    name: str
-    category: str
-    precision: str = Field(description="'float32', or 'int8' (per-point layers quantised)")
-    points: int = Field(description="points a larger cloud is subsampled to (a smaller: whole)")
-    trained_iterations: int
-    recommended_iterations: int
-    recommended_ensemble: int = Field(
-        1, description="runs fused per estimate when a request does not give 'ensemble'"
-    )
-    accuracy: dict[str, float] = Field(
-        description="fraction correct (< 10 deg and < 0.1 radius) by iteration count"
-    )
-    evaluation: str = Field(description="how the accuracy was measured")
-    normalization: str
-    canonical_frame: str
-    symmetry: str = Field(
-        description="'none', 'yaw180', 'yaw90' or 'yaw': turns about +y (up) under which the "
-        "category's shapes look alike; the reply gives one representative of the equivalent poses"
-    )
     mirror: bool = Field(
         False,
         description="the category has mirror symmetries (mirror_planes): a single run's final "
         "pose is finished by them unless a request says 'mirror': false",
     )
-    mirror_planes: list[str] = Field(
-        default_factory=list,
-        description="canonical planes of mirror symmetry: 'x' (x = 0, left-right), 'z' (z = 0, "
-        "front-back)",
-    )
-    mirror_evaluation: str = Field("", description="the planes' measured effect, one run")
-    mirror_fused: bool = Field(
-        False, description="fused runs (the ensemble mode) are finished by the planes too"
-    )
-    verify_fused: bool = Field(
-        False,
-        description="fused runs are anchored by the run that sits most firmly in its basin, "
-        "where the budget holds the probes, unless a request says 'verify': false",
-    )
-    verify_evaluation: str = Field("", description="verify's measured effect on fused runs")
-    recheck_runs: int = Field(
-        0, description="runs a doubted single run is rechecked with by default (0: not by default)"
-    )
-    recheck_evaluation: str = Field("", description="the recheck's measured effect, one run")
     verifier: str | None = Field(
         None,
         description="the learned verifier of the model's category, where one is loaded: verify "
@@ -209,18 +182,21 @@ class ModelInfo(BaseModel):
         description="the model also has a viewpoint correction fitted on runs held upright, for "
         "requests that give both 'up' and 'viewpoint'",
     )
-    centre_evaluation: str = Field("", description="the corrections' measured effect, one run")
-    centre_up_evaluation: str = Field(
-        "", description="the upright correction's measured effect, with the up direction given"
-    )
-    requires_up: bool = Field(
-        False,
-        description="requests must give 'up' (which way is up in the cloud): the model is "
-        "measured and served only with it",
-    )
-    up_evaluation: str = Field("", description="how the model does with 'up' given")
     step_ms: float = Field(description="measured time of one step on this server, milliseconds")
     default: bool = Field(description="used when a request names no model")
+
+
+ModelInfo = create_model(
+    "ModelInfo",
+    __base__=ServedModel,
+    __doc__="One loaded model: its card's fields (as the card declares them) and what this "
+    "server knows beside it.",
+    **{
+        name: (spec.annotation, spec)
+        for name, spec in ModelCard.model_fields.items()
+        if name not in CARD_KEPT_IN_FILE
+    },
+)
 
 
 class UprightClassifierInfo(BaseModel):

@@ -182,3 +182,16 @@ def test_one_parser_reads_three_numbers_everywhere():
             parse_xyz(bad)
     assert PoseRequest.from_query({"up": "0,-1,0"}).up == [0.0, -1.0, 0.0]
     assert SceneRequest.from_query({"up": "0,-1,0"}).to_query() == {"up": "0,-1,0"}
+
+
+def test_the_models_listing_takes_the_cards_fields_as_the_card_declares_them():
+    from itnet.model_card import ModelCard
+    from itnet.service.schemas import CARD_KEPT_IN_FILE, ModelInfo, ServedModel
+
+    card = set(ModelCard.model_fields) - CARD_KEPT_IN_FILE
+    assert set(ModelInfo.model_fields) == card | set(ServedModel.model_fields)
+    for name in card:
+        served, declared = ModelInfo.model_fields[name], ModelCard.model_fields[name]
+        assert served.annotation == declared.annotation, name
+        assert served.default == declared.default, name
+        assert served.description == declared.description, name

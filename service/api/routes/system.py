@@ -9,6 +9,7 @@ from itnet.pose.recognition import pose_model_for
 from itnet.pose.runtime import LoadedClassifier, LoadedModel
 from itnet.service.api.deps import StateDep
 from itnet.service.schemas import (
+    CARD_KEPT_IN_FILE,
     AutoInfo,
     Health,
     ModelInfo,
@@ -21,12 +22,11 @@ router = APIRouter(tags=["system"])
 
 
 def model_info(name: str, model: LoadedModel, default: bool) -> ModelInfo:
-    """What ``GET /v1/models`` says of a model: every field its card shares with ModelInfo, and
-    what this server knows beside the card (the corrections and verifier loaded, the step
-    time)."""
-    shared = set(ModelInfo.model_fields) - {"name"}  # the name it is served by may be another
+    """What ``GET /v1/models`` says of a model: its card's fields (but those the file keeps to
+    itself), and what this server knows beside the card (the corrections and verifier loaded,
+    the step time)."""
     return ModelInfo(
-        **model.card.model_dump(include=shared),
+        **model.card.model_dump(exclude=CARD_KEPT_IN_FILE | {"name"}),  # served by its name
         mirror=model.card.mirror,
         name=name,
         verifier=None if model.verifier is None else model.verifier.card.name,
