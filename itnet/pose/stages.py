@@ -196,8 +196,8 @@ class Verify:
 
     @staticmethod
     def _can_hold_upright(model: LoadedModel, request: PoseRequest) -> bool:
-        """With up, only the learned verifier weighs the runs (chair, validation views with up
-        2° off, 50 ms, paired: paper +1.7 ± 0.8, occluded +3.9 ± 1.2, surface +1.1 ± 0.6)."""
+        """Whether fused runs of this request can be weighed: without up by either means, with
+        up only by the learned verifier (the probes knock runs held upright off their tilt)."""
         return request.up is None or model.verifier is not None
 
     def predicted_ms(self, run: StageRun) -> float:

@@ -1,20 +1,20 @@
 """A scene object's category rechecked by the pose models' learned verifiers.
 
 The classifiers name some scene objects wrongly, and surely: from the front a dresser is a flat
-face, named a chair or a monitor. Each category's learned verifier (``model/verifier.py``) was
-trained to tell a right pose of its category from a wrong one by how the cloud looks where the
-pose puts it, and a cluster posed as a category it is not tends to look wrong there too. So
-where the named category's verifier doubts the object's pose (logit below ``RECHECK_BELOW``),
-the object is posed as its second candidate category as well (the same pipeline and
-finishing), and that category is kept where its own verifier finds its pose likelier by more
-than ``RECHECK_MARGIN`` (and reported ``unsure``: it was ranked second). The second
-pose shares the object's part of the scene's budget; the reply says ``category_recheck``:
-``changed``, ``kept`` or ``budget`` (doubted, no time left).
+face, named a chair or a monitor. Each category's learned verifier (``model/verifier.py``)
+tells a right pose of its category from a wrong one by how the cloud looks where the pose puts
+it, and a cluster posed as a category it is not tends to look wrong there too. So where the
+named category's verifier doubts the object's pose (logit below ``RECHECK_BELOW``), the object
+is posed as its second candidate category as well (the same pipeline and finishing), and that
+category is kept where its own verifier finds its pose likelier by more than
+``RECHECK_MARGIN`` (and reported ``unsure``: it was ranked second). The second pose shares the
+object's part of the scene's budget; the reply says ``category_recheck``: ``changed``,
+``kept`` or ``budget`` (doubted, no time left).
 
 An object whose base lies below the view (a chair before a level camera at head height, seen
 from its seat up) is not rechecked (``base_out_of_view``): the verifiers learned views of whole
-objects, such a part looks wrong to its own category's verifier too, and there the recheck
-traded a right category for a wrong one 27 times for once the other way (validation scenes).
+objects, and such a part looks wrong to its own category's verifier too (on validation scenes
+the recheck would trade a right category for a wrong one 27 times for once the other way).
 """
 
 from __future__ import annotations

@@ -36,15 +36,14 @@ from itnet.scene.unknown import unknown_reason
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
 # A scene's object is posed by at least this many fused runs, their starts turned about up (a
-# model whose card recommends fewer, the dresser's, gets this many; the others keep their own):
-# on 150 validation scenes the dresser's single run had 27 of 37 right, 4 runs 30, 8 runs 28
-# (the other objects then left less time).
+# model whose card recommends fewer, the dresser's, gets this many; the others keep their own).
+# Four is what a boxy dresser seen from the front needs (150 validation scenes: 30 of 37 right,
+# 27 with one run) while leaving the scene's other objects their time.
 SCENE_LEAST_RUNS = 4
 # The most points each of a scene object's runs sees (the models' cards say 256, what they
-# were trained on). A depth camera's object is noisy, and half the points per step fit the
-# runs in half the time: on 150 validation scenes, 128 points were right for +2.7 +- 1.3 /
-# +0.0 +- 1.5 points more objects at 320x240 / 640x480 (paired), the replies 47-56 ms sooner
-# (docs/scenes.md, "Posing").
+# were trained on). A depth camera's object is noisy enough that half the points pose it as
+# well, in about half the time a step (150 validation scenes, paired against 256: +2.7 +- 1.3 /
+# +0.0 +- 1.5 points at 320x240 / 640x480; docs/scenes.md, "Posing").
 SCENE_RUN_POINTS = 128
 # The pose model of a category's objects whose base lies below the view, where the models have
 # one: ``<category>_base_hidden`` (trained on such views: ``itnet train --base-hidden``).
