@@ -24,6 +24,7 @@ align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the README's 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -219,7 +220,7 @@ def main() -> None:
               f"{np.median(outcome.ms):7.1f} ms", flush=True)  # fmt: skip
     model_stat = model.path.stat()
     shipped = model.path.parent.name == "models" and model.path.parent.parent.name == "itnet"
-    modified = time.strftime("%Y-%m-%d %H:%M", time.localtime(model_stat.st_mtime))
+    digest = hashlib.sha256(model.path.read_bytes()).hexdigest()[:12]
     meta = {
         "pairs": len(pairs),
         "generators": args.generators,
@@ -227,9 +228,8 @@ def main() -> None:
         "seed": args.seed,
         "split": args.split,
         "data": str(args.data),
-        "model": f"`{model.card.name}` ({'itnet/models/' + model.path.name if shipped else model.path}, {model_stat.st_size // 1024} KB, modified "
-        f"{modified}; trained {model.card.training.get('steps', '?')} steps, validation "
-        f"accuracy {model.card.training.get('validation', '?')})",
+        "model": f"`{model.card.name}` ({'itnet/models/' + model.path.name if shipped else model.path}, "
+        f"{model_stat.st_size // 1024} KB, sha256 {digest}…)",
         "budget_ms": args.budget_ms,
         "up_error_deg": args.up,
         "command": " ".join(["python -m benchmarks.bench_align", *_without_notes(sys.argv[1:])]),

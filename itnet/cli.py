@@ -12,6 +12,7 @@ from itnet.commands import (
     card,
     centre,
     classify,
+    compact,
     evaluate,
     export,
     fit,
@@ -71,6 +72,7 @@ COMMANDS = [
     ("classify-size-prior", classify.classify_size_prior, BUILD, "Fit the classifier's size prior per category."),
     ("verifier-train", verifier.verifier_train, BUILD, "Train a category's pose verifier."),
     ("verifier-export", verifier.verifier_export, BUILD, "Export a pose verifier to ONNX."),
+    ("compact", compact.compact, BUILD, "Store a model file's weights as float16 (half the size)."),
 ]
 # fmt: on
 for name, command, panel, summary in COMMANDS:
