@@ -305,48 +305,11 @@ def align_clouds(
     every = build_hypotheses(pose_a.candidates(), pose_b.candidates(),
                              symmetry_rotations(options.symmetry))  # fmt: skip
     judge = _Judge(a, b, np.array([h.T_b_from_a for h in every if not h.turned]), options)
-    composed = [every[0]]
-    icp_ms = 0.0
-    if options.refine:
-        composed.append(Hypothesis(every[0].T_b_from_a.copy(), every[0].source, served=True))
-        t_icp = time.perf_counter()
-        judge.refine(composed[1:])
-        icp_ms = (time.perf_counter() - t_icp) * 1e3
-    t_judge = time.perf_counter()
-    judge.judge(composed, composed=True)
-    judge_ms = (time.perf_counter() - t_judge) * 1e3
+    composed, costs_ms = _composed(every[0], judge, options.refine)
     t_composed = time.perf_counter()
-
-    # The composed pose is in doubt where it is not likely right, or where a rival lands more of
-    # A on B at the loose distance (a quick count over every hypothesis, before any ICP).
-    rest = every[1:] if options.rivals else []
-    loose = judge.loose(np.array([h.T_b_from_a for h in rest])) if rest else np.zeros(0)
-    sure = max(h.probability for h in composed) >= options.sure
-    rivalled = bool(len(loose)) and float(loose.max()) > every[0].loose_fitness + DOUBT_LOOSE
-    # The rivals cost about the composed pose's ICP for each finalist and half of it (the coarse
-    # stage) for each other candidate, and its judging twice (the ranking, the judging).
-    rivals_ms = icp_ms * (options.candidates + options.finalists) / 2 + 2 * judge_ms
-    left_ms = np.inf
-    if options.budget_ms is not None:
-        left_ms = options.budget_ms - (time.perf_counter() - start) * 1e3
-    hypotheses, considered = list(composed), 0
-    if rest and (rivalled or not sure) and left_ms >= rivals_ms:
-        keep = distinct(every, np.concatenate([[np.inf], loose]), options.candidates + 1,
-                        judge.scale, options.distinct_deg, options.distinct_shift)  # fmt: skip
-        rivals = [every[k] for k in keep if k != 0]
-        considered = len(every)
-        if options.refine and rivals:
-            judge.refine(rivals, options.finalists)
-        if rivals:
-            judge.judge(rivals)
-        hypotheses += rivals
-    chosen = choose([h.probability for h in hypotheses])
-    if (
-        chosen == 0
-        and options.refine
-        and same_alignment(composed[1].T_b_from_a, composed[0].T_b_from_a, judge.scale, 10.0, 0.1)
-    ):
-        chosen = 1  # the same alignment, sharpened by ICP
+    rivals, considered = _rivals(every, composed, judge, options, start, costs_ms)
+    hypotheses = [*composed, *rivals]
+    chosen = _chosen(hypotheses, len(composed), judge.scale)
     done = time.perf_counter()
     return Alignment(
         T_b_from_a=hypotheses[chosen].T_b_from_a,
@@ -366,3 +329,67 @@ def align_clouds(
         inlier_distance=options.inlier_distance * judge.scale,
         icp_distance=options.icp_distance * judge.scale if options.refine else 0.0,
     )
+
+
+def _composed(
+    first: Hypothesis, judge: _Judge, refine: bool
+) -> tuple[list[Hypothesis], tuple[float, float]]:
+    """The composed pose (``first``) and, with ``refine``, a copy of it refined by ICP, both
+    judged -> (them, (ICP's time, the judging's time) in ms)."""
+    composed = [first]
+    icp_ms = 0.0
+    if refine:
+        composed.append(Hypothesis(first.T_b_from_a.copy(), first.source, served=True))
+        t_icp = time.perf_counter()
+        judge.refine(composed[1:])
+        icp_ms = (time.perf_counter() - t_icp) * 1e3
+    t_judge = time.perf_counter()
+    judge.judge(composed, composed=True)
+    return composed, (icp_ms, (time.perf_counter() - t_judge) * 1e3)
+
+
+def _chosen(hypotheses: list[Hypothesis], composed: int, scale: float) -> int:
+    """The likeliest hypothesis; where that is the composed pose and ICP refined it
+    (``composed`` is 2) into the same alignment, the refined one: the same, sharpened."""
+    chosen = choose([h.probability for h in hypotheses])
+    if chosen == 0 and composed == 2:
+        refined, plain = hypotheses[1].T_b_from_a, hypotheses[0].T_b_from_a
+        if same_alignment(refined, plain, scale, 10.0, 0.1):
+            return 1
+    return chosen
+
+
+def _rivals(
+    every: list[Hypothesis],
+    composed: list[Hypothesis],
+    judge: _Judge,
+    options: AlignOptions,
+    start: float,
+    costs_ms: tuple[float, float],
+) -> tuple[list[Hypothesis], int]:
+    """(the rivals of the composed pose, refined and judged; the hypotheses considered for them,
+    0 where none were): looked for only where the composed pose is in doubt and the budget left
+    since ``start`` holds them. ``costs_ms``: the composed pose's ICP and judging times."""
+    icp_ms, judge_ms = costs_ms
+    # The composed pose is in doubt where it is not likely right, or where a rival lands more of
+    # A on B at the loose distance (a quick count over every hypothesis, before any ICP).
+    rest = every[1:] if options.rivals else []
+    loose = judge.loose(np.array([h.T_b_from_a for h in rest])) if rest else np.zeros(0)
+    sure = max(h.probability for h in composed) >= options.sure
+    rivalled = bool(len(loose)) and float(loose.max()) > every[0].loose_fitness + DOUBT_LOOSE
+    # The rivals cost about the composed pose's ICP for each finalist and half of it (the coarse
+    # stage) for each other candidate, and its judging twice (the ranking, the judging).
+    rivals_ms = icp_ms * (options.candidates + options.finalists) / 2 + 2 * judge_ms
+    left_ms = np.inf
+    if options.budget_ms is not None:
+        left_ms = options.budget_ms - (time.perf_counter() - start) * 1e3
+    if not (rest and (rivalled or not sure) and left_ms >= rivals_ms):
+        return [], 0
+    keep = distinct(every, np.concatenate([[np.inf], loose]), options.candidates + 1,
+                    judge.scale, options.distinct_deg, options.distinct_shift)  # fmt: skip
+    rivals = [every[k] for k in keep if k != 0]
+    if options.refine and rivals:
+        judge.refine(rivals, options.finalists)
+    if rivals:
+        judge.judge(rivals)
+    return rivals, len(every)
