@@ -152,7 +152,9 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     """lab/weights/classifier.pt and classifier_local.pt (the weights a later fine-tune starts
     from: the PointNet head and the local head behind one canonicaliser) give the shipped float32
     graph's probabilities, BatchNorm folded, on noise, a sphere, a box's side and an example scan: the
-    cascade's, the PointNet head's alone where it is sure, the two heads fused elsewhere."""
+    cascade's, the PointNet head's alone where it is sure, the two heads fused elsewhere. The
+    shipped file stores its weights as float16 (``itnet compact``): each folded weight within a
+    relative 2**-11 of the float32 one, so the probabilities agree to 2e-3, the classes exactly."""
     from itnet.cloud_io import read_cloud
     from itnet.model.classify.train import load_classifier
     from itnet.model.network import apply_pose
@@ -195,5 +197,7 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     sure = first.max(1) >= graph.card.cascade
     assert sure[-1] and not sure[1:3].any()  # the chair: sure; a sphere, a box's side: not
     got = graph.probabilities(x)
-    np.testing.assert_allclose(got, np.where(sure[:, None], first, fused), atol=1e-4)
+    expected = np.where(sure[:, None], first, fused)
+    np.testing.assert_allclose(got, expected, atol=2e-3)
+    assert (got.argmax(1) == expected.argmax(1)).all()
     assert graph.card.classes[int(got[-1].argmax())] == "chair"
