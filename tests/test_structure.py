@@ -138,3 +138,36 @@ def test_the_build_library_has_no_command_line_of_its_own() -> None:
         for path in sorted((ROOT / folder).rglob("*.py")):
             text = path.read_text()
             assert "__main__" not in text and "argparse.ArgumentParser(" not in text, path
+
+
+def _functions(folder: str) -> list[tuple[Path, ast.FunctionDef | ast.AsyncFunctionDef]]:
+    found = []
+    for path in sorted((ROOT / folder).rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                found.append((path, node))
+    return found
+
+
+def _lines(node: ast.FunctionDef | ast.AsyncFunctionDef, body_only: bool) -> int:
+    """A function's lines from its ``def`` (or, ``body_only``, from its first statement after
+    the docstring) to its end."""
+    body = node.body
+    if body_only and len(body) > 1 and isinstance(body[0], ast.Expr):
+        if isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+            body = body[1:]
+    first = body[0].lineno if body_only else node.lineno
+    return int(node.end_lineno or first) - first + 1
+
+
+def test_functions_fit_on_a_screen() -> None:
+    """No function of the product is over 80 lines; no command's body over 40 (it parses,
+    calls one function of the library and prints)."""
+    long = [f"{p.relative_to(ROOT)}:{n.lineno} {n.name}" for folder in
+            ("itnet", "service", "scale", "clients") for p, n in _functions(folder)
+            if _lines(n, body_only=False) > 80]  # fmt: skip
+    assert long == []
+    commands = [f"{p.name}:{n.lineno} {n.name}" for p, n in _functions("itnet/commands")
+                if n.col_offset == 0 and _lines(n, body_only=True) > 40]  # fmt: skip
+    assert commands == []
+    assert len(_functions("itnet/commands")) > 50  # every command module was read
