@@ -153,9 +153,10 @@ def _lines(node: ast.FunctionDef | ast.AsyncFunctionDef, body_only: bool) -> int
     """A function's lines from its ``def`` (or, ``body_only``, from its first statement after
     the docstring) to its end."""
     body = node.body
-    if body_only and len(body) > 1 and isinstance(body[0], ast.Expr):
-        if isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
-            body = body[1:]
+    head = body[0]
+    documented = isinstance(head, ast.Expr) and isinstance(head.value, ast.Constant)
+    if body_only and len(body) > 1 and documented:
+        body = body[1:]
     first = body[0].lineno if body_only else node.lineno
     return int(node.end_lineno or first) - first + 1
 
