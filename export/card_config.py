@@ -23,7 +23,7 @@ class CardChanges(BaseModel):
     mirror_planes: str | None = Field(
         None,
         description="set the category's planes of mirror symmetry: x (x = 0, left-right), z "
-        "(z = 0, front-back), x,z, or none (`python -m itnet.model.categories` measures them)",
+        "(z = 0, front-back), x,z, or none (`itnet fit categories` measures them)",
     )
     without_mirror: Path | None = Field(
         None,

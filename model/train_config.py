@@ -34,7 +34,7 @@ class TrainOptions(BaseModel):
         "auto",
         description="turns about up under which the category looks alike: none | yaw180 | "
         "yaw90 | yaw; auto: ModelNet10's table (model/categories.py), 'none' for another "
-        "category. Measure it with `python -m itnet.model.categories`",
+        "category. Measure it with `itnet fit categories`",
     )
     threads: int = Field(0, description="torch threads (0: torch's default)")
     frame: str = Field("modelnet", description="frame of the files: modelnet | canonical | z-up")
