@@ -64,6 +64,9 @@ class Category:
     # in the development scenes: (which extent: 'height' or 'length', its range in metres)
     # (``itnet.model.scenes``); None: not on a scene's floor
     scene_size: tuple[str, tuple[float, float]] | None = None
+    # the category's pose model is trained upright and served only with the up direction given:
+    # without it, views of it are ambiguous (a box on its side); its card says requires_up
+    requires_up: bool = False
 
     def __post_init__(self) -> None:
         for name in (self.symmetry, self.confusions):
@@ -89,18 +92,18 @@ MODELNET10: dict[str, Category] = {
         Category("desk", 1, "none",  # mirror ratio 1.01-1.24 by sample: drawers on one side
                  # 1.0 x 0.72 x 0.5 m to 1.8 x 0.76 x 0.9 m
                  real_radius_m=(0.65, 1.1), height_m=(0.76, 0.09),
-                 scene_size=("length", (1.0, 1.6))),
+                 scene_size=("length", (1.0, 1.6)), requires_up=True),
         Category("dresser", 1, "yaw180", ("x", "z"), confusions="yaw90",
                  # 0.8 x 0.75 x 0.45 m to 1.6 x 1.1 x 0.55 m
                  real_radius_m=(0.58, 1.0), height_m=(0.99, 0.37),
-                 scene_size=("height", (0.8, 1.2))),
+                 scene_size=("height", (0.8, 1.2)), requires_up=True),
         Category("monitor", 1, "none", ("x",),
                  # 0.45 x 0.35 x 0.18 m to 0.85 x 0.6 x 0.25 m, stand included
-                 real_radius_m=(0.28, 0.55), height_m=(0.5, 0.47)),
+                 real_radius_m=(0.28, 0.55), height_m=(0.5, 0.47), requires_up=True),
         Category("night_stand", 1, "yaw180", ("x", "z"), confusions="yaw90",
                  # 0.4 x 0.5 x 0.35 m to 0.6 x 0.75 x 0.5 m
                  real_radius_m=(0.35, 0.55), height_m=(0.66, 0.18),
-                 scene_size=("height", (0.5, 0.65))),
+                 scene_size=("height", (0.5, 0.65)), requires_up=True),
         Category("sofa", 1, "none", ("x",),
                  # a two-seater 1.4 x 0.8 x 0.8 m to 2.5 x 0.95 x 1.0 m
                  real_radius_m=(0.85, 1.45), height_m=(0.83, 0.18),

@@ -99,3 +99,15 @@ def test_the_measurement_command_decides_a_users_category(tmp_path):
     row = next(line for line in result.stdout.splitlines() if line.startswith("| mug"))
     assert row.split("|")[5].strip() == "yaw"  # measured
     assert row.split("|")[6].strip() == "none"  # declared: unknown until given with --symmetry
+
+
+def test_each_shipped_cards_symmetry_and_up_are_its_categorys():
+    """The registry is the one table: every shipped pose model's card says what its category
+    says (symmetry, mirror planes, whether up is required)."""
+    from itnet.pose.runtime import default_model_dir, load_any
+
+    for name, cat in MODELNET10.items():
+        card = load_any(default_model_dir() / f"{name}.onnx", warm_up=False).card
+        assert card.category == name
+        assert (card.symmetry, card.requires_up) == (cat.symmetry, cat.requires_up), name
+        assert tuple(card.mirror_planes) == cat.mirror_planes, name
