@@ -5,9 +5,12 @@ Shared by the exporter (writes it) and the runtime (reads it), so both agree on 
 
 from __future__ import annotations
 
+import contextlib
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, computed_field
+
+from itnet.measurements import KINDS, Kind, Measurement, ViewResult
 
 METADATA_KEY = "itnet"
 NORMALIZATION = "centroid, RMS radius (itnet.preprocess)"
@@ -142,6 +145,26 @@ class ModelCard(BaseModel):
     )
     training: dict[str, object] = Field(default_factory=dict)
 
+    @computed_field(  # type: ignore[prop-decorator]
+        description="the figures of the evaluation lines (ensemble, up, mirror, recheck, "
+        "verify) as numbers with their protocol: split, budget, machine, and per kind of views "
+        "the scans, the accuracy and the accuracy without, with standard errors; read from the "
+        "lines, which they render back exactly (a line of another shape has none)"
+    )
+    @property
+    def measurements(self) -> list[Measurement]:
+        measured = []
+        for kind in KINDS:
+            line = getattr(self, f"{kind}_evaluation")
+            if line:
+                with contextlib.suppress(ValueError):
+                    measured.append(Measurement.parse(kind, line))
+        return measured
+
+    def measurement(self, kind: Kind) -> Measurement | None:
+        """The card's measurement of ``kind`` (None where it has none)."""
+        return next((m for m in self.measurements if m.kind == kind), None)
+
     @property
     def mirror(self) -> bool:
         """Whether the category has a mirror symmetry the runtime can finish poses by."""
@@ -275,45 +298,51 @@ def _kinds_measuring(report: dict, k: int) -> list[str]:
     return kinds
 
 
-def describe_ensemble(report: dict, k: int) -> str:
-    """The card's ``ensemble_evaluation`` line from ``benchmarks.bench_ensemble``'s JSON: K runs
-    against one on each kind of view it measured. Raises KeyError/ValueError where the report
-    lacks K or a single run."""
+def ensemble_measurement(report: dict, k: int) -> Measurement:
+    """``benchmarks.bench_ensemble``'s JSON -> the measurement of K runs against one on each kind
+    of view it measured. Raises KeyError/ValueError where the report lacks K or a single run."""
     if k < 2:
         raise ValueError(f"an ensemble is more than one run, got {k}")
-    parts = []
+    results = []
     for kind in _kinds_measuring(report, k):
         one, many = report[kind]["1"], report[kind][str(k)]
-        parts.append(
-            f"{kind} {many['accuracy']:.1f}% (one run {one['accuracy']:.1f}%, "
-            f"{many['gain']:+.1f} ± {many['gain_stderr']:.1f}; {many['scans']} scans)"
-        )
-    return (
-        f"{k} runs fused, within {report['budget_ms']:g} ms, on the {report['split']} views, at "
-        f"(10 deg, 0.1 radius): " + ", ".join(parts) + f" [{report['machine']}]"
-    )
+        results.append(ViewResult(views=kind, runs=k, scans=many["scans"],
+                                  accuracy=many["accuracy"], before=one["accuracy"],
+                                  gain=many["gain"], gain_stderr=many["gain_stderr"]))  # fmt: skip
+    return Measurement(kind="ensemble", split=report["split"], budget_ms=report["budget_ms"],
+                       machine=report["machine"], results=results)  # fmt: skip
 
 
-def describe_up(report: dict, k: int) -> str:
-    """The card's ``up_evaluation`` line from ``benchmarks.bench_ensemble``'s JSON of a run with
-    ``--up``: K runs (the card's default) on each kind of view it measured, the up direction
-    given with the report's error. Raises ValueError where the report was not made with the up
-    direction or lacks K."""
+def describe_ensemble(report: dict, k: int) -> str:
+    """The card's ``ensemble_evaluation`` line (``ensemble_measurement``'s text)."""
+    return ensemble_measurement(report, k).text()
+
+
+def up_measurement(report: dict, k: int) -> Measurement:
+    """``benchmarks.bench_ensemble``'s JSON of a run with ``--up`` -> the measurement of K runs
+    (the card's default) on each kind of view it measured, the up direction given with the
+    report's error. Raises ValueError where the report was not made with the up direction or
+    lacks K."""
     error = report.get("up_error_deg")
     if error is None:
         raise ValueError("the report was made without --up")
-    runs = "one run" if k == 1 else f"{k} runs fused"
-    parts = [
-        f"{kind} {report[kind][str(k)]['accuracy']:.1f}% ± {report[kind][str(k)]['stderr']:.1f} "
-        f"({report[kind][str(k)]['scans']} scans)"
+    results = [
+        ViewResult(
+            views=kind,
+            runs=k,
+            scans=report[kind][str(k)]["scans"],
+            accuracy=report[kind][str(k)]["accuracy"],
+            stderr=report[kind][str(k)]["stderr"],
+        )
         for kind in _kinds_measuring(report, k)
     ]
-    return (
-        f"{runs}, the up direction given (tilted {error:g} deg from the truth), within "
-        f"{report['budget_ms']:g} ms, on the {report['split']} views, at (10 deg, 0.1 radius): "
-        + ", ".join(parts)
-        + f" [{report['machine']}]"
-    )
+    return Measurement(kind="up", split=report["split"], budget_ms=report["budget_ms"],
+                       machine=report["machine"], up_error_deg=error, results=results)  # fmt: skip
+
+
+def describe_up(report: dict, k: int) -> str:
+    """The card's ``up_evaluation`` line (``up_measurement``'s text)."""
+    return up_measurement(report, k).text()
 
 
 def _paired_rows(without: dict, with_it: dict, fused: bool) -> list[tuple[str, str, dict, dict]]:
@@ -337,46 +366,37 @@ def _paired_rows(without: dict, with_it: dict, fused: bool) -> list[tuple[str, s
     return pairs
 
 
-def describe_switch(
-    without: dict, with_it: dict, fused: bool, switch: str, share: tuple[str, str]
-) -> str:
-    """A card's evaluation line of a finish the engine can switch on or off, from two
-    ``benchmarks.bench_ensemble`` JSONs of the same views without and with it: each kind's
-    accuracy before and after, with the paired gain where the second was measured against the
-    first (``--baseline``) and the share of runs the finish got to (``share``: the JSON's key,
-    its words); one run's rows, or (``fused``) those of more. Raises ValueError where they
-    share no such measurement or measured different scans."""
-    parts = []
-    for kind, runs, plain, row in _paired_rows(without, with_it, fused):
-        paired = row.get("versus_baseline")
-        gain = "" if paired is None else f"{paired['gain']:+.1f} ± {paired['gain_stderr']:.1f}, "
-        done = row.get(share[0])
-        held = "" if done is None else f", {100 * done:.0f}% {share[1]}"
-        label = f"{kind} {runs} runs" if fused else kind
-        parts.append(
-            f"{label} {plain['accuracy']:.1f}% -> {row['accuracy']:.1f}% "
-            f"({gain}{row['scans']} scans{held})"
-        )
-    return (
-        f"{'fused runs' if fused else 'one run'} within {with_it['budget_ms']:g} ms on the "
-        f"{with_it['split']} views, without and with {switch}, at (10 deg, 0.1 radius): "
-        + ", ".join(parts)
-        + f" [{with_it['machine']}]"
-    )
+def switch_measurement(without: dict, with_it: dict, kind: Kind) -> Measurement:
+    """A finishing stage the engine can switch on or off (``kind``: mirror, recheck, verify),
+    from two ``benchmarks.bench_ensemble`` JSONs of the same views without and with it: each
+    kind of view's accuracy before and after, with the paired gain where the second was
+    measured against the first (``--baseline``) and the share of scans the stage got to; one
+    run's rows, or (verify) those of more. Raises ValueError where they share no such
+    measurement or measured different scans."""
+    fused = kind == "verify"
+    share_key = {"mirror": "mirror_finished", "recheck": "rechecked", "verify": "verified"}[kind]
+    results = []
+    for views, runs, plain, row in _paired_rows(without, with_it, fused):
+        paired = row.get("versus_baseline") or {}
+        done = row.get(share_key)
+        results.append(ViewResult(views=views, runs=int(runs), scans=row["scans"],
+                                  accuracy=row["accuracy"], before=plain["accuracy"],
+                                  gain=paired.get("gain"), gain_stderr=paired.get("gain_stderr"),
+                                  share=None if done is None else 100 * done))  # fmt: skip
+    return Measurement(kind=kind, split=with_it["split"], budget_ms=with_it["budget_ms"],
+                       machine=with_it["machine"], results=results)  # fmt: skip
 
 
 def describe_mirror(without: dict, with_planes: dict) -> str:
     """The card's ``mirror_evaluation``: one run without and with its mirror planes."""
-    return describe_switch(
-        without, with_planes, False, "the mirror planes", ("mirror_finished", "finished in time")
-    )
+    return switch_measurement(without, with_planes, "mirror").text()
 
 
 def describe_recheck(without: dict, with_recheck: dict) -> str:
     """The card's ``recheck_evaluation``: one run without and with the recheck."""
-    return describe_switch(without, with_recheck, False, "the recheck", ("rechecked", "rechecked"))
+    return switch_measurement(without, with_recheck, "recheck").text()
 
 
 def describe_verify(without: dict, with_verify: dict) -> str:
     """The card's ``verify_evaluation``: fused runs without and with verify."""
-    return describe_switch(without, with_verify, True, "verify", ("verified", "verified in time"))
+    return switch_measurement(without, with_verify, "verify").text()

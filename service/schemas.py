@@ -196,6 +196,10 @@ ModelInfo = create_model(
         for name, spec in ModelCard.model_fields.items()
         if name not in CARD_KEPT_IN_FILE
     },
+    **{  # what the card reads from its own fields (its measurements as numbers)
+        name: (spec.return_type, Field(default_factory=list, description=spec.description))
+        for name, spec in ModelCard.model_computed_fields.items()
+    },
 )
 
 

@@ -189,9 +189,23 @@ def test_the_models_listing_takes_the_cards_fields_as_the_card_declares_them():
     from itnet.service.schemas import CARD_KEPT_IN_FILE, ModelInfo, ServedModel
 
     card = set(ModelCard.model_fields) - CARD_KEPT_IN_FILE
-    assert set(ModelInfo.model_fields) == card | set(ServedModel.model_fields)
+    computed = set(ModelCard.model_computed_fields)
+    assert set(ModelInfo.model_fields) == card | computed | set(ServedModel.model_fields)
     for name in card:
         served, declared = ModelInfo.model_fields[name], ModelCard.model_fields[name]
         assert served.annotation == declared.annotation, name
         assert served.default == declared.default, name
         assert served.description == declared.description, name
+
+
+def test_the_scene_route_reads_its_query_into_a_scene_request():
+    from itnet.service.api.routes.scene import _scene_request
+    from itnet.service.errors import ServiceError
+
+    query = {"fx": "525", "indices": "false", "budget_ms": "400", "up": "0,0,1", "recheck": "false"}
+    assert _scene_request(query, 60_000) == SceneRequest(budget_ms=400, up=[0, 0, 1], recheck=False)
+    for bad, said in (({"focal": "5"}, "focal"), ({"up": "0,0,0"}, "up"),
+                      ({"budget_ms": "500"}, "over the limit of 450")):  # fmt: skip
+        with pytest.raises(ServiceError) as refused:
+            _scene_request(bad, 450)
+        assert refused.value.status == 422 and said in str(refused.value.detail), bad

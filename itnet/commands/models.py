@@ -16,6 +16,9 @@ def models(
     as_json: bool = typer.Option(
         False, "--json", help="Print GET /v1/models's JSON (step_ms measured here)."
     ),
+    table: bool = typer.Option(
+        False, "--table", help="Print the accuracy table of the cards' measurements (Markdown)."
+    ),
 ) -> None:
     """List the models with category, symmetry, precision, points and measured accuracy."""
     from itnet.model_listing import list_models, listing_lines
@@ -28,6 +31,11 @@ def models(
         raise typer.Exit(2) from None
     if as_json:
         typer.echo(json.dumps(listing.reply.model_dump()))
+        return
+    if table:
+        from itnet.accuracy_table import accuracy_table
+
+        typer.echo("\n".join(accuracy_table(listing.reply.models)))
         return
     for line in listing_lines(listing):
         typer.echo(line)
