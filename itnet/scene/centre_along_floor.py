@@ -16,7 +16,6 @@ was not fitted for (another model folder, a model trained again) gets no correct
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from functools import lru_cache
@@ -27,6 +26,7 @@ from numpy.typing import NDArray
 
 from itnet.centre import FEATURES_VIEWPOINT, CentreCorrection, centre_features, sensor_direction
 from itnet.geometry import apply_rigid
+from itnet.graph_digest import graph_digest
 from itnet.preprocess import (
     Normalization,
     cap_points,
@@ -93,20 +93,10 @@ def centred_along_floor(
     return out
 
 
-@lru_cache(maxsize=64)
-def _digest(path: Path, size: int, mtime_ns: int) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def graph_digest(path: Path) -> str:
-    """The SHA-256 of a model's graph file (hex), computed once per file version."""
-    stat = path.stat()
-    return _digest(path.resolve(), stat.st_size, stat.st_mtime_ns)
-
-
 @dataclass(frozen=True)
 class CentreTable:
-    """Each pose model's scene correction: model name -> (its graph's SHA-256, correction)."""
+    """Each pose model's scene correction: model name -> (its graph's SHA-256, card left out:
+    ``itnet.graph_digest``; correction)."""
 
     corrections: dict[str, tuple[str, CentreCorrection]]
 

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.graph_digest import graph_digest
 from itnet.pose.runtime import LoadedClassifier
-from itnet.scene.centre_along_floor import graph_digest
 from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.planes import Plane
 

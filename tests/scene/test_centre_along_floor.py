@@ -14,6 +14,7 @@ from itnet.centre import FEATURE_COUNTS, FEATURES, FEATURES_VIEWPOINT, CentreCor
 from itnet.cli import app
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model.scenes import Scene, matched_objects
+from itnet.pose.runtime import default_model_dir
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.centre_along_floor import (
     CentreTable,
@@ -81,14 +82,14 @@ def test_the_true_offset_is_where_the_truth_lies_in_the_moved_frame() -> None:
 
 def test_the_table_holds_a_correction_for_one_graph(tmp_path: Path) -> None:
     graph = tmp_path / "chair.onnx"
-    graph.write_bytes(b"one graph")
+    graph.write_bytes((default_model_dir() / "chair.onnx").read_bytes())
     table = CentreTable({"chair": (graph_digest(graph), constant((0.1, 0, 0)))})
     again = CentreTable.from_dict(json.loads(json.dumps(table.to_dict())))
     found = again.for_model("chair", graph)
     assert found is not None and np.allclose(found.weights[-1], [0.1, 0, 0])
     assert again.for_model("table", graph) is None  # none fitted for that model
     other = tmp_path / "other.onnx"
-    other.write_bytes(b"another graph")
+    other.write_bytes((default_model_dir() / "table.onnx").read_bytes())
     assert again.for_model("chair", other) is None  # fitted for another graph of that name
     plain = {"chair": {"graph_sha256": "0", "correction": constant((0, 0, 0), FEATURES).to_dict()}}
     with pytest.raises(ValueError, match="camera's direction"):
