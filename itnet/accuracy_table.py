@@ -35,7 +35,8 @@ def _cell(measurement: Measurement | None, views: str, bold: bool) -> str:
 
 
 def _viewpoint(info: ModelInfo) -> str:
-    if info.centre_viewpoint:
+    """Whether a request's viewpoint finishes the centre (a card that needs up: with up)."""
+    if info.centre_viewpoint or (info.requires_up and info.centre_up_viewpoint):
         return "yes"
     return "yes, with `up`" if info.centre_up_viewpoint else "–"
 
