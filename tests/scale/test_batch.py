@@ -229,7 +229,7 @@ def test_batch_refuses_what_it_cannot_do(tmp_path: Path) -> None:
         (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--model-dir", str(tmp_path)],
          "no .onnx models found"),
         (["batch", "scene", cloud, "-o", str(tmp_path / "s.jsonl"), "--budget-ms", "0"],
-         "--budget-ms must be in"),
+         "--budget-ms: Input should be greater than 0"),
     ]  # fmt: skip
     for args, message in cases:
         result = runner.invoke(app, args)
