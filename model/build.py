@@ -148,8 +148,7 @@ class Verifier:
         config = VerifierConfig(category=c.category, pose_model=build.model,
                                 steps=c.verifier_steps, views=c.verifier_views, data=c.data,
                                 cache=c.cache, up_error_deg=build.up)  # fmt: skip
-        # its training log is its run's log.jsonl; the build logs its stages only
-        trained_at = train_verifier(config, build.folder / "verifier", log=lambda _line: None)
+        trained_at = train_verifier(config, build.folder / "verifier", log=_silent)
         net, trained = load_verifier(trained_at)
         card = VerifierCard(name=f"{c.category}-verifier", category=c.category,
                             points=trained.points, trained_on=build.model.name,
@@ -194,6 +193,7 @@ class Measure:
                 c.cache,
                 c.data,
                 up_error_deg=build.up,
+                log=_silent,
             )
             for scanner in SCANNERS
         }
@@ -233,6 +233,12 @@ class Compact:
 
         saved = {path.name: store_half(path) for path in (build.model, build.verifier)}
         _write(self.output(build), {"bytes_saved": saved})
+
+
+def _silent(line: str) -> None:
+    """A stage's own progress lines are left out: the build logs one line a stage, and each
+    stage's files hold the rest (the training's and the verifier's log.jsonl)."""
+    del line
 
 
 STAGES: tuple[BuildStage, ...] = (

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import platform
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -55,7 +56,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             up_error_deg: float | None = None, verify: bool | None = None,
             verifier: str = "beside", recheck: bool | None = None,
             halving: tuple[int, int] | None = None,
-            points: int | None = None) -> dict:  # fmt: skip
+            points: int | None = None,
+            log: Callable[[str], None] = print) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
@@ -157,6 +159,6 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 else {}
             ),
         }
-        print(scanner, f"K={k}", out[str(k)], flush=True)
+        log(f"{scanner} K={k} {out[str(k)]}")
         out[str(k)]["correct"] = "".join("1" if c else "0" for c in correct)  # per scan, in order
     return out
