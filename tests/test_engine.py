@@ -38,6 +38,7 @@ def test_runs_to_max_iterations_with_one_estimate_per_iteration(model, cloud):
     assert np.allclose(run.result()["T_canonical_from_input"], estimates[-1].pose)
 
 
+@pytest.mark.timing
 def test_budget_is_honoured_and_stops_before_overrunning(model, cloud):
     for budget in (0.5, 3.0, 8.0):
         overruns = []

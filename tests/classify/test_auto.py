@@ -102,6 +102,7 @@ def test_unsure_recognition_says_so(unsure_dir: Path, box_cloud) -> None:
         assert reply["unsure"] is True and reply["category_probability"] < 0.6
 
 
+@pytest.mark.timing
 def test_an_unsure_request_gets_a_second_opinion_within_half_its_budget(
     unsure_dir: Path, box_cloud, tmp_path
 ) -> None:

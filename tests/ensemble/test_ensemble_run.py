@@ -56,6 +56,7 @@ def test_bad_ensemble_requests_are_refused(model, cloud, kwargs, message):
         run_with(model, cloud, **kwargs)
 
 
+@pytest.mark.timing
 def test_ensemble_stops_within_its_budget(model, cloud):
     run = run_with(model, cloud, budget_ms=30, max_iterations=200, ensemble=8)
     run.run_to_end()

@@ -21,6 +21,8 @@ from itnet.pose.runtime import LoadedModel, load_model
 from itnet.service.settings import Settings
 from tests.pose_runs import run_with
 
+pytestmark = pytest.mark.timing  # every test here times a budget
+
 # What a run may exceed its budget by: scheduling noise on a loaded 2-core machine, the final
 # estimate's bookkeeping, and a step somewhat slower than its prediction.
 MARGIN_MS = 15.0

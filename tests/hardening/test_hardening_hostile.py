@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 from hardening_helpers import (
     LIMITS,
     SERVER,
@@ -173,6 +174,7 @@ def test_probes_are_answered_when_every_connection_is_busy(slow_server: LiveServ
             sock.close()
 
 
+@pytest.mark.timing
 def test_elapsed_ms_counts_from_the_first_byte(
     settings: Settings, slow: LoadedModel, points: list
 ) -> None:
@@ -209,6 +211,7 @@ def test_elapsed_ms_counts_from_the_first_byte(
     assert waited_ms < 600, waited_ms
 
 
+@pytest.mark.timing
 def test_a_body_trickled_within_the_idle_time_still_meets_its_deadline(
     slow_server: LiveServer,
 ) -> None:

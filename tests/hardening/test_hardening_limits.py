@@ -137,6 +137,7 @@ def test_a_declared_oversize_body_is_refused_before_it_is_sent(slow_server: Live
     assert reply.startswith(b"HTTP/1.1 413") and b"exceeds the limit of 65536" in reply
 
 
+@pytest.mark.timing
 def test_silent_sockets_beyond_max_connections_give_way_to_requests(
     slow_server: LiveServer,
 ) -> None:

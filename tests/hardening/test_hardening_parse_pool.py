@@ -65,6 +65,7 @@ print(json.dumps(waits))
 """
 
 
+@pytest.mark.timing
 def test_a_large_json_parse_does_not_hold_up_small_requests(big_server: LiveServer) -> None:
     """Small estimates posted (from another process) while 120,000-point JSON bodies are being
     parsed: they are not slowed down by the parse. Before (parsed in the server's process) the
@@ -102,6 +103,7 @@ def test_a_large_json_parse_does_not_hold_up_small_requests(big_server: LiveServ
     assert np.percentile(during, 90) < 0.2 * parse_s, (parse_s, sorted(during)[-10:])
 
 
+@pytest.mark.timing
 def test_the_server_never_holds_the_parsed_lists(decoder: Decoder) -> None:
     """Python allocations of the server's process while a large body is decoded: about the
     float64 cloud (24 bytes a point), far below the lists pydantic builds in-process; and its

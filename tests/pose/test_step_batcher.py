@@ -53,6 +53,7 @@ def job(value: float, runs: int = 1, points: int = 8):
     return np.full((runs, points, 3), value, np.float32), np.zeros((runs, 4, 4), np.float32)
 
 
+@pytest.mark.timing
 def test_a_lone_step_runs_at_once():
     step = SlowStep(1.0)
     batcher = StepBatcher(step, lambda runs, points: 1.0)
@@ -76,6 +77,7 @@ def test_steps_that_arrive_during_a_call_share_the_next_and_each_gets_its_rows()
     assert all(np.all(results[i] == i) and results[i].shape == (2, 4, 4) for i in range(6))
 
 
+@pytest.mark.timing
 def test_a_step_that_cannot_end_in_time_is_turned_away_and_batches_respect_deadlines():
     step = SlowStep(1.0, threading.Event())
     batcher = StepBatcher(step, lambda runs, points: 200.0 * runs)  # predicted: 200 ms a run

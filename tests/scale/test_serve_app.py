@@ -96,6 +96,7 @@ def test_answers_equal_the_single_process_service(url: str, points: list) -> Non
         )
 
 
+@pytest.mark.timing
 def test_both_replicas_answer_within_the_budget(url: str, points: list) -> None:
     """4 clients at once (coroutines of one thread: threads would fight for the GIL), 40 ms
     budgets: both replicas answer with poses (a request the busy machine cannot serve in its

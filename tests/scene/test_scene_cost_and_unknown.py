@@ -155,6 +155,7 @@ def test_the_recognition_parts_a_cluster_where_both_parts_are_objects(
     assert len(whole) == 6000
 
 
+@pytest.mark.timing
 def test_every_object_of_a_usual_frame_is_posed_within_the_default_budget() -> None:
     """Four chairs apart at 640x480: the reply comes within the default budget (the clock
     started before the frame is read, a little scheduling slack), and every chair found comes

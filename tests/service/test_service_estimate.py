@@ -72,6 +72,7 @@ def test_max_iterations_and_the_models_default(client: TestClient, make_cloud: C
     assert default["iterations"] <= 5  # the tiny card recommends 5
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("budget_ms", [3.0, 15.0])
 def test_the_budget_is_honoured(
     slow_client: TestClient, make_cloud: CloudMaker, budget_ms: float
@@ -86,6 +87,7 @@ def test_the_budget_is_honoured(
     assert "below one step" in reply.json()["detail"]
 
 
+@pytest.mark.timing
 def test_a_body_whose_decoding_spends_its_budget_is_a_422_that_names_the_binary_body(
     client: TestClient, make_cloud: CloudMaker, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -114,6 +116,7 @@ def test_a_body_whose_decoding_spends_its_budget_is_a_422_that_names_the_binary_
     assert binary.status_code == 200 and binary.json()["iterations"] >= 1
 
 
+@pytest.mark.timing
 def test_a_long_budget_runs_steps_until_it_is_spent(
     slow_client: TestClient, make_cloud: CloudMaker
 ) -> None:
@@ -134,6 +137,7 @@ def test_translation_is_in_the_inputs_units(client: TestClient, make_cloud: Clou
     np.testing.assert_allclose(pose_mm[:3, 3], 1000 * pose_m[:3, 3], rtol=1e-3, atol=1e-2)
 
 
+@pytest.mark.timing
 def test_steps_run_off_the_event_loop(slow_client: TestClient, make_cloud: CloudMaker) -> None:
     """While a 10-step request runs (>= 300 ms), /healthz still answers at once, and four
     requests at the same time finish much sooner than one after another."""
