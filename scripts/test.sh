@@ -8,15 +8,6 @@ fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
 .venv/bin/itnet --version
-# The types of the pure modules are checked beside the first group of tests (a fresh clone's mypy
-# takes a while); its verdict is read after that group.
-types=$(mktemp)
-.venv/bin/mypy itnet/geometry.py itnet/preprocess.py itnet/metrics.py itnet/cloud_io.py itnet/alignment/overlap.py \
-  itnet/alignment/hypotheses.py itnet/symmetry.py itnet/fusion.py itnet/cpu.py itnet/size_prior.py itnet/atomic_write.py \
-  itnet/pose/request.py itnet/pose/plan.py itnet/pose/stages.py itnet/pose/loop.py itnet/pose/step_batcher.py \
-  itnet/pose/admission.py itnet/pose/catalog.py itnet/request_fields.py itnet/commands/request_options.py \
-  itnet/measurements.py itnet/graph_digest.py itnet/scene itnet/recordings >"$types" 2>&1 &
-mypy_pid=$!
 # Four groups. 1: every test that does not time itself, on both cores (pytest-xdist). 2: the
 # hardening tests that do not time themselves, on both cores, each file in one worker: they resize
 # process-wide thread pools and handle signals, so they run apart from the other tests. 3: the
@@ -25,9 +16,18 @@ mypy_pid=$!
 # in the process, and other tests fork (training's batch workers). A test that hangs fails after
 # pyproject's pytest timeout, with every thread's stack printed.
 .venv/bin/python -m pytest -q -n 2 --ignore=tests/hardening -m "not ray and not timing" "$@"
+# The types of the pure modules are checked beside the second group (none of it times itself);
+# mypy's verdict is read after that group.
+types=$(mktemp)
+.venv/bin/mypy itnet/geometry.py itnet/preprocess.py itnet/metrics.py itnet/cloud_io.py itnet/alignment/overlap.py \
+  itnet/alignment/hypotheses.py itnet/symmetry.py itnet/fusion.py itnet/cpu.py itnet/size_prior.py itnet/atomic_write.py \
+  itnet/pose/request.py itnet/pose/plan.py itnet/pose/stages.py itnet/pose/loop.py itnet/pose/step_batcher.py \
+  itnet/pose/admission.py itnet/pose/catalog.py itnet/request_fields.py itnet/commands/request_options.py \
+  itnet/measurements.py itnet/graph_digest.py itnet/scene itnet/recordings >"$types" 2>&1 &
+mypy_pid=$!
+.venv/bin/python -m pytest -q -n 2 --dist loadfile tests/hardening -m "not timing" "$@"
 if ! wait "$mypy_pid"; then cat "$types" >&2; exit 1; fi
 cat "$types"
-.venv/bin/python -m pytest -q -n 2 --dist loadfile tests/hardening -m "not timing" "$@"
 .venv/bin/python -m pytest -q -m "timing and not ray" "$@"
 .venv/bin/python -m pytest -q -m ray tests/scale "$@"
 # The tree describes the product as it is: no words about work sessions, borrowed machines or issue numbers

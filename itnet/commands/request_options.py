@@ -66,7 +66,9 @@ def option(kind: type[BaseModel], name: str) -> inspect.Parameter:
     flag = "--" + name.replace("_", "-")
     aliases = tuple(getattr(kind, "CLI_ALIASES", {}).get(name, ()))
     description = spec.description or ""
-    settings: dict[str, Any] = {"help": description[:1].upper() + description[1:] + "."}
+    settings: dict[str, Any] = {
+        "help": description[:1].upper() + description[1:] + "." if description else None
+    }
     annotation: Any = spec.annotation
     if is_xyz(annotation):
         annotation, settings["callback"] = (str | None), xyz_option
