@@ -197,3 +197,49 @@ def _switch(kind: Kind, head: str, parts: str) -> dict:
         for v, k, b, a, g, s, n, p in row.findall(parts)
     ]
     return {"split": found.group(3), "budget_ms": float(found.group(2)), "results": results}
+
+
+class AnytimeProtocol(BaseModel):
+    """How a card's ``accuracy`` (per iteration, one run) was measured: ``views`` random views
+    of each test shape by a view rule, in full SO(3) and random units, held upright by an up
+    ``up_error_deg`` off where given; ``points`` a run. ``text()`` is the card's ``evaluation``
+    line, ``parse`` reads it back."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scans: int = Field(ge=1)
+    views: int = Field(ge=1, description="random views a test shape")
+    scanner: str = Field(description="the view rule: occluded, paper, surface, base_hidden, ...")
+    up_error_deg: float | None = Field(
+        default=None, description="the up given this far off the truth, the runs held upright"
+    )
+    category: str
+    split: str = "test"
+    points: int = Field(ge=1, description="points a run sees")
+
+    def text(self) -> str:
+        held = (
+            ""
+            if self.up_error_deg is None
+            else f", the up direction given ({self.up_error_deg:g} deg off the truth), held upright"
+        )
+        return (
+            f"{self.scans} partial scans ({self.views} random {self.scanner} views, full SO(3), "
+            f"random units{held}) of the {self.category} {self.split} split, {self.points} points"
+        )
+
+    @classmethod
+    def parse(cls, text: str) -> AnytimeProtocol:
+        """An ``evaluation`` line -> its protocol; ValueError for a line of another shape."""
+        found = re.fullmatch(
+            r"(\d+) partial scans \((\d+) random (\S+) views, full SO\(3\), random units"
+            r"(?:, the up direction given \(([\d.]+) deg off the truth\), held upright)?\) of the "
+            r"(\S+) (\w+) split, (\d+) points",
+            text,
+        )
+        if found is None:
+            raise ValueError(f"not an anytime evaluation line: {text[:80]!r}")
+        scans, views, scanner, up, category, split, points = found.groups()
+        return cls(scans=int(scans), views=int(views), scanner=scanner,
+                   up_error_deg=None if up is None else float(up), category=category,
+                   split=split, points=int(points))  # fmt: skip

@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, computed_field
 
-from itnet.measurements import KINDS, Kind, Measurement, ViewResult
+from itnet.measurements import KINDS, AnytimeProtocol, Kind, Measurement, ViewResult
 
 METADATA_KEY = "itnet"
 NORMALIZATION = "centroid, RMS radius (itnet.preprocess)"
@@ -161,6 +161,18 @@ class ModelCard(BaseModel):
                     measured.append(Measurement.parse(kind, line))
         return measured
 
+    @computed_field(  # type: ignore[prop-decorator]
+        description="how the per-iteration accuracy was measured, read from the evaluation "
+        "line: scans, views a shape, view rule, the up's error, split, points (null: a line of "
+        "another shape)"
+    )
+    @property
+    def accuracy_protocol(self) -> AnytimeProtocol | None:
+        try:
+            return AnytimeProtocol.parse(self.evaluation)
+        except ValueError:
+            return None
+
     def measurement(self, kind: Kind) -> Measurement | None:
         """The card's measurement of ``kind`` (None where it has none)."""
         return next((m for m in self.measurements if m.kind == kind), None)
@@ -275,18 +287,13 @@ def parse_card(text: str) -> ModelCard | ClassifierCard | VerifierCard:
 
 def describe_anytime(report: dict) -> tuple[dict[str, float], str]:
     """An ``itnet eval`` report.json -> (the card's ``accuracy`` per iteration, its
-    ``evaluation``): what was measured, on how many scans, with the up direction if given."""
+    ``evaluation``: ``AnytimeProtocol``'s text)."""
     accuracy = {str(k): v for k, v in zip(report["iterations"], report["accuracy"], strict=True)}
-    up = report.get("up_error_deg")
-    held = (
-        "" if up is None else f", the up direction given ({up:g} deg off the truth), held upright"
-    )
-    evaluation = (
-        f"{report['scans']} partial scans ({report['views']} random "
-        f"{report.get('scanner', 'occluded')} views, full SO(3), random units{held}) of the "
-        f"{report['category']} test split, {report['points']} points"
-    )
-    return accuracy, evaluation
+    protocol = AnytimeProtocol(scans=report["scans"], views=report["views"],
+                               scanner=report.get("scanner", "occluded"),
+                               up_error_deg=report.get("up_error_deg"),
+                               category=report["category"], points=report["points"])  # fmt: skip
+    return accuracy, protocol.text()
 
 
 def _kinds_measuring(report: dict, k: int) -> list[str]:

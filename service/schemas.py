@@ -146,6 +146,14 @@ CARD_KEPT_IN_FILE = frozenset({
 })  # fmt: skip
 
 
+def _computed_default(kind: Any, description: str | None) -> Any:
+    """A card's computed field as a field of the listing: a list is empty by default, anything
+    else None."""
+    if getattr(kind, "__origin__", None) is list:
+        return Field(default_factory=list, description=description)
+    return Field(default=None, description=description)
+
+
 class ServedModel(BaseModel):
     """What this server knows of a loaded model beside its card."""
 
@@ -197,7 +205,7 @@ ModelInfo = create_model(
         if name not in CARD_KEPT_IN_FILE
     },
     **{  # what the card reads from its own fields (its measurements as numbers)
-        name: (spec.return_type, Field(default_factory=list, description=spec.description))
+        name: (spec.return_type, _computed_default(spec.return_type, spec.description))
         for name, spec in ModelCard.model_computed_fields.items()
     },
 )

@@ -58,3 +58,20 @@ def test_a_line_of_another_shape_has_no_measurement():
                                     "scans": 40}}}, 8)  # fmt: skip
     changed = card.model_copy(update={"ensemble_evaluation": line})
     assert [m.kind for m in changed.measurements] == ["ensemble"]  # read from the line, always
+
+
+def test_every_shipped_pose_models_accuracy_protocol_reads_back_exactly():
+    from itnet.measurements import AnytimeProtocol
+
+    read = 0
+    for path in sorted(default_model_dir().glob("*.onnx")):
+        card = load_any(path, warm_up=False).card
+        if isinstance(card, ModelCard):
+            protocol = card.accuracy_protocol
+            assert protocol is not None and protocol.text() == card.evaluation, path.name
+            assert protocol.category == card.category and protocol.split == "test"
+            read += 1
+    assert read == 13
+    with pytest.raises(ValueError):
+        AnytimeProtocol.parse("measured on a few scans")
+    assert ModelCard(name="c", category="chair", evaluation="by hand").accuracy_protocol is None
