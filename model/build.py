@@ -95,7 +95,7 @@ class Train:
             data=c.data, category=c.category, out=build.folder / "train", steps=c.steps,
             batch=c.batch, lr=c.lr, decay_every=c.decay_every, eval_every=c.eval_every,
             threads=c.threads, init_from=c.weights(), loss="distance", resume=True,
-            upright=5.0 if build.requires_up else None, cache=c.cache,
+            compile=c.compile, upright=5.0 if build.requires_up else None, cache=c.cache,
         )  # fmt: skip
         report = train_run(options, progress=False)
         _write(self.output(build), {"checkpoint": report.checkpoint, "step": report.step,

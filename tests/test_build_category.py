@@ -30,7 +30,7 @@ def _few_chairs(root: Path, train: int = 16, test: int = 4) -> Path:
 def test_a_build_ships_a_compact_model_with_its_verifier_and_measured_card(tmp_path):
     data, out = _few_chairs(tmp_path / "data"), tmp_path / "build"
     args = ["build", "chair", "--data", str(data), "--out", str(out), "--steps", "2",
-            "--batch", "4", "--eval-every", "2", "--views", "1", "--runs", "2",
+            "--batch", "4", "--eval-every", "2", "--no-compile", "--views", "1", "--runs", "2",
             "--verifier-steps", "2", "--verifier-views", "1", "--centre-views", "2", "--cache", str(tmp_path / "cache"),
             "--budget-ms", "200"]  # fmt: skip
     first = CliRunner().invoke(app, args)
