@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from typer.testing import CliRunner
 
 from itnet.cli import app
@@ -33,6 +34,7 @@ def test_bench_prints_a_row_per_model_and_shape_and_the_loop_overhead(tiny_model
     assert float(load[1][9]) > 1.0  # four float32 requests at once share calls
 
 
+@pytest.mark.timing  # replies counted in a 0.2 s window
 def test_bench_measures_a_model_that_requires_up(tmp_path, export_model) -> None:  # type: ignore[no-untyped-def]
     """A card that requires up (the night stand's, the dresser's) gets its loop measured held
     upright, one run: it used to stop the whole command with the engine's refusal."""
