@@ -48,8 +48,8 @@ class ExportOptions(BaseModel):
         None,
         description="canonical planes the category is mirror-symmetric about, comma-separated: "
         "'x' (x = 0, left-right), 'z' (z = 0, front-back), or 'none'; the runtime finishes "
-        "poses by them (itnet.mirror). Default: measured for ModelNet10's classes (`python -m "
-        "itnet.model.categories`), none for your own category",
+        "poses by them (itnet.mirror). Default: measured for ModelNet10's classes (`itnet fit "
+        "categories`), none for your own category",
     )
     report: Path | None = Field(
         None, description="an `itnet eval` report.json to record as the card's accuracy"

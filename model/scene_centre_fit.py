@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from itnet.centre import fit_centre_correction
+from itnet.graph_digest import graph_digest
 from itnet.model.categories import MODELNET10
 from itnet.model.scenes import (
     FIT_SPLIT,
@@ -47,7 +48,6 @@ from itnet.scene import find_objects, scene_catalog
 from itnet.scene.centre_along_floor import (
     TABLE,
     CentreTable,
-    graph_digest,
     moved_object,
     true_offset,
 )

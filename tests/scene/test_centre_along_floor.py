@@ -13,13 +13,13 @@ from typer.testing import CliRunner
 from itnet.centre import FEATURE_COUNTS, FEATURES, FEATURES_VIEWPOINT, CentreCorrection
 from itnet.cli import app
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
+from itnet.graph_digest import graph_digest
 from itnet.model.scenes import Scene, matched_objects
 from itnet.pose.runtime import default_model_dir
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.centre_along_floor import (
     CentreTable,
     centred_along_floor,
-    graph_digest,
     load_table,
     moved_object,
     true_offset,
