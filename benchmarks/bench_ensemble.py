@@ -112,6 +112,13 @@ def main() -> None:
         default=None,
         help="the most points a run sees of a scan (default: the model card's)",
     )
+    parser.add_argument(
+        "--coarse",
+        default=None,
+        metavar="ITERATIONS,POINTS",
+        help="coarse first steps: the first ITERATIONS steps see at most POINTS of each run's "
+        "points (default: the plan's)",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("runs/ensemble_benchmark.json"))
@@ -122,6 +129,9 @@ def main() -> None:
     halving = None if args.halving is None else tuple(int(v) for v in args.halving.split(","))
     if halving is not None and (len(halving) != 2 or min(halving) < 1):
         parser.error("--halving takes AT,KEEP: two positive integers")
+    coarse = None if args.coarse is None else tuple(int(v) for v in args.coarse.split(","))
+    if coarse is not None and (len(coarse) != 2 or min(coarse) < 1):
+        parser.error("--coarse takes ITERATIONS,POINTS: two positive integers")
     results = {
         "machine": machine(),
         "model": str(args.model),
@@ -137,6 +147,7 @@ def main() -> None:
         "verifier": args.verifier,
         "halving": args.halving,
         "points": args.points,
+        "coarse": args.coarse,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -158,6 +169,7 @@ def main() -> None:
                 SWITCH[args.recheck],
                 halving,
                 args.points,
+                coarse,
             )
             for s in args.scanners
         },

@@ -57,6 +57,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             verifier: str = "beside", recheck: bool | None = None,
             halving: tuple[int, int] | None = None,
             points: int | None = None,
+            coarse: tuple[int, int] | None = None,
             log: Callable[[str], None] = print) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
@@ -108,6 +109,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             planned = plan(model, request)
             if halving is not None:  # the runs the verifier likes best go on after halving[0]
                 planned = replace(planned, halving=halving)
+            if coarse is not None:  # the first coarse[0] steps on at most coarse[1] points
+                planned = replace(planned, coarse=coarse)
             run = AnytimeRun(planned, cloud)
             last = run.run_to_end()
             result = run.result()

@@ -72,6 +72,11 @@ class AnytimeRun(Iterator[Estimate]):
         self.pose_normalized = np.tile(np.eye(4, dtype=np.float32), (plan.runs, 1, 1))
         self.pose_normalized[:, :3, :3] = plan.starts
         self._size = size
+        # coarse first steps see the first points of each run's draw: a random subset where the
+        # draw is one, else (a small cloud whole, in its order) a seeded shuffle of it
+        if plan.coarse_at and len(self.cloud) <= size:
+            order = np.random.default_rng(plan.seed + 1).permutation(size)
+            self.points = self.points[:, order]
         self.iteration = 0
         self.stopped_by: str | None = None
         self.last: Estimate = self._estimate(self.pose_normalized[0], 0.0, 0.0)
@@ -89,7 +94,8 @@ class AnytimeRun(Iterator[Estimate]):
         if self.stopped_by is not None:
             self._finish()
             raise StopIteration
-        stepped = self.extra_step(self.points, self.pose_normalized)
+        stepping = self.plan.step_points(self.iteration, self._size)
+        stepped = self.extra_step(self.points[:, :stepping], self.pose_normalized)
         if stepped is None:  # no step slot freed in time, or cancelled while waiting
             self.stopped_by = "cancelled" if self._cancel.is_set() else "budget"
             self._finish()
@@ -191,7 +197,8 @@ class AnytimeRun(Iterator[Estimate]):
     def predicted_step_ms(self) -> float:
         """The next step of this run's runs: the model's running prediction (or the last step's
         time, if longer)."""
-        return max(self.model.run_step_ms(self.runs, self._size), self._last_step_ms)
+        points = self.plan.step_points(self.iteration, self._size)
+        return max(self.model.run_step_ms(self.runs, points), self._last_step_ms)
 
     @property
     def needed_iterations(self) -> int:
@@ -203,17 +210,26 @@ class AnytimeRun(Iterator[Estimate]):
         """The steps this run still needs at the model's current step time: its plan's, up to
         the model's recommended iterations (a request for more takes those as the budget
         allows). Runs are admitted by it (``itnet.pose.admission``)."""
-        steps = self.plan.run_steps(self.needed_iterations, start=self.iteration, now=self.runs)
-        return steps * self.model.run_step_ms(1, self._size)
+        return self.plan.work_ms(self.needed_iterations, self._size, self._one_run_ms,
+                                 start=self.iteration, now=self.runs)  # fmt: skip
+
+    def _one_run_ms(self, points: int) -> float:
+        return self.model.run_step_ms(1, points)
 
     def idle_iterations(self) -> int:
         """The iterations an idle machine gives this run: as many of its needed ones as fit
         its budget, less the reserve and its decoding, at the step time measured at load (at
         least 1)."""
         available = self.plan.budget_ms - self.reserve_ms - self.decode_ms
-        one = self.model.run_step_ms(1, self._size, idle=True)
+
+        def one(points: int) -> float:
+            return self.model.run_step_ms(1, points, idle=True)
+
         fits = 0
-        while fits < self.needed_iterations and self.plan.run_steps(fits + 1) * one <= available:
+        while (
+            fits < self.needed_iterations
+            and self.plan.work_ms(fits + 1, self._size, one) <= available
+        ):
             fits += 1
         return max(1, fits)
 

@@ -10,6 +10,7 @@ request gets the same plan, and so the same pose, whichever way it came in, load
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +55,9 @@ class PosePlan:
     converge: tuple[float, float] = (CONVERGE_ROTATION_DEG, CONVERGE_TRANSLATION)
     # the most points a run sees of the cloud (None: the model card's count)
     points: int | None = None
+    # coarse first steps: the first ITERATIONS steps see at most POINTS of each run's points (a
+    # step costs about linearly in runs x points; None: every step sees them all)
+    coarse: tuple[int, int] | None = None
 
     @property
     def runs(self) -> int:
@@ -78,6 +82,30 @@ class PosePlan:
             return max(0, iterations - start) * runs
         before = max(0, min(at, iterations) - start)
         return before * runs + max(0, iterations - at) * self.halving_keep
+
+    @property
+    def coarse_at(self) -> int:
+        """The iterations that step on the coarse points (0: none)."""
+        return 0 if self.coarse is None else self.coarse[0]
+
+    def step_points(self, iteration: int, run_points: int) -> int:
+        """Points each run steps on at ``iteration`` (0-based), of its ``run_points``."""
+        if iteration < self.coarse_at:
+            return min(run_points, self.coarse[1])  # type: ignore[index]
+        return run_points
+
+    def work_ms(self, iterations: int, run_points: int, one_run_ms: Callable[[int], float],
+                start: int = 0, now: int | None = None) -> float:  # fmt: skip
+        """The steps from iteration ``start`` to ``iterations`` (``now`` runs stepping, as
+        ``run_steps``) at ``one_run_ms(points)`` a run-step: the coarse ones at their points."""
+        at = self.coarse_at
+        if at <= start:
+            return self.run_steps(iterations, start, now) * one_run_ms(run_points)
+        coarse = self.run_steps(min(iterations, at), start, now)
+        fine = self.run_steps(iterations) - self.run_steps(at) if iterations > at else 0
+        return coarse * one_run_ms(self.step_points(start, run_points)) + fine * one_run_ms(
+            run_points
+        )
 
     @property
     def stage_names(self) -> tuple[str, ...]:

@@ -237,3 +237,45 @@ def test_successive_halving_steps_on_only_the_runs_the_verifier_likes_best(model
     alone = AnytimeRun(halved, cloud)  # no verifier: every run goes on
     alone.run_to_end()
     assert alone.runs == 8
+
+
+def test_coarse_first_steps_see_a_subset_of_each_runs_points_and_cost_less(model, cloud):
+    request = PoseRequest(budget_ms=10_000, ensemble=4, max_iterations=5, verify=False)
+    full = plan(model, request)
+    coarse = replace(full, coarse=(3, 32))
+    size = full.run_points(len(cloud))
+    assert [coarse.step_points(i, size) for i in range(5)] == [32, 32, 32, size, size]
+    assert coarse.step_points(0, 20) == 20  # never more than a run has
+
+    def per_point(points: int) -> float:
+        return float(points)
+
+    assert full.work_ms(5, size, per_point) == 5 * 4 * size
+    assert coarse.work_ms(5, size, per_point) == 3 * 4 * 32 + 2 * 4 * size
+    assert coarse.work_ms(5, size, per_point, start=4, now=4) == 4 * size
+    halved = replace(coarse, halving=(3, 2))  # coarse steps, then the halving's runs on all
+    assert halved.work_ms(5, size, per_point) == 3 * 4 * 32 + 2 * 2 * size
+
+    seen: list[tuple[int, int]] = []
+    step = model.batched_step
+
+    def recorded(points, poses, latest):
+        seen.append(points.shape[:2])
+        return step(points, poses, latest)
+
+    watched = replace(model)
+    watched.idle_ms, watched.baseline_ms = model.idle_ms, model.baseline_ms
+    watched.batched_step = recorded  # type: ignore[method-assign]
+    run = AnytimeRun(replace(coarse, model=watched), cloud)
+    drawn = run.points.copy()
+    run.run_to_end()
+    assert seen == [(4, 32)] * 3 + [(4, size)] * 2
+    assert run.iteration == 5 and np.array_equal(run.points, drawn)
+    assert AnytimeRun(coarse, cloud).run_to_end().pose.shape == (4, 4)
+
+    small = cloud[:100]  # one run sees the whole small cloud: its coarse steps a seeded shuffle
+    single = replace(plan(model, request.model_copy(update={"ensemble": 1})), coarse=(2, 32))
+    first, second = AnytimeRun(single, small), AnytimeRun(single, small)
+    assert np.array_equal(first.points, second.points)
+    assert not np.array_equal(first.points[0, :32], AnytimeRun(replace(single, coarse=None),
+                                                                small).points[0, :32])  # fmt: skip
