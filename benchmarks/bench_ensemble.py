@@ -119,6 +119,12 @@ def main() -> None:
         help="coarse first steps: the first ITERATIONS steps see at most POINTS of each run's "
         "points (default: the plan's)",
     )
+    parser.add_argument(
+        "--full",
+        action="store_true",
+        help="every run on all its points every step: no coarse steps and no halving, whatever "
+        "the card's plan says (what --coarse and --halving are measured against)",
+    )
     parser.add_argument("--data", type=Path, default=Path("../shared/data/modelnet10"))
     parser.add_argument("--cache", type=Path, default=Path("cache"))
     parser.add_argument("--out", type=Path, default=Path("runs/ensemble_benchmark.json"))
@@ -148,6 +154,7 @@ def main() -> None:
         "halving": args.halving,
         "points": args.points,
         "coarse": args.coarse,
+        "full": args.full,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -170,6 +177,7 @@ def main() -> None:
                 halving,
                 args.points,
                 coarse,
+                args.full,
             )
             for s in args.scanners
         },

@@ -71,6 +71,26 @@ class CardChanges(BaseModel):
         description="`benchmarks.bench_ensemble --recheck on` JSON of the same views "
         "(`--baseline` the first): recorded as the card's recheck_evaluation",
     )
+    coarse_steps: str | None = Field(
+        None,
+        description="ITERATIONS,POINTS: each run's first ITERATIONS steps on at most POINTS of "
+        "its points, by default, or none; a schedule needs its measurement (--with-plan)",
+    )
+    halving: str | None = Field(
+        None,
+        description="AT,KEEP: after AT iterations only the KEEP runs the verifier finds "
+        "likeliest go on, by default, or none; needs its measurement (--with-plan)",
+    )
+    without_plan: Path | None = Field(
+        None,
+        description="`benchmarks.bench_ensemble --full` JSON of fused runs (every run on all "
+        "its points every step), beside --with-plan",
+    )
+    with_plan: Path | None = Field(
+        None,
+        description="`benchmarks.bench_ensemble --full --coarse .. --halving ..` JSON of the "
+        "same views (`--baseline` the first): recorded as the card's plan_evaluation",
+    )
     recommended_ensemble: int | None = Field(
         None,
         ge=1,

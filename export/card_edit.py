@@ -24,7 +24,13 @@ from itnet.export.card_measurements import (
 )
 from itnet.export.onnx_export import save_with_card
 from itnet.model.input_error import InputError
-from itnet.model_card import ModelCard, describe_mirror, describe_recheck, describe_verify
+from itnet.model_card import (
+    ModelCard,
+    describe_mirror,
+    describe_plan,
+    describe_recheck,
+    describe_verify,
+)
 from itnet.pose.runtime import ModelLoadError, load_any
 
 
@@ -94,6 +100,7 @@ def switch_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
         ("verify", changes.without_verify, changes.with_verify, describe_verify),
         ("recheck", changes.without_recheck, changes.with_recheck, describe_recheck),
         ("mirror", changes.without_mirror, changes.with_mirror, describe_mirror),
+        ("plan", changes.without_plan, changes.with_plan, describe_plan),
     ):
         text = switch_evaluation(name, without, with_it, describe)
         if text is not None:
@@ -109,7 +116,26 @@ def switch_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
         ):
             raise InputError("--verify-fused needs its measurement: --with-verify")
         update["verify_fused"] = changes.verify_fused
+    measured = bool(update.get("plan_evaluation") or current.plan_evaluation)
+    for name, text in (("coarse_steps", changes.coarse_steps), ("halving", changes.halving)):
+        if text is not None:
+            update[name] = _schedule(name, text, measured)
     return update
+
+
+def _schedule(name: str, text: str, measured: bool) -> tuple[int, int] | None:
+    """``--coarse-steps`` / ``--halving`` (two positive integers 'A,B', or 'none') -> the card's
+    field; a schedule only with its measurement."""
+    if text.strip().lower() == "none":
+        return None
+    option = "--" + name.replace("_", "-")
+    values = text.split(",")
+    if len(values) != 2 or not all(v.strip().isdigit() and int(v) >= 1 for v in values):
+        raise InputError(f"{option} takes two positive integers 'A,B' or 'none', got {text!r}")
+    first, second = int(values[0]), int(values[1])
+    if not measured:
+        raise InputError(f"{option} needs its measurement: --without-plan and --with-plan")
+    return first, second
 
 
 def up_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:

@@ -19,15 +19,17 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-Kind = Literal["ensemble", "up", "mirror", "recheck", "verify"]
-KINDS: tuple[Kind, ...] = ("ensemble", "up", "mirror", "recheck", "verify")
+Kind = Literal["ensemble", "up", "mirror", "recheck", "verify", "plan"]
+KINDS: tuple[Kind, ...] = ("ensemble", "up", "mirror", "recheck", "verify", "plan")
 AT = "at (10 deg, 0.1 radius)"
 # A finishing stage's words in the line, and what its share of scans says.
 SWITCHES: dict[str, tuple[str, str]] = {
     "mirror": ("the mirror planes", "finished in time"),
     "recheck": ("the recheck", "rechecked"),
     "verify": ("verify", "verified in time"),
+    "plan": ("the coarse first steps and the halving", "planned"),
 }
+FUSED_KINDS = ("verify", "plan")  # measured on fused runs
 
 
 class ViewResult(BaseModel):
@@ -57,7 +59,8 @@ class Measurement(BaseModel):
 
     kind: Kind = Field(
         description="ensemble: the runs fused against one; up: the pose with the up direction "
-        "given; mirror, recheck, verify: that finishing stage off and on"
+        "given; mirror, recheck, verify: that finishing stage off and on; plan: the card's "
+        "coarse first steps and halving against every run on all its points every step"
     )
     split: str = Field(description="'test', or 'val' (views of held-out training shapes)")
     budget_ms: float = Field(gt=0, description="each pose's budget")
@@ -159,7 +162,7 @@ def _up(head: str, parts: str) -> dict:
 
 def _switch_text(m: Measurement) -> str:
     words, share_words = SWITCHES[m.kind]
-    fused = m.kind == "verify"
+    fused = m.kind in FUSED_KINDS
     parts = []
     for r in m.results:
         gain = "" if r.gain is None else f"{r.gain:+.1f} ± {r.gain_stderr:.1f}, "

@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, computed_field
 
-from itnet.measurements import KINDS, AnytimeProtocol, Kind, Measurement, ViewResult
+from itnet.measurements import FUSED_KINDS, KINDS, AnytimeProtocol, Kind, Measurement, ViewResult
 
 METADATA_KEY = "itnet"
 NORMALIZATION = "centroid, RMS radius (itnet.preprocess)"
@@ -140,6 +140,24 @@ class ModelCard(BaseModel):
         description="measured accuracy at (10 deg, 0.1 radius) by iteration count, e.g. {'10': 0.7}",
     )
     evaluation: str = ""
+    coarse_steps: tuple[int, int] | None = Field(
+        None,
+        description="(ITERATIONS, POINTS): each run's first ITERATIONS steps see at most POINTS "
+        "of its points (a step costs about linearly in runs x points), the later ones all of "
+        "them; chosen per category on validation (plan_evaluation says how); none: every step "
+        "sees them all",
+    )
+    halving: tuple[int, int] | None = Field(
+        None,
+        description="(AT, KEEP): successive halving of fused runs: after AT iterations only the "
+        "KEEP runs the category's verifier finds likeliest go on (where the budget holds its "
+        "call); none: every run to the end",
+    )
+    plan_evaluation: str = Field(
+        "",
+        description="coarse_steps and halving as served against every run on all its points "
+        "every step: paired accuracy and the run-point-steps each takes",
+    )
     ensemble_evaluation: str = Field(
         "", description="the recommended ensemble against one run, where it is more than 1"
     )
@@ -380,8 +398,9 @@ def switch_measurement(without: dict, with_it: dict, kind: Kind) -> Measurement:
     measured against the first (``--baseline``) and the share of scans the stage got to; one
     run's rows, or (verify) those of more. Raises ValueError where they share no such
     measurement or measured different scans."""
-    fused = kind == "verify"
-    share_key = {"mirror": "mirror_finished", "recheck": "rechecked", "verify": "verified"}[kind]
+    fused = kind in FUSED_KINDS
+    share_key = {"mirror": "mirror_finished", "recheck": "rechecked", "verify": "verified",
+                 "plan": "planned"}[kind]  # fmt: skip
     results = []
     for views, runs, plain, row in _paired_rows(without, with_it, fused):
         paired = row.get("versus_baseline") or {}
@@ -407,3 +426,9 @@ def describe_recheck(without: dict, with_recheck: dict) -> str:
 def describe_verify(without: dict, with_verify: dict) -> str:
     """The card's ``verify_evaluation``: fused runs without and with verify."""
     return switch_measurement(without, with_verify, "verify").text()
+
+
+def describe_plan(full: dict, planned: dict) -> str:
+    """The card's ``plan_evaluation``: fused runs on all their points every step (``full``)
+    and with the card's coarse first steps and halving (``planned``)."""
+    return switch_measurement(full, planned, "plan").text()

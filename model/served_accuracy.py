@@ -58,6 +58,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             halving: tuple[int, int] | None = None,
             points: int | None = None,
             coarse: tuple[int, int] | None = None,
+            full: bool = False,
             log: Callable[[str], None] = print) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
@@ -107,6 +108,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 recheck=recheck if k == 1 else None,
             )
             planned = plan(model, request)
+            if full:  # every run on all its points every step, whatever the card's plan says
+                planned = replace(planned, coarse=None, halving=None)
             if halving is not None:  # the runs the verifier likes best go on after halving[0]
                 planned = replace(planned, halving=halving)
             if coarse is not None:  # the first coarse[0] steps on at most coarse[1] points

@@ -140,14 +140,14 @@ class PosePlan:
         return self.model.run_step_ms(self.runs, points, idle=True)
 
 
-def fitting_ensemble(recommended: int, run_step_ms: float, iterations: int,
+def fitting_ensemble(recommended: int, work_ms: Callable[[int], float],
                      available_ms: float) -> int:  # fmt: skip
-    """The runs a request that names none gets: the card's ``recommended``, halved until
-    ``iterations`` fused steps fit ``available_ms`` at ``run_step_ms`` a run; at least 1.
-    Unknown timing (``run_step_ms`` 0) keeps ``recommended``. Fewer runs that reach their
-    iterations beat more that stop early (the anytime curve still rises at 10)."""
+    """The runs a request that names none gets: the card's ``recommended``, halved until the
+    plan of that many runs fits ``available_ms`` (``work_ms(runs)``: its steps on an idle
+    machine); at least 1. Unknown timing (``work_ms`` 0) keeps ``recommended``. Fewer runs that
+    reach their iterations beat more that stop early (the anytime curve still rises at 10)."""
     k = recommended
-    while k > 1 and k * run_step_ms * iterations > available_ms:
+    while k > 1 and work_ms(k) > available_ms:
         k //= 2
     return k
 
@@ -189,26 +189,38 @@ def plan(
             f"budget_ms {request.budget_ms:g} is below one step of model {card.name!r} (about "
             f"{least:.2g} ms at the least on this machine): no pose fits it"
         )
+
+    def planned(runs: int) -> PosePlan:
+        return PosePlan(
+            model=model,
+            request=request,
+            budget_ms=float(request.budget_ms),
+            max_iterations=iterations,
+            starts=_starts(runs, up, card.up_free_steps),
+            up=up,
+            up_free=card.up_free_steps if up is not None else 0,
+            viewpoint=viewpoint,
+            stages=_stages(model, request, runs),
+            limits=limits,
+            seed=seed,
+            halving=card.halving,
+            coarse=card.coarse_steps,
+        )
+
+    def one_run_ms(points: int) -> float:
+        return model.run_step_ms(1, points, idle=True)
+
     runs = request.ensemble
     if runs is None:
-        run_ms = model.run_step_ms(1, card.points, idle=True)
         available = request.budget_ms - spent_ms
-        runs = fitting_ensemble(card.recommended_ensemble, run_ms, iterations, available)
+        runs = fitting_ensemble(
+            card.recommended_ensemble,
+            lambda k: planned(k).work_ms(iterations, card.points, one_run_ms),
+            available,
+        )
     if not (1 <= runs <= MAX_ENSEMBLE):
         raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {runs}")
-    return PosePlan(
-        model=model,
-        request=request,
-        budget_ms=float(request.budget_ms),
-        max_iterations=iterations,
-        starts=_starts(runs, up, card.up_free_steps),
-        up=up,
-        up_free=card.up_free_steps if up is not None else 0,
-        viewpoint=viewpoint,
-        stages=_stages(model, request, runs),
-        limits=limits,
-        seed=seed,
-    )
+    return planned(runs)
 
 
 def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:

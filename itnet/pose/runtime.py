@@ -207,9 +207,12 @@ class LoadedModel:
             self.record_step_ms(ms, weight=0.5)
         self.baseline_ms = min(times)
         self.idle_ms = float(np.median(times[1:]))
-        for batch in warm_batches(self.card.recommended_ensemble):
+        kept = (self.card.halving[1],) if self.card.halving else ()
+        coarse = (self.card.coarse_steps[1],) if self.card.coarse_steps else ()
+        for batch in warm_batches(self.card.recommended_ensemble, (2, 4, 8, *kept)):
             points = int(0.8 * self.card.points)  # a fused run's subset (itnet.pose.plan)
-            for n in sorted({points, self.card.points}):
+            # and the coarse first steps' points, where the card has them
+            for n in sorted({points, self.card.points, *coarse}):
                 for _ in range(2):
                     self.step(np.repeat(x[:, :n], batch, axis=0), np.repeat(pose, batch, axis=0))
         if self.card.mirror:

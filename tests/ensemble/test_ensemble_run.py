@@ -159,7 +159,8 @@ def test_the_default_ensemble_is_what_the_budget_holds(
 ):
     from itnet.pose.plan import fitting_ensemble
 
-    assert fitting_ensemble(recommended, step_ms, iterations, available_ms) == runs
+    work = lambda k: k * step_ms * iterations  # noqa: E731 (every run, every iteration)
+    assert fitting_ensemble(recommended, work, available_ms) == runs
 
 
 def test_a_tight_budget_gets_fewer_default_runs_and_an_explicit_ensemble_is_kept(

@@ -51,7 +51,8 @@ def test_the_card_runs_are_kept_where_the_budget_holds_them_whatever_the_load(mo
     tight = 8 * steps * card8.idle_ms * 0.5  # half of what 8 runs' steps take on an idle machine
     assert plan(card8, PoseRequest(budget_ms=tight)).runs == 4
     assert plan(card8, PoseRequest(budget_ms=10_000, ensemble=3)).runs == 3
-    assert fitting_ensemble(8, 1.0, 10, 45.0) == 4 and fitting_ensemble(8, 0.0, 10, 1.0) == 8
+    assert fitting_ensemble(8, lambda k: k * 10.0, 45.0) == 4
+    assert fitting_ensemble(8, lambda k: 0.0, 1.0) == 8
 
 
 def test_stages_are_on_by_the_card_and_refused_with_the_stage_reason(model):

@@ -1,0 +1,76 @@
+"""A card's plan: coarse first steps and successive halving, set with their measurement and
+served by every request that model answers."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from itnet.cli import app
+from itnet.measurements import Measurement
+from itnet.model_card import ModelCard
+from itnet.pose.loop import AnytimeRun
+from itnet.pose.plan import plan
+from itnet.pose.request import PoseRequest
+from itnet.pose.runtime import load_model
+
+
+def _report(accuracy: float, paired: bool) -> dict:
+    """A ``benchmarks.bench_ensemble`` JSON of 8 fused runs on 40 paper views."""
+    row = {"accuracy": accuracy, "scans": 40, "median_elapsed_ms": 20.0}
+    if paired:
+        row["versus_baseline"] = {"accuracy": accuracy, "gain": -0.5, "gain_stderr": 1.0}
+    return {"machine": "test", "budget_ms": 1000.0, "split": "val", "paper": {"8": row}}
+
+
+def test_the_card_command_sets_the_plan_only_with_its_measurement(tiny_model_dir, tmp_path):
+    source, out = str(tiny_model_dir / "tiny.onnx"), tmp_path / "planned.onnx"
+    bare = CliRunner().invoke(app, ["card", source, "--coarse-steps", "4,64", "--out", str(out)])
+    assert bare.exit_code == 2 and "--with-plan" in bare.output and not out.exists()
+    (tmp_path / "full.json").write_text(json.dumps(_report(80.0, paired=False)))
+    (tmp_path / "plan.json").write_text(json.dumps(_report(79.5, paired=True)))
+    measured = ["--without-plan", str(tmp_path / "full.json"),
+                "--with-plan", str(tmp_path / "plan.json")]  # fmt: skip
+    for bad in ("4", "4,0", "a,b", "4,64,2"):
+        refused = CliRunner().invoke(app, ["card", source, "--coarse-steps", bad, *measured])
+        assert refused.exit_code == 2 and "two positive integers" in refused.output
+    done = CliRunner().invoke(app, ["card", source, "--coarse-steps", "4,64", "--halving", "4,3",
+                                    *measured, "--out", str(out)])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    card = load_model(out, warm_up=False).card
+    assert (card.coarse_steps, card.halving) == ((4, 64), (4, 3))
+    assert "paper 8 runs 80.0% -> 79.5% (-0.5 ± 1.0, 40 scans)" in card.plan_evaluation
+    measurement = Measurement.parse("plan", card.plan_evaluation)
+    assert measurement.text() == card.plan_evaluation and measurement.result("paper").runs == 8
+    assert [m.kind for m in card.measurements] == ["plan"]
+    # measured once, the schedule can be switched off and on again without a report
+    off = CliRunner().invoke(app, ["card", str(out), "--coarse-steps", "none"])
+    assert off.exit_code == 0, off.output
+    assert load_model(out, warm_up=False).card.coarse_steps is None
+    assert load_model(tiny_model_dir / "tiny.onnx", warm_up=False).card.coarse_steps is None
+
+
+@pytest.mark.parametrize("ensemble", [None, 8])
+def test_every_request_to_a_planned_model_gets_its_cards_plan(model, ensemble):
+    card = ModelCard.model_validate({**model.card.model_dump(), "coarse_steps": (3, 32),
+                                     "halving": (3, 2), "recommended_ensemble": 8})  # fmt: skip
+    planned = replace(model, card=card)
+    planned.idle_ms, planned.baseline_ms = model.idle_ms, model.baseline_ms
+    served = plan(planned, PoseRequest(budget_ms=10_000, ensemble=ensemble, verify=False))
+    assert (served.coarse, served.halving, served.runs) == ((3, 32), (3, 2), 8)
+    cloud = np.random.default_rng(2).normal(size=(500, 3))
+    run = AnytimeRun(served, cloud)
+    run.run_to_end()  # no verifier beside the tiny model: every run goes on
+    assert run.iteration == card.recommended_iterations and run.result()["ensemble"] == 8
+    if ensemble is None:  # the default ensemble is what the plan's own (cheaper) steps fit
+        one = model.run_step_ms(1, card.points, idle=True)
+        all_steps = 8 * one * card.recommended_iterations
+        assert plan(planned, PoseRequest(budget_ms=0.8 * all_steps, verify=False)).runs == 8
+        plain = replace(planned, card=card.model_copy(update={"coarse_steps": None,
+                                                              "halving": None}))  # fmt: skip
+        plain.idle_ms, plain.baseline_ms = model.idle_ms, model.baseline_ms
+        assert plan(plain, PoseRequest(budget_ms=0.8 * all_steps, verify=False)).runs == 4
