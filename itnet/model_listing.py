@@ -20,7 +20,8 @@ HEADER = ("name", "category", "symmetry", "mirror", "centre", "up", "precision",
 """The table's columns; the last marks the default model."""
 
 LEGEND = (
-    "runs: fused per estimate by default, as many as the budget holds; mirror: the planes (x: "
+    "runs: fused per estimate by default, as many as the budget holds ('IxP pts': the first I "
+    "steps on P points a run; 'K kept': then only the K runs the verifier finds likeliest); mirror: the planes (x: "
     "left-right, z: front-back) a single run's final pose is finished by, fused runs' too where "
     "--json says mirror_fused; centre: the final pose's object centre is finished by the card's "
     "correction (+vp: another for requests that give the sensor's position, +up for those that "
@@ -91,7 +92,7 @@ def model_row(info: ModelInfo) -> tuple[str, ...]:
         "needed" if info.requires_up else "-",
         info.precision,
         str(info.points),
-        str(info.recommended_ensemble),
+        runs_cell(info.recommended_ensemble, info.coarse_steps, info.halving),
         verifier_cell(
             info.verifier, info.verify_fused, info.recheck_runs, info.recommended_ensemble
         ),
@@ -99,6 +100,17 @@ def model_row(info: ModelInfo) -> tuple[str, ...]:
         f"{info.step_ms:.2f} ms",
         "default" if info.default else "",
     )
+
+
+def runs_cell(runs: int, coarse: tuple[int, int] | None, halving: tuple[int, int] | None) -> str:
+    """The runs column: the runs fused by default, and the card's plan where it has one: '8,
+    4x64 pts, 3 kept' (the first 4 steps on 64 points a run, then the 3 likeliest runs)."""
+    parts = [str(runs)]
+    if coarse is not None:
+        parts.append(f"{coarse[0]}x{coarse[1]} pts")
+    if halving is not None and halving[1] < runs:
+        parts.append(f"{halving[1]} kept")
+    return ", ".join(parts)
 
 
 def verifier_cell(name: str | None, verify: bool, recheck_runs: int, runs: int) -> str:

@@ -74,3 +74,12 @@ def test_every_request_to_a_planned_model_gets_its_cards_plan(model, ensemble):
                                                               "halving": None}))  # fmt: skip
         plain.idle_ms, plain.baseline_ms = model.idle_ms, model.baseline_ms
         assert plan(plain, PoseRequest(budget_ms=0.8 * all_steps, verify=False)).runs == 4
+
+
+def test_the_models_table_says_each_models_plan():
+    from itnet.model_listing import LEGEND, runs_cell
+
+    assert runs_cell(8, (4, 64), (4, 3)) == "8, 4x64 pts, 3 kept"
+    assert runs_cell(1, (9, 64), (4, 3)) == "1, 9x64 pts"  # one run: nothing to keep
+    assert runs_cell(8, None, None) == "8"
+    assert "pts" in LEGEND and "kept" in LEGEND
