@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 from typer.testing import CliRunner
 
 from itnet.cli import app
+from itnet.model_listing import runs_cell
 from itnet.pose.runtime import load_model
 from itnet.service.app import create_app
 from itnet.service.settings import Settings
@@ -61,14 +62,15 @@ def test_models_table_shows_the_shipped_cards():
         accuracy = 100 * card.accuracy[str(card.recommended_iterations)]
         assert card.mirror_planes == ["x"]  # left-right symmetric; front and back differ
         centre = centre_column(card)
-        assert row.split()[:9] == [name, card.category, card.symmetry, "x", centre, "-",
-                                   card.precision, str(card.points),
-                                   str(card.recommended_ensemble)]  # fmt: skip
+        assert row.split()[:8] == [name, card.category, card.symmetry, "x", centre, "-",
+                                   card.precision, str(card.points)]  # fmt: skip
+        runs = runs_cell(card.recommended_ensemble, card.coarse_steps, card.halving)
+        assert f" {runs} " in row and runs.startswith(str(card.recommended_ensemble))
         assert f"{accuracy:.1f}% at {card.recommended_iterations} it." in row
         assert ("default" in row) == (name == "chair")
         # their learned verifiers: verify for fused runs, and the chair's recheck for one run
         assert card.verify_fused
-        assert row.split()[9] == ("verify+recheck:4" if name == "chair" else "verify")
+        assert (" verify+recheck:4 " if name == "chair" else " verify ") in row
     # the night stand is served only with the up direction: its row says so
     night = next(r for r in rows if r.startswith("night_stand "))
     assert night.split()[5] == "needed"
