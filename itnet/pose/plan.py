@@ -158,9 +158,12 @@ def plan(
     limits: Limits = Limits(),
     spent_ms: float = 0.0,
     seed: int = 0,
+    schedule: bool = True,
 ) -> PosePlan:
     """The plan of ``request`` on ``model`` (its ``model`` field is already resolved to it);
-    ``spent_ms``: what the budget already paid before the run (the classification of ``auto``).
+    ``spent_ms``: what the budget already paid before the run (the classification of ``auto``);
+    ``schedule``: fused runs follow the card's coarse first steps and halving (off: every run
+    on all its points every step, as a path measured without them asks).
     Raises BadCloudError (a 422) for what the request cannot have: a budget or iteration cap
     over the limits, ``up`` or ``viewpoint`` that are not directions or points, a model that
     needs ``up`` without it, or a finishing stage asked for that this model or request cannot
@@ -203,8 +206,9 @@ def plan(
             stages=_stages(model, request, runs),
             limits=limits,
             seed=seed,
-            halving=card.halving,
-            coarse=card.coarse_steps,
+            # the card's schedule is measured on its fused runs; a single run takes every step
+            halving=card.halving if schedule and runs > 1 else None,
+            coarse=card.coarse_steps if schedule and runs > 1 else None,
         )
 
     def one_run_ms(points: int) -> float:

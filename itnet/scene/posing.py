@@ -226,7 +226,9 @@ def posed_as(
         request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
                               viewpoint=[float(v) for v in viewpoint], ensemble=ensemble)  # fmt: skip
         try:
-            planned = replace(plan(model, request, catalog.limits), points=SCENE_RUN_POINTS)
+            planned = replace(
+                plan(model, request, catalog.limits, schedule=False), points=SCENE_RUN_POINTS
+            )
             run = AnytimeRun(planned, points, started)
             break
         except BudgetTooSmallError:

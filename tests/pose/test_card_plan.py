@@ -62,6 +62,12 @@ def test_every_request_to_a_planned_model_gets_its_cards_plan(model, ensemble):
     planned.idle_ms, planned.baseline_ms = model.idle_ms, model.baseline_ms
     served = plan(planned, PoseRequest(budget_ms=10_000, ensemble=ensemble, verify=False))
     assert (served.coarse, served.halving, served.runs) == ((3, 32), (3, 2), 8)
+    # measured on fused runs: a single run, and a path that asks for none, take every step
+    single = plan(planned, PoseRequest(budget_ms=10_000, ensemble=1))
+    unscheduled = plan(planned, PoseRequest(budget_ms=10_000, ensemble=ensemble, verify=False),
+                       schedule=False)  # fmt: skip
+    assert (single.coarse, single.halving) == (None, None)
+    assert (unscheduled.coarse, unscheduled.halving, unscheduled.runs) == (None, None, 8)
     cloud = np.random.default_rng(2).normal(size=(500, 3))
     run = AnytimeRun(served, cloud)
     run.run_to_end()  # no verifier beside the tiny model: every run goes on
