@@ -142,16 +142,17 @@ class ModelCard(BaseModel):
     evaluation: str = ""
     coarse_steps: tuple[int, int] | None = Field(
         None,
-        description="(ITERATIONS, POINTS): each run's first ITERATIONS steps see at most POINTS "
-        "of its points (a step costs about linearly in runs x points), the later ones all of "
-        "them; chosen per category on validation (plan_evaluation says how); none: every step "
-        "sees them all",
+        description="(ITERATIONS, POINTS): where the budget does not hold every step of the "
+        "fused runs, each run's first ITERATIONS steps see at most POINTS of its points (a step "
+        "costs about linearly in runs x points), the later ones all of them, before fewer runs "
+        "are tried; chosen per category on validation (plan_evaluation says how); none: fewer "
+        "runs at once",
     )
     halving: tuple[int, int] | None = Field(
         None,
-        description="(AT, KEEP): successive halving of fused runs: after AT iterations only the "
-        "KEEP runs the category's verifier finds likeliest go on (where the budget holds its "
-        "call); none: every run to the end",
+        description="(AT, KEEP): with coarse_steps, the same schedule's successive halving of "
+        "fused runs: after AT iterations only the KEEP runs the category's verifier finds "
+        "likeliest go on (where the budget holds its call); none: every run to the end",
     )
     plan_evaluation: str = Field(
         "",

@@ -162,8 +162,9 @@ def plan(
 ) -> PosePlan:
     """The plan of ``request`` on ``model`` (its ``model`` field is already resolved to it);
     ``spent_ms``: what the budget already paid before the run (the classification of ``auto``);
-    ``schedule``: fused runs follow the card's coarse first steps and halving (off: every run
-    on all its points every step, as a path measured without them asks).
+    ``schedule``: fused runs whose every step does not fit the budget follow the card's coarse
+    first steps and halving before fewer runs are tried (off: every run on all its points every
+    step, as a path measured without them asks).
     Raises BadCloudError (a 422) for what the request cannot have: a budget or iteration cap
     over the limits, ``up`` or ``viewpoint`` that are not directions or points, a model that
     needs ``up`` without it, or a finishing stage asked for that this model or request cannot
@@ -193,7 +194,7 @@ def plan(
             f"{least:.2g} ms at the least on this machine): no pose fits it"
         )
 
-    def planned(runs: int) -> PosePlan:
+    def planned(runs: int, scheduled: bool) -> PosePlan:
         return PosePlan(
             model=model,
             request=request,
@@ -206,25 +207,36 @@ def plan(
             stages=_stages(model, request, runs),
             limits=limits,
             seed=seed,
-            # the card's schedule is measured on its fused runs; a single run takes every step
-            halving=card.halving if schedule and runs > 1 else None,
-            coarse=card.coarse_steps if schedule and runs > 1 else None,
+            halving=card.halving if scheduled else None,
+            coarse=card.coarse_steps if scheduled else None,
         )
 
     def one_run_ms(points: int) -> float:
         return model.run_step_ms(1, points, idle=True)
 
+    available = request.budget_ms - spent_ms
+    has_schedule = schedule and (card.coarse_steps is not None or card.halving is not None)
+
+    def fitting(runs: int) -> PosePlan:
+        """``runs`` runs on every step where that fits the budget on an idle machine, else on
+        the card's schedule (measured on fused runs: a single run takes every step)."""
+        full = planned(runs, False)
+        if runs == 1 or not has_schedule:
+            return full
+        if full.work_ms(iterations, card.points, one_run_ms) <= available:
+            return full
+        return planned(runs, True)
+
     runs = request.ensemble
     if runs is None:
-        available = request.budget_ms - spent_ms
         runs = fitting_ensemble(
             card.recommended_ensemble,
-            lambda k: planned(k).work_ms(iterations, card.points, one_run_ms),
+            lambda k: fitting(k).work_ms(iterations, card.points, one_run_ms),
             available,
         )
     if not (1 <= runs <= MAX_ENSEMBLE):
         raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {runs}")
-    return planned(runs)
+    return fitting(runs)
 
 
 def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:

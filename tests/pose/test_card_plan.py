@@ -55,31 +55,37 @@ def test_the_card_command_sets_the_plan_only_with_its_measurement(tiny_model_dir
 
 
 @pytest.mark.parametrize("ensemble", [None, 8])
-def test_every_request_to_a_planned_model_gets_its_cards_plan(model, ensemble):
+def test_fused_runs_take_the_cards_schedule_where_every_step_does_not_fit(model, ensemble):
     card = ModelCard.model_validate({**model.card.model_dump(), "coarse_steps": (3, 32),
                                      "halving": (3, 2), "recommended_ensemble": 8})  # fmt: skip
-    planned = replace(model, card=card)
-    planned.idle_ms, planned.baseline_ms = model.idle_ms, model.baseline_ms
-    served = plan(planned, PoseRequest(budget_ms=10_000, ensemble=ensemble, verify=False))
-    assert (served.coarse, served.halving, served.runs) == ((3, 32), (3, 2), 8)
-    # measured on fused runs: a single run, and a path that asks for none, take every step
-    single = plan(planned, PoseRequest(budget_ms=10_000, ensemble=1))
-    unscheduled = plan(planned, PoseRequest(budget_ms=10_000, ensemble=ensemble, verify=False),
-                       schedule=False)  # fmt: skip
+    scheduled = replace(model, card=card)
+    scheduled.idle_ms, scheduled.baseline_ms = model.idle_ms, model.baseline_ms
+    plain = replace(scheduled, card=card.model_copy(update={"coarse_steps": None,
+                                                            "halving": None}))  # fmt: skip
+    plain.idle_ms, plain.baseline_ms = model.idle_ms, model.baseline_ms
+    every_step = 8 * model.run_step_ms(1, card.points, idle=True) * card.recommended_iterations
+
+    def planned(which, budget_ms, **kwargs):
+        request = PoseRequest(budget_ms=budget_ms, ensemble=ensemble, verify=False)
+        return plan(which, request, **kwargs)
+
+    roomy = planned(scheduled, 10 * every_step)  # every step fits: the full plan
+    assert (roomy.coarse, roomy.halving, roomy.runs) == (None, None, 8)
+    tight = planned(scheduled, 0.8 * every_step)  # it does not: the schedule, all 8 runs
+    assert (tight.coarse, tight.halving, tight.runs) == ((3, 32), (3, 2), 8)
+    # without a schedule the same budget gets half the runs (a request naming 8 keeps 8, and
+    # its steps stop by the budget); a path that asks for no schedule gets none
+    assert planned(plain, 0.8 * every_step).runs == (4 if ensemble is None else 8)
+    unscheduled = planned(scheduled, 0.8 * every_step, schedule=False)
+    assert (unscheduled.coarse, unscheduled.halving) == (None, None)
+    # measured on fused runs: a single run takes every step, however tight
+    single = plan(scheduled, PoseRequest(budget_ms=0.05 * every_step, ensemble=1))
     assert (single.coarse, single.halving) == (None, None)
-    assert (unscheduled.coarse, unscheduled.halving, unscheduled.runs) == (None, None, 8)
+
     cloud = np.random.default_rng(2).normal(size=(500, 3))
-    run = AnytimeRun(served, cloud)
+    run = AnytimeRun(replace(tight, budget_ms=10_000.0), cloud)  # the schedule's steps, in full
     run.run_to_end()  # no verifier beside the tiny model: every run goes on
     assert run.iteration == card.recommended_iterations and run.result()["ensemble"] == 8
-    if ensemble is None:  # the default ensemble is what the plan's own (cheaper) steps fit
-        one = model.run_step_ms(1, card.points, idle=True)
-        all_steps = 8 * one * card.recommended_iterations
-        assert plan(planned, PoseRequest(budget_ms=0.8 * all_steps, verify=False)).runs == 8
-        plain = replace(planned, card=card.model_copy(update={"coarse_steps": None,
-                                                              "halving": None}))  # fmt: skip
-        plain.idle_ms, plain.baseline_ms = model.idle_ms, model.baseline_ms
-        assert plan(plain, PoseRequest(budget_ms=0.8 * all_steps, verify=False)).runs == 4
 
 
 def test_the_models_table_says_each_models_plan():
