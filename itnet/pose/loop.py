@@ -221,10 +221,7 @@ class AnytimeRun(Iterator[Estimate]):
         its budget, less the reserve and its decoding, at the step time measured at load (at
         least 1)."""
         available = self.plan.budget_ms - self.reserve_ms - self.decode_ms
-
-        def one(points: int) -> float:
-            return self.model.run_step_ms(1, points, idle=True)
-
+        one = self.plan.idle_run_ms
         fits = 0
         while (
             fits < self.needed_iterations

@@ -11,7 +11,7 @@ request gets the same plan, and so the same pose, whichever way it came in, load
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -134,6 +134,10 @@ class PosePlan:
         share = max(self.limits.min_points, int(ENSEMBLE_SUBSET * cloud_points))
         return min(self.most_points, share)
 
+    def idle_run_ms(self, points: int) -> float:
+        """One run's step on ``points`` points, on an idle machine (as measured at load)."""
+        return self.model.run_step_ms(1, points, idle=True)
+
     def first_step_ms(self, cloud_points: int | None = None) -> float:
         """One step of every run on an idle machine: the least a served pose costs."""
         points = self.run_points(cloud_points or self.most_points)
@@ -194,49 +198,58 @@ def plan(
             f"{least:.2g} ms at the least on this machine): no pose fits it"
         )
 
-    def planned(runs: int, scheduled: bool) -> PosePlan:
-        return PosePlan(
-            model=model,
-            request=request,
-            budget_ms=float(request.budget_ms),
-            max_iterations=iterations,
-            starts=_starts(runs, up, card.up_free_steps),
-            up=up,
-            up_free=card.up_free_steps if up is not None else 0,
-            viewpoint=viewpoint,
-            stages=_stages(model, request, runs),
-            limits=limits,
-            seed=seed,
-            halving=card.halving if scheduled else None,
-            coarse=card.coarse_steps if scheduled else None,
-        )
-
-    def one_run_ms(points: int) -> float:
-        return model.run_step_ms(1, points, idle=True)
-
+    base = PosePlan(
+        model=model,
+        request=request,
+        budget_ms=float(request.budget_ms),
+        max_iterations=iterations,
+        starts=_starts(1, up, card.up_free_steps),
+        up=up,
+        up_free=card.up_free_steps if up is not None else 0,
+        viewpoint=viewpoint,
+        stages=(),
+        limits=limits,
+        seed=seed,
+    )
     available = request.budget_ms - spent_ms
-    has_schedule = schedule and (card.coarse_steps is not None or card.halving is not None)
-
-    def fitting(runs: int) -> PosePlan:
-        """``runs`` runs on every step where that fits the budget on an idle machine, else on
-        the card's schedule (measured on fused runs: a single run takes every step)."""
-        full = planned(runs, False)
-        if runs == 1 or not has_schedule:
-            return full
-        if full.work_ms(iterations, card.points, one_run_ms) <= available:
-            return full
-        return planned(runs, True)
-
     runs = request.ensemble
     if runs is None:
         runs = fitting_ensemble(
             card.recommended_ensemble,
-            lambda k: fitting(k).work_ms(iterations, card.points, one_run_ms),
+            lambda k: _fitting(base, k, available, schedule).work_ms(
+                iterations, card.points, base.idle_run_ms
+            ),
             available,
         )
     if not (1 <= runs <= MAX_ENSEMBLE):
         raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {runs}")
-    return fitting(runs)
+    return _fitting(base, runs, available, schedule)
+
+
+def _with_runs(base: PosePlan, runs: int, scheduled: bool) -> PosePlan:
+    """``base`` with ``runs`` runs (their starts and the stages that are on for them), on the
+    card's schedule where ``scheduled``."""
+    model, card = base.model, base.model.card
+    return replace(
+        base,
+        starts=_starts(runs, base.up, card.up_free_steps),
+        stages=_stages(model, base.request, runs),
+        halving=card.halving if scheduled else None,
+        coarse=card.coarse_steps if scheduled else None,
+    )
+
+
+def _fitting(base: PosePlan, runs: int, available_ms: float, schedule: bool) -> PosePlan:
+    """``runs`` runs on every step where that fits ``available_ms`` on an idle machine, else on
+    the card's schedule (where ``schedule`` and the card has one; it was measured on fused runs:
+    a single run takes every step)."""
+    card = base.model.card
+    full = _with_runs(base, runs, scheduled=False)
+    if runs == 1 or not schedule or (card.coarse_steps is None and card.halving is None):
+        return full
+    if full.work_ms(base.max_iterations, card.points, base.idle_run_ms) <= available_ms:
+        return full
+    return _with_runs(base, runs, scheduled=True)
 
 
 def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:
