@@ -31,8 +31,7 @@ cat "$types"
 # Group 3 collects only the files that mark a test timing (collecting every file takes seconds).
 mapfile -t timed < <(git grep -l -e "mark.timing" -- tests 2>/dev/null || grep -rl -e "mark.timing" tests)
 .venv/bin/python -m pytest -q -m "timing and not ray" "${timed[@]}" "$@"
-# Group 4: each Ray file in its own worker (each starts its own local Ray).
-.venv/bin/python -m pytest -q -n 2 --dist loadfile -m ray tests/scale "$@"
+.venv/bin/python -m pytest -q -m ray tests/scale "$@"
 # The tree describes the product as it is: no words about work sessions, borrowed machines or issue numbers
 # (in code, tests, docs, help texts). Every tracked file is checked, nothing is excluded. Run
 # last, so that a hit does not hide the tests' results.
