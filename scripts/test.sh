@@ -22,7 +22,7 @@ types=$(mktemp)
 .venv/bin/mypy itnet/geometry.py itnet/preprocess.py itnet/metrics.py itnet/cloud_io.py itnet/alignment/overlap.py \
   itnet/alignment/hypotheses.py itnet/symmetry.py itnet/fusion.py itnet/cpu.py itnet/size_prior.py itnet/atomic_write.py \
   itnet/pose/request.py itnet/pose/plan.py itnet/pose/stages.py itnet/pose/loop.py itnet/pose/step_batcher.py \
-  itnet/pose/admission.py itnet/pose/catalog.py itnet/request_fields.py itnet/commands/request_options.py \
+  itnet/pose/admission.py itnet/pose/shared_work.py itnet/pose/catalog.py itnet/request_fields.py itnet/commands/request_options.py \
   itnet/measurements.py itnet/graph_digest.py itnet/scene itnet/recordings >"$types" 2>&1 &
 mypy_pid=$!
 .venv/bin/python -m pytest -q -n 2 --dist loadfile tests/hardening -m "not timing" "$@"

@@ -19,6 +19,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from itnet.pose.runtime import LoadedModel
+from itnet.pose.shared_work import SHARED_ADMISSION_ENV
 from itnet.service.app import create_app
 from itnet.service.guards.protocol import GuardedHttpToolsProtocol
 from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
@@ -107,12 +108,17 @@ def run(
     made = None if multiprocess_dir() else tempfile.mkdtemp(prefix="itnet-metrics-")
     if made is not None:
         os.environ[MULTIPROCESS_DIR_ENV] = made
+    # ... and they admit one machine's worth of estimates together (itnet/pose/shared_work.py)
+    shared = tempfile.mkdtemp(prefix="itnet-admission-")
+    os.environ[SHARED_ADMISSION_ENV] = os.path.join(shared, "admitted")
     try:
         uvicorn.run(
             FACTORY, factory=True, workers=workers, host=host, port=port, log_level=log_level,
             **options,
         )  # fmt: skip
     finally:
+        os.environ.pop(SHARED_ADMISSION_ENV, None)
+        shutil.rmtree(shared, ignore_errors=True)
         if made is not None:
             os.environ.pop(MULTIPROCESS_DIR_ENV, None)
             shutil.rmtree(made, ignore_errors=True)

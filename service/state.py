@@ -28,6 +28,7 @@ from itnet.pose.runtime import (
     load_beside,
     pair_classifiers,
 )
+from itnet.pose.shared_work import SharedWork
 from itnet.service.decode import Decoder
 from itnet.service.draining import StreamDrain
 from itnet.service.errors import ServiceError
@@ -100,7 +101,9 @@ class ServiceState:
         self._catalog_key: tuple[int, int, int] | None = None
         limits = self.settings.limits
         # the runs admitted at once: at most the gate's, fewer while the machine serves fewer
-        self.admission = Admission(limits.retry_after_s, limits.max_concurrent_requests)
+        # (with several worker processes, what the others admitted counts too)
+        self.admission = Admission(limits.retry_after_s, limits.max_concurrent_requests,
+                                   SharedWork.from_env())  # fmt: skip
         self.gate = ConcurrencyGate(
             limits.max_concurrent_requests, limits.retry_after_s, self.metrics,
             self.admission.delivery,

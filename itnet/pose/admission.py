@@ -12,7 +12,8 @@ its first step inside its budget.
 A run alone is always admitted: its plan was fitted to its budget on an idle machine, and the
 loop stops before it overruns (with no step at all it is refused the same way). A ``Catalog``
 holds one: the service's requests, its alignments and every ``Catalog.pose`` of one process are
-admitted together.
+admitted together; the worker processes of ``itnet serve --workers N`` share what they admitted
+through a file (``itnet.pose.shared_work``), so that together they admit one machine's worth.
 
 The work counted is the model's step time, which cannot see what else takes the cores (the
 clients on the same machine, the server's own parsing and replies). So the admission also
@@ -32,6 +33,7 @@ from contextlib import contextmanager
 
 from itnet.pose.errors import OverloadedError
 from itnet.pose.loop import AnytimeRun
+from itnet.pose.shared_work import SharedWork
 
 DELIVERED_SHARE = 0.8  # a run served with less of its idle-machine iterations was starved
 DECREASE = 0.7  # the limit's cut after a starved run
@@ -83,11 +85,15 @@ class DeliveryLimit:
 
 class Admission:
     """The runs admitted in one process, the work they still need, and how many at once the
-    machine now serves in full (``delivery``)."""
+    machine now serves in full (``delivery``). With ``shared`` (``itnet serve --workers N``),
+    the runs and work the other processes on the machine admitted count as well, and this
+    process's are published to them."""
 
-    def __init__(self, retry_after_s: int = 1, ceiling: float = DEFAULT_CEILING) -> None:
+    def __init__(self, retry_after_s: int = 1, ceiling: float = DEFAULT_CEILING,
+                 shared: SharedWork | None = None) -> None:  # fmt: skip
         self.retry_after_s = retry_after_s
         self.delivery = DeliveryLimit(ceiling)
+        self.shared = shared
         self._runs: list[AnytimeRun] = []
         self._lock = threading.Lock()
 
@@ -95,9 +101,15 @@ class Admission:
     def running(self) -> int:
         return len(self._runs)
 
-    def ahead_ms(self, slots: int) -> float:
-        """The admitted runs' remaining needed work, shared over ``slots`` step slots."""
-        return sum(run.needed_work_ms() for run in self._runs) / max(1, slots)
+    def ahead_ms(self, slots: int, others_ms: float = 0.0) -> float:
+        """The admitted runs' remaining needed work, and ``others_ms`` of other processes',
+        shared over ``slots`` step slots."""
+        return (sum(run.needed_work_ms() for run in self._runs) + others_ms) / max(1, slots)
+
+    def _publish(self) -> None:
+        """This process's admitted runs and their needed work, for the other processes."""
+        if self.shared is not None:
+            self.shared.publish(len(self._runs), sum(run.needed_work_ms() for run in self._runs))
 
     @contextmanager
     def admit(self, *runs: AnytimeRun) -> Iterator[None]:
@@ -105,28 +117,32 @@ class Admission:
         they run; OverloadedError where they cannot fit together."""
         with self._lock:
             first = runs[0]
-            ahead = self.ahead_ms(first.model.concurrent_steps)
+            others, others_ms = (0, 0.0) if self.shared is None else self.shared.others()
+            running = len(self._runs) + others
+            ahead = self.ahead_ms(first.model.concurrent_steps, others_ms)
             cost = sum(run.needed_work_ms() for run in runs)
-            if self._runs and ahead + cost > min(run.left_ms() for run in runs):
+            if running and ahead + cost > min(run.left_ms() for run in runs):
                 raise OverloadedError(
-                    f"the server is busy: {len(self._runs)} estimate(s) need about {ahead:.0f} "
+                    f"the server is busy: {running} estimate(s) need about {ahead:.0f} "
                     f"ms of steps, and this one about {cost:.0f} ms of its "
                     f"{first.plan.budget_ms:g} ms budget; retry in {self.retry_after_s} s",
                     self.retry_after_s,
                 )
-            if self._runs and len(self._runs) + len(runs) > self.delivery.allowed():
+            if running and running + len(runs) > self.delivery.allowed():
                 raise OverloadedError(
-                    f"the server is busy: {len(self._runs)} estimate(s) running, and it serves "
+                    f"the server is busy: {running} estimate(s) running, and it serves "
                     f"about {self.delivery.allowed()} at once in full now; retry in "
                     f"{self.retry_after_s} s",
                     self.retry_after_s,
                 )
             self._runs.extend(runs)
+            self._publish()
         try:
             yield
         finally:
             with self._lock:
                 for run in runs:
                     self._runs.remove(run)
+                self._publish()
             if len(runs) == 1:  # a request's runs in turn (an alignment's) share one budget
                 self.delivery.record_run(runs[0])
