@@ -27,6 +27,16 @@ def add_switch(parser: argparse.ArgumentParser, name: str, help: str) -> None:
     parser.add_argument(name, choices=list(SWITCH), default="default", help=help)
 
 
+def _pair(parser: argparse.ArgumentParser, text: str | None, option: str) -> tuple[int, int] | None:
+    """'A,B' -> (A, B), two positive integers (None: not given); else the parser's error."""
+    if text is None:
+        return None
+    values = text.split(",")
+    if len(values) != 2 or not all(v.strip().isdigit() and int(v) >= 1 for v in values):
+        parser.error(f"{option} takes two positive integers")
+    return int(values[0]), int(values[1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--model", type=Path, default=Path("itnet/models/chair.onnx"))
@@ -132,12 +142,8 @@ def main() -> None:
     views = args.views or (4 if args.split == "val" else 5)
     mirror, centre = SWITCH[args.mirror], SWITCH[args.centre]
     baseline = json.loads(args.baseline.read_text()) if args.baseline else None
-    halving = None if args.halving is None else tuple(int(v) for v in args.halving.split(","))
-    if halving is not None and (len(halving) != 2 or min(halving) < 1):
-        parser.error("--halving takes AT,KEEP: two positive integers")
-    coarse = None if args.coarse is None else tuple(int(v) for v in args.coarse.split(","))
-    if coarse is not None and (len(coarse) != 2 or min(coarse) < 1):
-        parser.error("--coarse takes ITERATIONS,POINTS: two positive integers")
+    halving, coarse = (_pair(parser, args.halving, "--halving AT,KEEP"),
+                       _pair(parser, args.coarse, "--coarse ITERATIONS,POINTS"))  # fmt: skip
     results = {
         "machine": machine(),
         "model": str(args.model),

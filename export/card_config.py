@@ -73,13 +73,14 @@ class CardChanges(BaseModel):
     )
     coarse_steps: str | None = Field(
         None,
-        description="ITERATIONS,POINTS: each run's first ITERATIONS steps on at most POINTS of "
-        "its points, by default, or none; a schedule needs its measurement (--with-plan)",
+        description="ITERATIONS,POINTS: where the budget does not hold every step of the fused "
+        "runs, each run's first ITERATIONS steps on at most POINTS of its points, or none; a "
+        "schedule needs its measurement (--with-plan)",
     )
     halving: str | None = Field(
         None,
-        description="AT,KEEP: after AT iterations only the KEEP runs the verifier finds "
-        "likeliest go on, by default, or none; needs its measurement (--with-plan)",
+        description="AT,KEEP: in the same schedule, after AT iterations only the KEEP runs the "
+        "verifier finds likeliest go on, or none; needs its measurement (--with-plan)",
     )
     without_plan: Path | None = Field(
         None,

@@ -93,8 +93,8 @@ def card_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
 
 
 def switch_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
-    """The verify, recheck and mirror measurements ``changes`` give, and the verify and
-    recheck defaults, each only with its measurement."""
+    """The verify, recheck, mirror and plan measurements ``changes`` give, and the verify and
+    recheck defaults and the schedule, each only with its measurement."""
     update: dict[str, Any] = {}
     for name, without, with_it, describe in (
         ("verify", changes.without_verify, changes.with_verify, describe_verify),
