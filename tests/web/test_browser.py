@@ -162,7 +162,12 @@ def test_the_alignment_tab_moves_a_onto_b(live_server, browser_page):
             "points_b": read_cloud(EXAMPLES / "chair_b.ply").tolist(), "model": "chair",
             "budget_ms": 5000}  # fmt: skip
     api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
-    assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
+    # The same alignment. Not to the last digit: the int8 graph quantises each call's
+    # activations over the whole batch, so a step batched with another request's in flight
+    # (which ones meet is a loaded machine's timing) moves a pose by a fraction of a degree.
+    other = np.array(api["T_b_from_a"])
+    assert rotation_error_deg(t[:3, :3], other[:3, :3]) < 0.5
+    assert np.linalg.norm(t[:3, 3] - other[:3, 3]) < 0.01
 
 
 def test_the_alignment_tab_follows_its_example_pairs_category(live_server, browser_page):
@@ -202,7 +207,12 @@ def test_a_model_that_needs_up_aligns_an_example_pair_by_its_scans_ups(live_serv
             "model": "night_stand", "budget_ms": 5000, "up_a": known["up_a"],
             "up_b": known["up_b"]}  # fmt: skip
     api = httpx.post(f"{live_server.url}/v1/align", json=body, timeout=60).json()
-    assert np.allclose(t, api["T_b_from_a"], atol=1e-6)
+    # The same alignment. Not to the last digit: the int8 graph quantises each call's
+    # activations over the whole batch, so a step batched with another request's in flight
+    # (which ones meet is a loaded machine's timing) moves a pose by a fraction of a degree.
+    other = np.array(api["T_b_from_a"])
+    assert rotation_error_deg(t[:3, :3], other[:3, :3]) < 0.5
+    assert np.linalg.norm(t[:3, 3] - other[:3, 3]) < 0.01
 
 
 def test_auto_is_offered_when_the_server_has_a_classifier(live_server, browser_page):
