@@ -5,6 +5,8 @@
     python benchmarks/load_test.py --concurrency 1,16,64 --budget-ms 20 --batching on,off
     python benchmarks/load_test.py --clients-kind threads --binary --chair --points 800 \
         --budget-ms 20 --concurrency 1,4,16,64 --retry-s 0.05 --duration-s 8
+    python benchmarks/load_test.py --clients-kind async,threads --budget-ms 20,50 --binary \
+        --chair --points 800 --retry-s 0.05 --duration-s 8    # both client mixes, one run
 
 Starts a real ``itnet serve`` (uvicorn, the CLI's settings) on a free loopback port, then for
 each client count runs that many closed-loop clients (each sends its next request as soon as its
@@ -23,8 +25,9 @@ round trip p50/p99, the engine's ``elapsed_ms`` (which starts when the request r
 p50/p99/max, and the overrun ``elapsed_ms - budget_ms`` at p99 and max. The budget holds when the
 p99 overrun is within ``--margin-ms``. ``--batching on,off`` runs every row against a server
 that batches the steps of requests in flight into shared calls (the default) and then one that
-makes a call a step (``ITNET_BATCH_JOBS=1``), side by side; each setting's share column is its
-replies with at least 5 iterations over its first row's. Prints a markdown table; ``--json-out``
+makes a call a step (``ITNET_BATCH_JOBS=1``), side by side; ``--clients-kind async,threads``
+and ``--budget-ms 20,50`` run a set of rows for each client mix and budget against the same
+server. Each set's share column is its replies with at least 5 iterations over its first row's. Prints a markdown table; ``--json-out``
 saves the rows.
 """
 
@@ -107,22 +110,24 @@ def summarise(result: dict, clients: int, budget_ms: float) -> dict:
 
 def table(rows: list[dict], margin_ms: float) -> str:
     lines = [
-        "| batching | clients | requests | 200 / 503 / other | ok/s | ≥5 iterations/s | share of the "
-        "first row's | round trip p50 / p99 ms | engine p50 / p99 / max ms | overrun p99 / max ms "
-        "| wall - budget p99 ms | iterations (mean / median) | budget held "
-        "| CPU busy (machine) / server / clients |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| batching | clients kind | budget ms | clients | requests | 200 / 503 / other | ok/s "
+        "| ≥5 iterations/s | share of the first row's | round trip p50 / p99 ms "
+        "| engine p50 / p99 / max ms | overrun p99 / max ms | wall - budget p99 ms "
+        "| iterations (mean / median) | budget held | CPU busy (machine) / server / clients |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    first: dict[str, float] = {}
+    first: dict[tuple, float] = {}
     for r in rows:
-        alone = first.setdefault(r["batching"], r["good_per_s"])
+        group = (r["batching"], r.get("kind", "async"), r.get("budget_ms"))
+        alone = first.setdefault(group, r["good_per_s"])
         share = f"{r['good_per_s'] / alone:.0%}" if alone else "-"
         s = r["statuses"]
         other = sum(v for k, v in s.items() if k not in ("200", "503"))
         other += r["transport_errors"]
         held = "yes" if r["overrun_p99_ms"] <= margin_ms else "NO"
         lines.append(
-            f"| {r['batching']} | {r['clients']} | {r['requests']} | {s.get('200', 0)} / "
+            f"| {r['batching']} | {r.get('kind', 'async')} | {r.get('budget_ms', float('nan')):g} "
+            f"| {r['clients']} | {r['requests']} | {s.get('200', 0)} / "
             f"{s.get('503', 0)} / {other} | {r['ok_per_s']:.1f} | {r['good_per_s']:.1f} | {share} | "
             f"{r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
             f"{r['engine_p50_ms']:.1f} / {r['engine_p99_ms']:.1f} / {r['engine_max_ms']:.1f} | "
@@ -138,7 +143,9 @@ def main(
     concurrency: str = typer.Option("1,4,16,64", help="Client counts, one row each."),
     duration_s: float = typer.Option(15.0, help="Seconds per row (at most)."),
     max_requests: int = typer.Option(5000, help="Requests per row (at most)."),
-    budget_ms: float = typer.Option(50.0, help="budget_ms of every request."),
+    budget_ms: str = typer.Option(
+        "50", help="budget_ms of the requests; several ('20,50'): a set of rows each."
+    ),
     points: int = typer.Option(2048, help="Points per cloud."),
     margin_ms: float = typer.Option(10.0, help="Allowed p99 overrun of the budget."),
     threads: int = typer.Option(2, help="ITNET_THREADS of the server."),
@@ -158,7 +165,8 @@ def main(
     clients_kind: str = typer.Option(
         "async",
         help="'async' (asyncio loops, --per-process to a process) or 'threads' (a thread per "
-        "client with a synchronous httpx.Client, all in one process, as plain scripts do).",
+        "client with a synchronous httpx.Client, all in one process, as plain scripts do); "
+        "'async,threads': both, a set of rows each, against the same server.",
     ),
     binary: bool = typer.Option(False, help="float32 bodies (the budget in the query)."),
     chair: bool = typer.Option(
@@ -182,15 +190,18 @@ def main(
         max_concurrent = Settings().limits.max_concurrent_requests  # what the server will use
     env = {"ITNET_THREADS": str(threads), "ITNET_GC_FREEZE": str(gc_freeze).lower(),
            "ITNET_LIMITS__MAX_CONCURRENT_REQUESTS": str(max_concurrent)}  # fmt: skip
-    if clients_kind not in ("async", "threads"):
-        raise typer.BadParameter(f"--clients-kind: 'async' or 'threads', not {clients_kind!r}")
+    kinds = [k.strip() for k in clients_kind.split(",") if k.strip()]
+    if not kinds or set(kinds) - {"async", "threads"}:
+        raise typer.BadParameter(
+            f"--clients-kind: 'async', 'threads' or both, not {clients_kind!r}"
+        )
+    try:
+        budgets = [float(b) for b in budget_ms.split(",") if b.strip()]
+    except ValueError:
+        budgets = []
+    if not budgets or min(budgets) <= 0:
+        raise typer.BadParameter(f"--budget-ms: positive numbers, not {budget_ms!r}")
     cloud = chair_cloud(points) if chair else sample_cloud(points)
-    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
-    body = json.dumps({"points": cloud.tolist(), **fields}).encode()
-    sent, content_type, params = body, JSON["content-type"], None
-    if binary:
-        sent, content_type = cloud.astype("<f4").tobytes(), "application/octet-stream"
-        params = {k: str(v) for k, v in fields.items()}
     rows = []
     settings = [b.strip() for b in batching.split(",") if b.strip()]
     if not settings or set(settings) - {"on", "off"}:
@@ -199,27 +210,34 @@ def main(
     for setting in settings:
         jobs = {} if setting == "on" else {"ITNET_BATCH_JOBS": "1"}
         with serve(folder, log, {**env, **jobs}, args=["--workers", str(workers)]) as server:
+            warm = _bodies(cloud, budgets[0], ensemble, binary=False)[0]
             for _ in range(20 * workers):  # warm up (each worker)
-                assert httpx.post(f"{server.url}/v1/estimate", content=body, headers=JSON,
+                assert httpx.post(f"{server.url}/v1/estimate", content=warm, headers=JSON,
                                   timeout=30).status_code == 200  # fmt: skip
             rss_before = server.rss_mb()
-            for clients in (int(c) for c in concurrency.split(",")):
-                threaded = clients_kind == "threads"
-                per = clients if threaded else per_process
-                procs = -(-clients // per)
-                plan = ClientPlan(server.url, sent, content_type, params, fresh=fresh,
-                                  retry_s=None if retry_s < 0 else retry_s,
-                                  cap=max(1, max_requests // procs), threaded=threaded)  # fmt: skip
-                meter = CpuMeter(server.process.pid)
-                meter.start()
-                result = run_clients(plan, clients, duration_s, per)
-                result["cpu"] = meter.stop()
-                rows.append({"batching": setting, **summarise(result, clients, budget_ms)})
-                typer.echo(f"{clients} clients: {json.dumps(rows[-1])}", err=True)
+            for kind in kinds:
+                for budget in budgets:
+                    sent, content_type, params = _bodies(cloud, budget, ensemble, binary)
+                    for clients in (int(c) for c in concurrency.split(",")):
+                        threaded = kind == "threads"
+                        per = clients if threaded else per_process
+                        procs = -(-clients // per)
+                        plan = ClientPlan(server.url, sent, content_type, params, fresh=fresh,
+                                          retry_s=None if retry_s < 0 else retry_s,
+                                          cap=max(1, max_requests // procs), threaded=threaded)  # fmt: skip
+                        meter = CpuMeter(server.process.pid)
+                        meter.start()
+                        result = run_clients(plan, clients, duration_s, per)
+                        result["cpu"] = meter.stop()
+                        rows.append({"batching": setting, "kind": kind, "budget_ms": budget,
+                                     **summarise(result, clients, budget)})  # fmt: skip
+                        typer.echo(f"{kind} {budget:g} ms {clients} clients: "
+                                   f"{json.dumps(rows[-1])}", err=True)  # fmt: skip
             health[setting] = httpx.get(f"{server.url}/healthz", timeout=5).status_code
             rss[setting] = f"{rss_before:.0f} -> {server.rss_mb():.0f} MiB"
+    sent = _bodies(cloud, budgets[0], ensemble, binary)[0]
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points "
-               f"({'float32' if binary else 'JSON'}, {len(sent):,} bytes); {clients_kind} clients; budget {budget_ms:g} ms; ensemble {ensemble or 'by the card'}; "
+               f"({'float32' if binary else 'JSON'}, {len(sent):,} bytes); ensemble {ensemble or 'by the card'}; "
                f"{workers} server process(es), "
                f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip
@@ -228,7 +246,18 @@ def main(
         typer.echo(f"batching {setting}, after its rows: /healthz {health[setting]}; server RSS "
                    f"{rss[setting]}")  # fmt: skip
     if json_out is not None:
-        json_out.write_text(json.dumps({"rows": rows, "budget_ms": budget_ms}, indent=1))
+        json_out.write_text(json.dumps({"rows": rows, "budgets_ms": budgets}, indent=1))
+
+
+def _bodies(cloud: np.ndarray, budget_ms: float, ensemble: int | None,
+            binary: bool) -> tuple[bytes, str, dict[str, str] | None]:  # fmt: skip
+    """A request of ``cloud`` (N, 3) at ``budget_ms``: (body, content type, query parameters):
+    JSON with the fields, or float32 with the fields in the query."""
+    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
+    if binary:
+        params = {k: str(v) for k, v in fields.items()}
+        return cloud.astype("<f4").tobytes(), "application/octet-stream", params
+    return json.dumps({"points": cloud.tolist(), **fields}).encode(), JSON["content-type"], None
 
 
 if __name__ == "__main__":
