@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -212,44 +213,37 @@ def plan(
         seed=seed,
     )
     available = request.budget_ms - spent_ms
+
+    @cache  # each count of runs sized once: the one chosen is not sized again
+    def sized(runs: int) -> PosePlan:
+        return _sized(base, runs, available, schedule)
+
+    def work_ms(runs: int) -> float:
+        """The steps of ``runs`` runs as they would be planned, on an idle machine."""
+        return sized(runs).work_ms(iterations, card.points, base.idle_run_ms)
+
     runs = request.ensemble
     if runs is None:
-        runs = fitting_ensemble(
-            card.recommended_ensemble,
-            lambda k: _fitting(base, k, available, schedule).work_ms(
-                iterations, card.points, base.idle_run_ms
-            ),
-            available,
-        )
+        runs = fitting_ensemble(card.recommended_ensemble, work_ms, available)
     if not (1 <= runs <= MAX_ENSEMBLE):
         raise BadCloudError(f"ensemble must be in [1, {MAX_ENSEMBLE}], got {runs}")
-    return _fitting(base, runs, available, schedule)
+    return replace(sized(runs),
+                   starts=_starts(runs, up, card.up_free_steps),
+                   stages=_stages(model, request, runs))  # fmt: skip
 
 
-def _with_runs(base: PosePlan, runs: int, scheduled: bool) -> PosePlan:
-    """``base`` with ``runs`` runs (their starts and the stages that are on for them), on the
-    card's schedule where ``scheduled``."""
-    model, card = base.model, base.model.card
-    return replace(
-        base,
-        starts=_starts(runs, base.up, card.up_free_steps),
-        stages=_stages(model, base.request, runs),
-        halving=card.halving if scheduled else None,
-        coarse=card.coarse_steps if scheduled else None,
-    )
-
-
-def _fitting(base: PosePlan, runs: int, available_ms: float, schedule: bool) -> PosePlan:
-    """``runs`` runs on every step where that fits ``available_ms`` on an idle machine, else on
-    the card's schedule (where ``schedule`` and the card has one; it was measured on fused runs:
-    a single run takes every step)."""
+def _sized(base: PosePlan, runs: int, available_ms: float, schedule: bool) -> PosePlan:
+    """``base`` with ``runs`` runs (as many starts; what their work needs, not yet turned apart
+    or given their stages): on every step where that fits ``available_ms`` on an idle machine,
+    else on the card's schedule (where ``schedule`` and the card has one; it was measured on
+    fused runs: a single run takes every step)."""
     card = base.model.card
-    full = _with_runs(base, runs, scheduled=False)
+    full = replace(base, starts=np.repeat(base.starts, runs, axis=0))
     if runs == 1 or not schedule or (card.coarse_steps is None and card.halving is None):
         return full
     if full.work_ms(base.max_iterations, card.points, base.idle_run_ms) <= available_ms:
         return full
-    return _with_runs(base, runs, scheduled=True)
+    return replace(full, halving=card.halving, coarse=card.coarse_steps)
 
 
 def _starts(runs: int, up: NDArray | None, up_free: int) -> NDArray[np.float32]:
