@@ -101,15 +101,14 @@ class Admission:
     def running(self) -> int:
         return len(self._runs)
 
-    def ahead_ms(self, slots: int, others_ms: float = 0.0) -> float:
-        """The admitted runs' remaining needed work, and ``others_ms`` of other processes',
-        shared over ``slots`` step slots."""
-        return (sum(run.needed_work_ms() for run in self._runs) + others_ms) / max(1, slots)
+    def own_ms(self) -> float:
+        """The admitted runs' remaining needed work."""
+        return sum(run.needed_work_ms() for run in self._runs)
 
-    def _publish(self) -> None:
-        """This process's admitted runs and their needed work, for the other processes."""
+    def _publish(self, own_ms: float) -> None:
+        """This process's admitted runs and their needed work ``own_ms``, for the others."""
         if self.shared is not None:
-            self.shared.publish(len(self._runs), sum(run.needed_work_ms() for run in self._runs))
+            self.shared.publish(len(self._runs), own_ms)
 
     @contextmanager
     def admit(self, *runs: AnytimeRun) -> Iterator[None]:
@@ -119,7 +118,9 @@ class Admission:
             first = runs[0]
             others, others_ms = (0, 0.0) if self.shared is None else self.shared.others()
             running = len(self._runs) + others
-            ahead = self.ahead_ms(first.model.concurrent_steps, others_ms)
+            own = self.own_ms()
+            # the work ahead of these runs, this process's and the others', over the step slots
+            ahead = (own + others_ms) / max(1, first.model.concurrent_steps)
             cost = sum(run.needed_work_ms() for run in runs)
             if running and ahead + cost > min(run.left_ms() for run in runs):
                 raise OverloadedError(
@@ -136,13 +137,13 @@ class Admission:
                     self.retry_after_s,
                 )
             self._runs.extend(runs)
-            self._publish()
+            self._publish(own + cost)
         try:
             yield
         finally:
             with self._lock:
                 for run in runs:
                     self._runs.remove(run)
-                self._publish()
+                self._publish(self.own_ms())
             if len(runs) == 1:  # a request's runs in turn (an alignment's) share one budget
                 self.delivery.record_run(runs[0])

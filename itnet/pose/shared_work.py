@@ -18,15 +18,13 @@ from __future__ import annotations
 import fcntl
 import mmap
 import os
-import struct
 from pathlib import Path
 
 import numpy as np
 
 SHARED_ADMISSION_ENV = "ITNET_SHARED_ADMISSION"  # the file, where several processes serve
 SLOTS = 256  # processes one file can hold
-_RECORD = struct.Struct("<qqd")  # pid, runs, work_ms
-_DTYPE = np.dtype([("pid", "<i8"), ("runs", "<i8"), ("work", "<f8")])
+RECORD = np.dtype([("pid", "<i8"), ("runs", "<i8"), ("work", "<f8")])  # work: ms of steps
 
 
 def _alive(pid: int) -> bool:
@@ -48,13 +46,14 @@ class SharedWork:
 
     def __init__(self, path: Path, pid: int | None = None) -> None:
         self.pid = os.getpid() if pid is None else pid
-        size = SLOTS * _RECORD.size
+        size = SLOTS * RECORD.itemsize
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             if os.fstat(fd).st_size < size:
                 os.ftruncate(fd, size)
             self._map = mmap.mmap(fd, size)
+            self._records = np.frombuffer(self._map, dtype=RECORD)  # the file's, in place
             self.slot = self._claim()
             fcntl.flock(fd, fcntl.LOCK_UN)
         finally:
@@ -68,31 +67,31 @@ class SharedWork:
 
     def _claim(self) -> int:
         """The first record that is free (or this process's, or a dead process's): taken."""
-        for slot in range(SLOTS):
-            pid, _, _ = _RECORD.unpack_from(self._map, slot * _RECORD.size)
+        for slot, pid in enumerate(self._records["pid"].tolist()):
             if pid == self.pid or not _alive(pid):
-                _RECORD.pack_into(self._map, slot * _RECORD.size, self.pid, 0, 0.0)
+                self._records[slot] = (self.pid, 0, 0.0)
                 return slot
         raise RuntimeError(f"all {SLOTS} shared admission records are held by live processes")
 
     def publish(self, runs: int, work_ms: float) -> None:
         """This process's admitted runs and the work they still need."""
-        _RECORD.pack_into(self._map, self.slot * _RECORD.size, self.pid, runs, work_ms)
+        self._records[self.slot] = (self.pid, runs, work_ms)
 
     def others(self) -> tuple[int, float]:
         """(runs, work_ms) admitted by the other live processes."""
-        records = np.frombuffer(self._map, dtype=_DTYPE)
+        records = self._records
         busy = np.flatnonzero(
             (records["pid"] != 0) & ((records["runs"] != 0) | (records["work"] != 0))
         )
         runs, work = 0, 0.0
         for slot in busy:
-            pid, n, ms = records[slot]
-            if slot != self.slot and _alive(int(pid)):
-                runs, work = runs + int(n), work + float(ms)
+            pid, n, ms = records[slot].tolist()
+            if slot != self.slot and _alive(pid):
+                runs, work = runs + n, work + ms
         return runs, work
 
     def close(self) -> None:
         """Give the record back (the process stops serving)."""
-        _RECORD.pack_into(self._map, self.slot * _RECORD.size, 0, 0, 0.0)
+        self._records[self.slot] = (0, 0, 0.0)
+        del self._records  # the map closes only once no array looks into it
         self._map.close()
