@@ -15,6 +15,7 @@ import json
 from pathlib import Path
 
 from itnet.model.served_accuracy import known_ups, machine, measure, misses
+from itnet.request_fields import parse_pair
 
 __all__ = ["known_ups", "measure", "misses"]
 
@@ -31,10 +32,10 @@ def _pair(parser: argparse.ArgumentParser, text: str | None, option: str) -> tup
     """'A,B' -> (A, B), two positive integers (None: not given); else the parser's error."""
     if text is None:
         return None
-    values = text.split(",")
-    if len(values) != 2 or not all(v.strip().isdigit() and int(v) >= 1 for v in values):
+    try:
+        return parse_pair(text)
+    except ValueError:
         parser.error(f"{option} takes two positive integers")
-    return int(values[0]), int(values[1])
 
 
 def main() -> None:

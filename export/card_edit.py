@@ -32,6 +32,7 @@ from itnet.model_card import (
     describe_verify,
 )
 from itnet.pose.runtime import ModelLoadError, load_any
+from itnet.request_fields import parse_pair
 
 
 @dataclass(frozen=True)
@@ -129,13 +130,15 @@ def _schedule(name: str, text: str, measured: bool) -> tuple[int, int] | None:
     if text.strip().lower() == "none":
         return None
     option = "--" + name.replace("_", "-")
-    values = text.split(",")
-    if len(values) != 2 or not all(v.strip().isdigit() and int(v) >= 1 for v in values):
-        raise InputError(f"{option} takes two positive integers 'A,B' or 'none', got {text!r}")
-    first, second = int(values[0]), int(values[1])
+    try:
+        pair = parse_pair(text)
+    except ValueError:
+        raise InputError(
+            f"{option} takes two positive integers 'A,B' or 'none', got {text!r}"
+        ) from None
     if not measured:
         raise InputError(f"{option} needs its measurement: --without-plan and --with-plan")
-    return first, second
+    return pair
 
 
 def up_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:

@@ -41,6 +41,15 @@ def parse_xyz(value: str | ArrayLike) -> list[float]:
     return numbers
 
 
+def parse_pair(text: str) -> tuple[int, int]:
+    """'A,B' -> (A, B), two positive integers (a schedule's steps and points, a halving's
+    iteration and runs kept). ValueError for anything else."""
+    values = text.split(",")
+    if len(values) != 2 or not all(v.strip().isdigit() and int(v) >= 1 for v in values):
+        raise ValueError(f"expected two positive integers 'A,B', got {text!r}")
+    return int(values[0]), int(values[1])
+
+
 def is_xyz(annotation: Any) -> bool:
     """Whether a field's annotation is ``Xyz`` (three numbers or None)."""
     return annotation == Xyz
