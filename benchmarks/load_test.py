@@ -27,13 +27,14 @@ p99 overrun is within ``--margin-ms``. ``--batching on,off`` runs every row agai
 that batches the steps of requests in flight into shared calls (the default) and then one that
 makes a call a step (``ITNET_BATCH_JOBS=1``), side by side; ``--clients-kind async,threads``
 and ``--budget-ms 20,50`` run a set of rows for each client mix and budget against the same
-server. Each set's share column is its replies with at least 5 iterations over its first row's. Prints a markdown table; ``--json-out``
-saves the rows.
+server. Each set's share column is its replies with at least 5 iterations over its first row's.
+Prints a markdown table; ``--json-out`` saves the rows.
 """
 
 from __future__ import annotations
 
 import json
+from itertools import product
 from pathlib import Path
 
 import httpx
@@ -118,7 +119,7 @@ def table(rows: list[dict], margin_ms: float) -> str:
     ]
     first: dict[tuple, float] = {}
     for r in rows:
-        group = (r["batching"], r.get("kind", "async"), r.get("budget_ms"))
+        group = (r["batching"], r["kind"], r["budget_ms"])
         alone = first.setdefault(group, r["good_per_s"])
         share = f"{r['good_per_s'] / alone:.0%}" if alone else "-"
         s = r["statuses"]
@@ -126,7 +127,7 @@ def table(rows: list[dict], margin_ms: float) -> str:
         other += r["transport_errors"]
         held = "yes" if r["overrun_p99_ms"] <= margin_ms else "NO"
         lines.append(
-            f"| {r['batching']} | {r.get('kind', 'async')} | {r.get('budget_ms', float('nan')):g} "
+            f"| {r['batching']} | {r['kind']} | {r['budget_ms']:g} "
             f"| {r['clients']} | {r['requests']} | {s.get('200', 0)} / "
             f"{s.get('503', 0)} / {other} | {r['ok_per_s']:.1f} | {r['good_per_s']:.1f} | {share} | "
             f"{r['client_p50_ms']:.1f} / {r['client_p99_ms']:.1f} | "
@@ -215,24 +216,24 @@ def main(
                 assert httpx.post(f"{server.url}/v1/estimate", content=warm, headers=JSON,
                                   timeout=30).status_code == 200  # fmt: skip
             rss_before = server.rss_mb()
-            for kind in kinds:
-                for budget in budgets:
-                    sent, content_type, params = _bodies(cloud, budget, ensemble, binary)
-                    for clients in (int(c) for c in concurrency.split(",")):
-                        threaded = kind == "threads"
-                        per = clients if threaded else per_process
-                        procs = -(-clients // per)
-                        plan = ClientPlan(server.url, sent, content_type, params, fresh=fresh,
-                                          retry_s=None if retry_s < 0 else retry_s,
-                                          cap=max(1, max_requests // procs), threaded=threaded)  # fmt: skip
-                        meter = CpuMeter(server.process.pid)
-                        meter.start()
-                        result = run_clients(plan, clients, duration_s, per)
-                        result["cpu"] = meter.stop()
-                        rows.append({"batching": setting, "kind": kind, "budget_ms": budget,
-                                     **summarise(result, clients, budget)})  # fmt: skip
-                        typer.echo(f"{kind} {budget:g} ms {clients} clients: "
-                                   f"{json.dumps(rows[-1])}", err=True)  # fmt: skip
+            bodies = {budget: _bodies(cloud, budget, ensemble, binary) for budget in budgets}
+            counts = [int(c) for c in concurrency.split(",")]
+            for kind, budget, clients in product(kinds, budgets, counts):
+                sent, content_type, params = bodies[budget]
+                threaded = kind == "threads"
+                per = clients if threaded else per_process
+                procs = -(-clients // per)
+                plan = ClientPlan(server.url, sent, content_type, params, fresh=fresh,
+                                  retry_s=None if retry_s < 0 else retry_s,
+                                  cap=max(1, max_requests // procs), threaded=threaded)  # fmt: skip
+                meter = CpuMeter(server.process.pid)
+                meter.start()
+                result = run_clients(plan, clients, duration_s, per)
+                result["cpu"] = meter.stop()
+                rows.append({"batching": setting, "kind": kind, "budget_ms": budget,
+                             **summarise(result, clients, budget)})  # fmt: skip
+                typer.echo(f"{kind} {budget:g} ms {clients} clients: {json.dumps(rows[-1])}",
+                           err=True)  # fmt: skip
             health[setting] = httpx.get(f"{server.url}/healthz", timeout=5).status_code
             rss[setting] = f"{rss_before:.0f} -> {server.rss_mb():.0f} MiB"
     sent = _bodies(cloud, budgets[0], ensemble, binary)[0]
