@@ -223,6 +223,12 @@ def test_successive_halving_steps_on_only_the_runs_the_verifier_likes_best(model
     verifier = _FixedVerifier([0.0, 5.0, -1.0, 4.0, 0.5, 3.0, -2.0, 1.0])
     judged = replace(model, verifier=verifier)
     judged.idle_ms, judged.baseline_ms = model.idle_ms, model.baseline_ms
+
+    def fixed_price(runs: int, points: int, idle: bool = False) -> float:
+        """A step's price that the moment's load does not move: the work counts steps."""
+        return runs * points / judged.card.points
+
+    judged.run_step_ms = fixed_price  # type: ignore[method-assign]
     run = AnytimeRun(replace(halved, model=judged), cloud)
     drawn = run.points.copy()
     next(run)
