@@ -12,9 +12,10 @@ decoding included. Scoring:
 * a returned object matches the scene's object whose pixels it overlaps most, where their
   intersection over union is at least 0.5 (each scene object matched once, best first);
 * found: scene objects matched; false: returned objects named by a category and matched to none
-  (wall pieces, floor fragments, halves of objects, two objects as one); such objects answered
-  as unknown are counted apart (``unknown_unmatched``), as are scene objects found but answered
-  as unknown (``unknown_objects``);
+  (wall pieces, floor fragments, halves of objects, two objects as one) or matched to a thing of
+  no category (``--distractors``: an ottoman named a bathtub; ``distractors_named`` of those
+  found); such objects answered as unknown are counted apart (``unknown_unmatched``), as are
+  scene objects found but answered as unknown (``unknown_objects``);
 * right: matched, the category right, and the pose within (10 degrees, 0.1 radius) of the truth
   with the category's symmetry (SPEC.md); counted over the scene objects that are visible
   (at least ``--min-pixels`` pixels at 320x240, four times as many at 640x480).
@@ -57,10 +58,20 @@ from itnet.symmetry import symmetric_rotation_error_deg
 
 def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
     """One row per scene object and per unmatched returned object: matched, right, errors."""
-    sizes = np.bincount(scene.labels.ravel(), minlength=len(scene.objects) + 1)
-    pairs = matched_objects([o.indices for o in result.objects], scene.labels, len(scene.objects))
+    count = len(scene.objects)
+    sizes = np.bincount(scene.labels.ravel(), minlength=count + len(scene.others) + 1)
+    pairs = matched_objects(
+        [o.indices for o in result.objects], scene.labels, count + len(scene.others)
+    )
     taken_obj, taken_truth, rows = set(), set(), []
     for i, k in pairs:
+        if k > count:  # a thing of no category: false where named as one
+            taken_obj.add(i)
+            rows.append({"kind": "distractor", "other": scene.others[k - count - 1],
+                         "predicted": result.objects[i].category,
+                         "probability": result.objects[i].probability,
+                         "unknown": result.objects[i].unknown})  # fmt: skip
+            continue
         taken_obj.add(i)
         taken_truth.add(k)
         truth, obj = scene.objects[k - 1], result.objects[i]
@@ -105,7 +116,9 @@ def centre_errors(pose: np.ndarray, truth: SceneObjectTruth) -> dict[str, float]
 def summary(rows: list[dict], returned: int) -> dict:
     """Percentages with binomial standard errors."""
     objects = [r for r in rows if r["kind"] == "object" and r["visible"]]
-    false = sum(r["kind"] == "false" for r in rows)
+    distractors = [r for r in rows if r["kind"] == "distractor"]
+    named_distractors = sum(r["predicted"] is not None for r in distractors)
+    false = sum(r["kind"] == "false" for r in rows) + named_distractors
     unknown = sum(r["kind"] == "unknown" for r in rows)
     unknown_found = sum(r["found"] and r.get("predicted") is None for r in objects)
 
@@ -128,6 +141,8 @@ def summary(rows: list[dict], returned: int) -> dict:
         # answered as unknown, matched to no object (a piece of one, a wall's strip)
         "unknown_unmatched": pct(unknown, returned),
         "unknown_objects": pct(unknown_found, len(objects)),
+        # things of no category found (matched): named as a category (counted false above)
+        "distractors_named": pct(named_distractors, len(distractors)),
         "by_category": by_category,
     }
 
@@ -244,6 +259,7 @@ def main(argv: list[str] | None = None) -> None:
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off, "flying_pixels": args.flying_pixels,
+        "distractors": args.distractors,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options", "scene_classifier", "centre_table")},
         **({"centre_table": str(args.centre_table)} if args.centre_table is not None else {}),

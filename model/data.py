@@ -182,6 +182,8 @@ def cached_scan_set(
         from itnet.model.sensor import SENSORS
 
         viewpoints.append(repr(SENSORS[config.sensor]))
+    if config.surroundings is not None:  # nor this
+        viewpoints.append(repr(config.surroundings))
     key = _cache_key([s.name for s in shapes], views, seed, config, fingerprint, *viewpoints)
     path = cache / f"scans-{key}.npz"
     if path.exists():

@@ -44,6 +44,7 @@ from itnet.geometry import (
 )
 from itnet.model.shapes import Shape
 from itnet.model.surface import splat_visible, surface_discs
+from itnet.model.surroundings import Surroundings
 from itnet.upright import rotation_onto
 
 
@@ -76,6 +77,10 @@ class ScanConfig:
     sensor: str = "clean"
     radius_m: tuple[float, float] = (0.5, 0.5)
     distance_m: tuple[float, float] = (1.0, 6.0)
+    # what a crop out of a room keeps beside the object (``model.surroundings``; its sizes in
+    # metres under a sensor model, in object radii without); None: the object alone. Left out
+    # of the repr, as ``elevation``.
+    surroundings: Surroundings | None = field(default=None, repr=False)
 
 
 PAPER_VIEWS: dict[str, object] = {
@@ -113,17 +118,41 @@ def sensor_views(sensor: str, radius_m: tuple[float, float]) -> dict[str, object
     return {"sensor": sensor, "radius_m": tuple(radius_m)}
 
 
-def named_overrides(name: str, category: str) -> dict[str, object]:
-    """The ScanConfig overrides of a named view rule, seen by a named camera where the name says
-    so: ``RULE`` or ``RULE+SENSOR`` (``occluded+kinect_v2``: occluded views of a real-sized
-    piece of ``category`` by a Kinect v2)."""
-    from itnet.model.categories import real_radius_m
+CROP = "crop"
+"""The suffix of a view rule's name for views cut out of a room (``occluded+kinect_v2+crop``)."""
+CROP_ELEVATION = (-10.0, 55.0)
+"""Where the camera of a crop out of a room stands unless told (degrees over the object's
+horizon): above the floor, which would hide the object from below."""
 
-    rule, _, sensor = name.partition("+")
+
+def view_name_parts(name: str) -> tuple[str, str, bool]:
+    """A view rule's name -> (rule, sensor or '', cut out of a room): ``RULE``,
+    ``RULE+SENSOR`` or ``RULE+SENSOR+crop``. Raises ValueError for an unknown rule or camera,
+    or a crop without a camera (its surroundings have sizes in metres)."""
+    from itnet.model.sensor import SENSORS
+
+    rule, *rest = name.split("+")
+    crop = rest[-1:] == [CROP]
+    sensor = "+".join(rest[:-1] if crop else rest)
     if rule not in VIEW_RULES:
         raise ValueError(f"unknown view rule {rule!r} (known: {', '.join(VIEW_RULES)})")
+    if sensor and sensor not in SENSORS:
+        raise ValueError(f"unknown sensor {sensor!r} (known: {', '.join(SENSORS)})")
+    if crop and not sensor:
+        raise ValueError(f"{name!r}: a crop out of a room needs a camera (RULE+SENSOR+{CROP})")
+    return rule, sensor, crop
+
+
+def named_overrides(name: str, category: str) -> dict[str, object]:
+    """The ScanConfig overrides of a named view rule, seen by a named camera where the name says
+    so: ``RULE``, ``RULE+SENSOR`` (``occluded+kinect_v2``: occluded views of a real-sized
+    piece of ``category`` by a Kinect v2) or ``RULE+SENSOR+crop`` (the same, cut out of a room
+    by the object's box: ``model.surroundings``)."""
+    from itnet.model.categories import real_radius_m
+
+    rule, sensor, crop = view_name_parts(name)
     camera = sensor_views(sensor, real_radius_m(category)) if sensor else {}
-    return {**VIEW_RULES[rule], **camera}
+    return {**VIEW_RULES[rule], **camera, **({"surroundings": True} if crop else {})}
 
 
 def named_views(name: str, category: str) -> ScanConfig:
@@ -133,8 +162,14 @@ def named_views(name: str, category: str) -> ScanConfig:
 
 def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
     """The default ScanConfig with each mapping of ``overrides`` applied in turn. Lists become
-    tuples: overrides stored in a JSON config come back as lists."""
+    tuples: overrides stored in a JSON config come back as lists; ``surroundings`` may be a
+    bool (True: the default ``Surroundings``), and a view with surroundings is seen from
+    ``CROP_ELEVATION`` unless an elevation is given."""
     merged = {k: tuple(v) if isinstance(v, list) else v for o in overrides for k, v in o.items()}
+    if isinstance(merged.get("surroundings"), bool):  # as a rule's name or a JSON config says it
+        merged["surroundings"] = Surroundings() if merged["surroundings"] else None
+    if merged.get("surroundings") is not None and merged.get("elevation") is None:
+        merged["elevation"] = CROP_ELEVATION
     return replace(ScanConfig(), **merged)
 
 
@@ -276,43 +311,95 @@ def scan_shape(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """One random partial scan of a canonical shape -> (camera-frame points (K, 3),
     T_canonical_from_input (4, 4)). Retries viewpoints until at least ``min_points`` are seen.
-    ``discs``: the points' ``surface_discs`` for surface views (computed here when not given)."""
-    if config.splat <= 0 or triangles is not None:
-        discs = None
-    elif discs is None:
-        discs = surface_discs(points)
+    ``discs``: the points' ``surface_discs`` for surface views and surroundings (computed here
+    when not given)."""
     radius_m = 1.0
     if config.sensor != "clean":  # a real size and distance: the camera's effects are in metres
         radius_m = rng.uniform(*config.radius_m)
         distance = (config.distance_m[0] / radius_m, config.distance_m[1] / radius_m)
         # in object radii; a camera closer than 1.3 radii would stand inside the piece's box
         config = replace(config, distance=(max(distance[0], 1.3), max(distance[1], 1.4)))
+    whole = points
+    if config.surroundings is not None:
+        if triangles is not None:
+            raise ValueError("surroundings are added to point sets, not to meshes")
+        discs = surface_discs(points) if discs is None else discs
+        points, discs = _surrounded(points, discs, config.surroundings, radius_m, rng)
+    if config.splat <= 0 or triangles is not None:
+        discs = None
+    elif discs is None:
+        discs = surface_discs(points)
     for _ in range(20):
         camera_from_canonical = random_camera_pose(rng, config)
-        if triangles is not None:
-            width = int(rng.integers(*config.raycast_resolution))
-            seen = raycast_scan(points, triangles, camera_from_canonical, width)
-        elif discs is not None:
-            pixel = rng.uniform(*config.pixel)
-            seen = surfel_scan(
-                points, discs, camera_from_canonical, pixel, config.splat, config.tolerance
-            )
+        if config.surroundings is not None:  # a floor may reach past the camera
+            seen = _seen_in_range(points, discs, camera_from_canonical, rng, config, radius_m)
         else:
-            seen = zbuffer_scan(
-                points,
-                camera_from_canonical,
-                rng.uniform(*config.pixel),
-                config.tolerance,
-                config.occlusion_tolerance,
-            )
+            seen = _seen(points, triangles, discs, camera_from_canonical, rng, config)
         if config.cut_below is not None:
             height = rng.uniform(*config.cut_below)
             seen = seen[below_view_edge(seen, camera_from_canonical, height)]
         if config.sensor != "clean" and len(seen) >= config.min_points:
             seen = sensed(seen, rng, config, radius_m)
+        if config.surroundings is not None:
+            canonical = apply_rigid(invert_rigid(camera_from_canonical), seen)
+            seen = seen[config.surroundings.crop(canonical, whole, radius_m, rng)]
         if len(seen) >= config.min_points:
             return add_sensor_effects(seen, rng, config), invert_rigid(camera_from_canonical)
     raise ValueError("no viewpoint saw enough of the shape")
+
+
+def _surrounded(
+    points: NDArray, discs: tuple[NDArray, NDArray], surroundings: Surroundings,
+    radius_m: float, rng: np.random.Generator,
+) -> tuple[NDArray[np.float64], tuple[NDArray, NDArray]]:  # fmt: skip
+    """A shape's points (M, 3) and discs with ``surroundings`` added (the shape's rows first)."""
+    spacing = float(np.median(discs[1]))
+    surrounded, normals = surroundings.around(points, spacing, radius_m, rng)
+    added = len(surrounded) - len(points)
+    return surrounded, (
+        np.concatenate([discs[0], normals]),
+        np.concatenate([discs[1], np.full(added, spacing)]),
+    )
+
+
+NEAREST_M = 0.4
+"""A depth camera's nearest range (the Kinect v2's 0.5 m, a RealSense's less): what is nearer,
+or behind it, a crop's surroundings leave out."""
+
+
+def _seen_in_range(
+    points: NDArray, discs: tuple[NDArray, NDArray] | None, camera_from_canonical: NDArray,
+    rng: np.random.Generator, config: ScanConfig, radius_m: float,
+) -> NDArray[np.float64]:  # fmt: skip
+    """``_seen`` of the points (M, 3) at least ``NEAREST_M`` ahead of the camera."""
+    depth = points @ camera_from_canonical[2, :3] + camera_from_canonical[2, 3]
+    ahead = depth > NEAREST_M / radius_m
+    if discs is not None:
+        discs = (discs[0][ahead], discs[1][ahead])
+    return _seen(points[ahead], None, discs, camera_from_canonical, rng, config)
+
+
+def _seen(
+    points: NDArray, triangles: NDArray | None, discs: tuple[NDArray, NDArray] | None,
+    camera_from_canonical: NDArray, rng: np.random.Generator, config: ScanConfig,
+) -> NDArray[np.float64]:  # fmt: skip
+    """What the camera at ``camera_from_canonical`` sees of the shape, by the scanner its
+    kind asks for: rays on a mesh, discs for surface views, else the z-buffer of points."""
+    if triangles is not None:
+        width = int(rng.integers(*config.raycast_resolution))
+        return raycast_scan(points, triangles, camera_from_canonical, width)
+    if discs is not None:
+        pixel = rng.uniform(*config.pixel)
+        return surfel_scan(
+            points, discs, camera_from_canonical, pixel, config.splat, config.tolerance
+        )
+    return zbuffer_scan(
+        points,
+        camera_from_canonical,
+        rng.uniform(*config.pixel),
+        config.tolerance,
+        config.occlusion_tolerance,
+    )
 
 
 def sensed(seen: NDArray, rng: np.random.Generator, config: ScanConfig,
@@ -344,6 +431,7 @@ def scan_of(
     shape: Shape, rng: np.random.Generator, config: ScanConfig
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``scan_shape`` of a Shape: its mesh when it has one, its kept surface discs for surface
-    views."""
-    discs = shape.discs() if config.splat > 0 and shape.triangles is None else None
+    views and surroundings."""
+    wants_discs = config.splat > 0 or config.surroundings is not None
+    discs = shape.discs() if wants_discs and shape.triangles is None else None
     return scan_shape(shape.points, rng, config, shape.triangles, discs)

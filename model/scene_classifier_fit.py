@@ -45,6 +45,7 @@ from itnet.scene.pipeline import VIEWPOINT, shipped_catalog
 from itnet.scene.posing import BadCloudError, classifier_probabilities
 from itnet.scene.scene_classifier import (
     FILE,
+    OTHER,
     SceneClassifier,
     classifier_graphs,
     cluster_features,
@@ -55,21 +56,25 @@ PRECISION = 0.95  # the threshold: the lowest at which this share of the answers
 
 
 def scene_samples(
-    shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False
-) -> tuple[NDArray[np.float64], list[str]]:
+    shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False,
+    distractors: int = 0,
+) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
     """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
-    view) -> the features (S, F) of every cluster the segmentation found and matched to a
-    scene object, and those objects' categories (S,)."""
+    view; ``distractors``: up to this many things of no category among the objects) -> the
+    features (S, F) of every cluster the segmentation found and matched to a scene object or
+    thing, and those objects' categories (``OTHER`` for a thing) (S,)."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
     for _ in range(scenes):
-        scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off)
+        scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off,
+                           distractors=distractors)  # fmt: skip
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points)
         if found.floor is None:
             continue
         returned = [given.indices[rows] for rows in found.objects]
-        for i, k in matched_objects(returned, scene.labels, len(scene.objects)):
+        named = [o.category for o in scene.objects] + [OTHER] * len(scene.others)
+        for i, k in matched_objects(returned, scene.labels, len(named)):
             points = given.points[found.objects[i]]
             try:  # the classifier's probabilities as served
                 _, probabilities, _ = classifier_probabilities(catalog, points, found.up)
@@ -77,7 +82,7 @@ def scene_samples(
                 continue
             log_p = np.log(np.maximum(probabilities, 1e-12))
             features.append(cluster_features(points, log_p, found.floor, VIEWPOINT))
-            labels.append(scene.objects[k - 1].category)
+            labels.append(named[k - 1])
     return np.array(features), labels
 
 
@@ -106,6 +111,12 @@ class SceneClassifierFit(FeatureFitConfig):
         description="scenes of held-out shapes whose objects' lower parts may lie below the view",
     )
     cut_off_seed: int = Field(default=23, description="their seed")
+    distractors: int = Field(
+        default=2,
+        ge=0,
+        description="up to this many things of no category in each scene of the first two "
+        "kinds (its class OTHER; 0: none, no such class)",
+    )
     hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
     weight_decay: float = Field(default=1e-3, ge=0, description="chosen on validation")
     epochs: int = Field(default=1000, ge=1, description="chosen on validation")
@@ -128,8 +139,10 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
     def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
         held_out = split_shapes(config.data, HELD_OUT_SPLIT, config.cache)
         trained = split_shapes(config.data, FIT_SPLIT, config.cache, limit=config.train_shapes)
-        x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog)
-        x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog)
+        x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog,
+                               distractors=config.distractors)  # fmt: skip
+        x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog,
+                               distractors=config.distractors)  # fmt: skip
         x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True)
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
@@ -147,13 +160,17 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
                              fit={})  # fmt: skip
     x, y = cached(config.threshold_samples, threshold_samples)
     probabilities = fitted.probabilities(x)
-    named = np.array(classes)[probabilities.argmax(1)]
+    if OTHER in classes:  # the categories' shares of the rest, as the scene names by them
+        probabilities = np.delete(probabilities, classes.index(OTHER), axis=1)
+        probabilities /= np.maximum(probabilities.sum(1, keepdims=True), 1e-300)
+    named = np.array([c for c in classes if c != OTHER])[probabilities.argmax(1)]
     right = named == np.array(y)
     threshold = precision_threshold(probabilities.max(1), right)
     fit = {
         "scenes": {HELD_OUT_SPLIT: [config.scenes, config.seed],
                    FIT_SPLIT: [config.train_scenes, config.train_seed, config.train_shapes],
-                   "cut_off": [config.cut_off_scenes, config.cut_off_seed]},
+                   "cut_off": [config.cut_off_scenes, config.cut_off_seed],
+                   "distractors": config.distractors},
         "clusters": {c: labels.count(c) for c in classes},
         "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
                     "epochs": config.epochs},

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model.categories import MODELNET10
 from itnet.model.data import load_shapes, split_files
+from itnet.model.distractors import KINDS, distractor
 from itnet.model.shapes import Shape
 from itnet.scene.camera import Intrinsics
 
@@ -67,12 +68,15 @@ class SceneObjectTruth:
 @dataclass
 class Scene:
     """A rendered depth image (H, W) in metres (0: no reading), its intrinsics, the pixels'
-    object labels (H, W) (0: none, k: objects[k - 1]), and the objects' truths."""
+    object labels (H, W) (0: none, k: objects[k - 1], then len(objects) + j: others[j - 1]),
+    the objects' truths, and the kinds of the things of no category among them (``others``,
+    ``model.distractors``)."""
 
     depth: NDArray[np.float64]
     intrinsics: Intrinsics
     labels: NDArray[np.int64]
     objects: list[SceneObjectTruth]
+    others: list[str] = field(default_factory=list)
 
 
 def split_shapes(
@@ -301,7 +305,7 @@ def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
-    most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0,
+    most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
@@ -310,10 +314,12 @@ def make_scene(
     table. ``cut_off``: an object's lower part may lie below the view (a level camera at head
     height sees a chair 2 m away from its seat up); by default each is wholly in view.
     ``flying_pixels``: the share of depth-edge pixels a time-of-flight camera mixes with what
-    lies behind them (``mixed_at_edges``; default none)."""
+    lies behind them (``mixed_at_edges``; default none). ``distractors``: up to this many things
+    of no category (``model.distractors``) stand among the objects, apart from them (drawn from
+    a child of ``rng``: the objects, camera and wall are those of the same scene without)."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
-    camera_from_world = invert_rigid(camera)
+    view = _View(intrinsics, invert_rigid(camera), width, height, cut_off)
     placed: list[tuple[Shape, float, NDArray, str, float]] = []
     wanted = int(rng.integers(2 if touching else 1, most + 1))
     for _ in range(60):
@@ -322,52 +328,101 @@ def make_scene(
         category = categories[int(rng.integers(len(categories)))]
         shape = shapes[category][int(rng.integers(len(shapes[category])))]
         scale = _size_scale(shape, category, rng)
-        turn = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))
-        bearing = math.radians(rng.uniform(-22, 22))
-        reach = rng.uniform(1.8, 4.5)
-        floor_y = -float(shape.points[:, 1].min()) * scale  # the bottom on the floor
-        where = np.array([reach * math.sin(bearing), floor_y, reach * math.cos(bearing)])
-        footprint = scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
-        if touching and placed:
-            against = _against(shape, scale, turn, floor_y, placed, rng)
-            if against is None:
-                continue
-            where = against
-        elif any(np.hypot(*(where - p[2][:3, 3])[[0, 2]]) < footprint + p[4] + 0.15
-                 for p in placed):  # fmt: skip
-            continue
-        world = np.eye(4)
-        world[:3, :3], world[:3, 3] = turn, where
-        corners = (shape.points * scale) @ turn.T + where
-        cam = corners @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
-        u = intrinsics.fx * cam[:, 0] / cam[:, 2] + intrinsics.cx
-        v = intrinsics.fy * cam[:, 1] / cam[:, 2] + intrinsics.cy
-        if (
-            cam[:, 2].min() < 0.5
-            or u.min() < 0
-            or u.max() >= width
-            or v.min() < 0
-            or (v.max() >= height and not cut_off)
-        ):
-            continue
-        placed.append((shape, scale, world, category, footprint))
+        where = view.place(shape, scale, placed, rng, touching)
+        if where is not None:
+            placed.append((shape, scale, where, category, _footprint(shape, scale)))
+    others = _distractors(view, placed, distractors, rng.spawn(1)[0]) if distractors else []
     wall_turn = math.radians(rng.uniform(-30, 30))
     wall_normal = np.array([-math.sin(wall_turn), 0.0, -math.cos(wall_turn)])  # toward the camera
     # behind every object, 0.3-1.5 m beyond its footprint
     wall_normal_offset = max(
-        [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed] or [3.0]
+        [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed + others] or [3.0]
     ) + rng.uniform(0.3, 1.5)
-    depth, labels = render([(s, k, w) for s, k, w, _, _ in placed], camera,
+    depth, labels = render([(s, k, w) for s, k, w, _, _ in placed + others], camera,
                            (wall_normal, wall_normal_offset), intrinsics, width, height, rng,
                            flying_pixels)  # fmt: skip
     truths = []
     for shape, scale, world, category, _ in placed:
         metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
-        camera_from_canonical = camera_from_world @ metric
+        camera_from_canonical = view.camera_from_world @ metric
         truths.append(
             SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
         )
-    return Scene(depth, intrinsics, labels, truths)
+    return Scene(depth, intrinsics, labels, truths, [kind for _, _, _, kind, _ in others])
+
+
+def _footprint(shape: Shape, scale: float) -> float:
+    """How far (m) a placed shape reaches along the floor from its centre."""
+    return scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
+
+
+@dataclass
+class _View:
+    """Where a scene's camera sees: what ``place`` needs to stand a shape in its view."""
+
+    intrinsics: Intrinsics
+    camera_from_world: NDArray[np.float64]
+    width: int
+    height: int
+    cut_off: bool
+
+    def place(
+        self, shape: Shape, scale: float, placed: list[tuple[Shape, float, NDArray, str, float]],
+        rng: np.random.Generator, touching: bool = False,
+    ) -> NDArray[np.float64] | None:  # fmt: skip
+        """T_world_from_canonical (4, 4) of the unit ``shape`` scaled by ``scale``, turned by
+        any yaw and standing on the floor 1.8-4.5 m ahead, inside the view (its lower part may
+        lie below it with ``cut_off``) and 15 cm apart from the ``placed`` (``touching``:
+        against one of them); None where the draw fails those."""
+        turn = axis_angle_to_matrix([0.0, 1.0, 0.0], rng.uniform(0, 2 * math.pi))
+        bearing = math.radians(rng.uniform(-22, 22))
+        reach = rng.uniform(1.8, 4.5)
+        floor_y = -float(shape.points[:, 1].min()) * scale  # the bottom on the floor
+        where = np.array([reach * math.sin(bearing), floor_y, reach * math.cos(bearing)])
+        footprint = _footprint(shape, scale)
+        if touching and placed:
+            against = _against(shape, scale, turn, floor_y, placed, rng)
+            if against is None:
+                return None
+            where = against
+        elif any(np.hypot(*(where - p[2][:3, 3])[[0, 2]]) < footprint + p[4] + 0.15
+                 for p in placed):  # fmt: skip
+            return None
+        corners = (shape.points * scale) @ turn.T + where
+        cam = corners @ self.camera_from_world[:3, :3].T + self.camera_from_world[:3, 3]
+        u = self.intrinsics.fx * cam[:, 0] / cam[:, 2] + self.intrinsics.cx
+        v = self.intrinsics.fy * cam[:, 1] / cam[:, 2] + self.intrinsics.cy
+        if (
+            cam[:, 2].min() < 0.5
+            or u.min() < 0
+            or u.max() >= self.width
+            or v.min() < 0
+            or (v.max() >= self.height and not self.cut_off)
+        ):
+            return None
+        world = np.eye(4)
+        world[:3, :3], world[:3, 3] = turn, where
+        return world
+
+
+def _distractors(
+    view: _View, placed: list[tuple[Shape, float, NDArray, str, float]], most: int,
+    rng: np.random.Generator,
+) -> list[tuple[Shape, float, NDArray, str, float]]:  # fmt: skip
+    """One to ``most`` things of no category (``model.distractors``), each placed in the view
+    apart from the ``placed`` objects and from each other, as (shape, scale, world, kind,
+    footprint)."""
+    others: list[tuple[Shape, float, NDArray, str, float]] = []
+    wanted = int(rng.integers(1, most + 1))
+    for _ in range(40):
+        if len(others) == wanted:
+            break
+        kind = KINDS[int(rng.integers(len(KINDS)))]
+        shape, scale = distractor(kind, rng)
+        where = view.place(shape, scale, placed + others, rng)
+        if where is not None:
+            others.append((shape, scale, where, kind, _footprint(shape, scale)))
+    return others
 
 
 class SceneKind(BaseModel):
@@ -391,9 +446,16 @@ class SceneKind(BaseModel):
         "time-of-flight camera's are",
     )
 
+    distractors: int = Field(
+        default=0,
+        ge=0,
+        description="up to this many things of no category (ottomans, bins, lamps, plants, "
+        "cabinets) among the objects",
+    )
+
     def keywords(self, drawn: tuple[str, ...]) -> dict[str, Any]:
         """``make_scene``'s keywords (``categories``, ``pitch_deg``, ``most``, ``cut_off``,
-        ``flying_pixels``); ``drawn``: the categories without ``draw``. ValueError for a category
+        ``flying_pixels``, ``distractors``); ``drawn``: the categories without ``draw``. ValueError for a category
         without scenes or a pitch that is not LOW,HIGH."""
         if self.draw is not None:
             drawn = tuple(self.draw.split(","))
@@ -404,7 +466,8 @@ class SceneKind(BaseModel):
         except ValueError:
             raise ValueError(f"pitch: expected LOW,HIGH in degrees, got {self.pitch!r}") from None
         return {"categories": drawn, "pitch_deg": (low, high), "most": self.most,
-                "cut_off": self.cut_off, "flying_pixels": self.flying_pixels}  # fmt: skip
+                "cut_off": self.cut_off, "flying_pixels": self.flying_pixels,
+                "distractors": self.distractors}  # fmt: skip
 
 
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:

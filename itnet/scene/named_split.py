@@ -56,7 +56,7 @@ class Namer:
         except BadCloudError:
             return None
         assert seen.category is not None
-        if unknown_reason(seen.category, seen.probability, sample, self.floor.normal):
+        if unknown_reason(seen.category, seen.probability, sample, self.floor.normal, seen.other):
             return None
         return seen.probability
 

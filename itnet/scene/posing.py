@@ -31,7 +31,7 @@ from itnet.pose.runtime import (
 )
 from itnet.scene.height_prior import with_height
 from itnet.scene.planes import Plane
-from itnet.scene.scene_classifier import SceneClassifier, cluster_features
+from itnet.scene.scene_classifier import OTHER, SceneClassifier, cluster_features
 from itnet.scene.unknown import unknown_reason
 
 SCENE_UNITS = "m"  # scene clouds are in metres: the classifier's size prior counts
@@ -76,7 +76,10 @@ class ObjectPose:
     result: dict[str, Any] | None = None
     no_pose: str | None = None  # why there is no pose: 'no_pose_model', 'budget' or 'unknown'
     named_by: str = "classifier"  # or 'scene_classifier': what named the category
-    unknown: str | None = None  # 'unsure' or 'too_large' (``itnet.scene.unknown``)
+    unknown: str | None = None  # 'not_ours', 'unsure' or 'too_large' (``itnet.scene.unknown``)
+    # the scene classifier's probability that it is none of the categories (``OTHER``); the
+    # categories' probabilities are shares of the rest
+    other: float = 0.0
 
 
 class NoClassifierError(RuntimeError):
@@ -114,7 +117,7 @@ def pose_object(
     named = seen.category
     assert named is not None  # scene_category names one
     if unknown:
-        seen.unknown = unknown_reason(named, seen.probability, points, up)
+        seen.unknown = unknown_reason(named, seen.probability, points, up, seen.other)
         if seen.unknown is not None:
             seen.category, seen.no_pose = None, "unknown"
             return seen
@@ -143,7 +146,7 @@ def scene_category(
     ``categories``, else weighed by the object's height (``height_prior``). Restricted to
     ``categories`` (renormalised; default: any). Raises BadCloudError."""
     names, probabilities, threshold = classifier_probabilities(catalog, points, up, deadline)
-    named_by = "classifier"
+    named_by, other = "classifier", 0.0
     if (
         floor is not None
         and scene_classifier is not None
@@ -155,6 +158,12 @@ def scene_category(
         probabilities = scene_classifier.probabilities(features)
         threshold = scene_classifier.threshold
         named_by = "scene_classifier"
+        if OTHER in names:  # none of the categories: apart, the categories share the rest
+            other = float(probabilities[names.index(OTHER)])
+            names, probabilities = (
+                [n for n in names if n != OTHER],
+                np.delete(probabilities, names.index(OTHER)),
+            )
     elif floor is not None:
         probabilities = with_height(names, probabilities, top_height(points, floor))
     kept = [i for i, name in enumerate(names) if categories is None or name in categories]
@@ -168,7 +177,7 @@ def scene_category(
     ]
     probability = round(float(probabilities[order[0]]), 6)
     return ObjectPose(names[order[0]], probability, top, probability < threshold,
-                      named_by=named_by)  # fmt: skip
+                      named_by=named_by, other=round(other, 6))  # fmt: skip
 
 
 def classifier_probabilities(

@@ -11,7 +11,10 @@ validation carve-out of ModelNet10's training split): ``itnet fit scene-classifi
 
 It names the categories of its fitting scenes: furniture that stands on the floor. The monitor,
 which stands on a desk, is not among them; a request restricted to categories it does not name
-is classified without it (by the classifier with the object's height, ``height_prior``).
+is classified without it (by the classifier with the object's height, ``height_prior``). Where
+its fitting scenes held things of no category (ottomans, bins, lamps, plants, cabinets:
+``model.distractors``), it also has the class ``OTHER``: a cluster it finds likelier to be such
+a thing than any category is answered unknown (``not_ours``).
 
 The file (``scene_classifier.json``) names the classifier's graphs by their SHA-256: another
 model folder, or a classifier trained again, gets no scene classifier until it is refitted.
@@ -34,6 +37,7 @@ from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.planes import Plane
 
 FILE = Path(__file__).with_name("scene_classifier.json")
+OTHER = "other"  # the class of things that are none of the categories
 MIN_LOG_PROBABILITY = float(np.log(1e-6))  # the classifier's log-probabilities floored here
 HEIGHT_BINS = 6  # the share of the points in each sixth of the object's height
 MIN_EXTENT_M = 0.02
@@ -148,6 +152,7 @@ def load_scene_classifier(path: Path = FILE) -> SceneClassifier | None:
 
 __all__ = [
     "FILE",
+    "OTHER",
     "SceneClassifier",
     "classifier_graphs",
     "cluster_features",

@@ -6,6 +6,9 @@ with its chairs, a bed with a night stand). Either is named by some category all
 it is answered as unknown (``category: null``, no pose) where
 
 * ``unsure``: the probability of the category named is below ``UNKNOWN_BELOW``, or
+* ``not_ours``: the scene classifier finds it likelier a thing of none of the categories (its
+  class ``OTHER``, fitted on scenes with ottomans, bins, lamps, plants and cabinets) than any
+  category, or
 * ``too_large``: the cluster is larger than any real piece of the category named: its
   bounding radius (half the diagonal of its box along up and its widest horizontal
   direction, from the 2nd to the 98th percentile of its points) exceeds ``TOO_LARGE`` times
@@ -44,10 +47,15 @@ def cluster_radius(points: NDArray, up: NDArray) -> float:
     return 0.5 * float(np.linalg.norm(spans))
 
 
-def unknown_reason(category: str, probability: float, points: NDArray, up: NDArray) -> str | None:
-    """Why a cluster (K, 3) in metres named ``category`` with ``probability`` is unknown
-    ('unsure', 'too_large'), or None where the category stands (a category without real
-    sizes, a user's, is never too large)."""
+def unknown_reason(
+    category: str, probability: float, points: NDArray, up: NDArray, other: float = 0.0
+) -> str | None:
+    """Why a cluster (K, 3) in metres named ``category`` with ``probability`` (among the
+    categories), and none of them with ``other`` (the scene classifier's ``OTHER``, as a share
+    of all its classes), is unknown ('not_ours', 'unsure', 'too_large'), or None where the
+    category stands (a category without real sizes, a user's, is never too large)."""
+    if other > probability * (1.0 - other):  # OTHER is likelier than the category named
+        return "not_ours"
     if probability < UNKNOWN_BELOW:
         return "unsure"
     sizes = REAL_RADIUS_M.get(category)

@@ -21,11 +21,13 @@ from itnet.scene.pipeline import serving_scene_classifier, shipped_catalog
 from itnet.scene.planes import Plane
 from itnet.scene.posing import scene_category
 from itnet.scene.scene_classifier import (
+    OTHER,
     SceneClassifier,
     classifier_graphs,
     cluster_features,
     load_scene_classifier,
 )
+from itnet.scene.unknown import unknown_reason
 
 UP = np.array([0.0, -1.0, 0.0])  # the camera's y points down
 FLOOR = Plane(UP, 1.5)  # 1.5 m below the camera
@@ -186,3 +188,54 @@ def test_the_threshold_is_the_lowest_with_the_precision_above_it() -> None:
     assert scene_classifier_fit.precision_threshold(p, right, 0.95) == 0.7
     assert scene_classifier_fit.precision_threshold(p, right, 0.6) == 0.5  # 4 of 6 right
     assert scene_classifier_fit.precision_threshold(p, ~right, 0.95) == 1.0  # none is enough
+
+
+def test_a_cluster_likelier_none_of_the_categories_is_answered_unknown_not_ours(
+    chair_scene: Scene,
+) -> None:
+    catalog = shipped_catalog()
+    assert catalog.classifier is not None
+    inputs = tuple(catalog.classifier.card.classes)
+    points = front_face(0.5, 0.7, 3.0, 1500)
+    other = tiny_classifier(2, ("bed", "desk", OTHER), inputs, threshold=0.5)
+    seen = scene_category(catalog, points, UP, np.zeros(3), floor=FLOOR, scene_classifier=other)
+    assert seen.category in {"bed", "desk"} and seen.other > 0.99  # named among the categories
+    assert sum(c["probability"] for c in seen.candidates) == pytest.approx(1.0, abs=1e-5)
+    assert unknown_reason(seen.category, seen.probability, points, -UP, seen.other) == "not_ours"
+    ours = tiny_classifier(1, ("bed", "desk", OTHER), inputs, threshold=0.5)
+    seen = scene_category(catalog, points, UP, np.zeros(3), floor=FLOOR, scene_classifier=ours)
+    assert seen.category == "desk" and seen.other < 0.01
+    assert unknown_reason("desk", seen.probability, points, -UP, seen.other) is None
+    # end to end: the scene's chair, taken for a thing of no category, is answered unknown
+    graphs = classifier_graphs(catalog.classifier)
+    served = replace(other, graphs=graphs, classes=("chair", "sofa", OTHER))
+    (obj,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
+                          scene_classifier=served).objects  # fmt: skip
+    assert obj.category is None and obj.unknown == "not_ours" and obj.pose is None
+    (named,) = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=1000,
+                            scene_classifier=served,
+                            finishing=SceneFinishing(unknown=False, recheck=False)).objects  # fmt: skip
+    assert named.category in {"chair", "sofa"}  # every cluster named where asked
+
+
+def test_the_fit_learns_things_of_no_category_apart(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    names = ("chair", "desk", OTHER)
+    labels = [names[k] for k in rng.integers(0, 3, 600)]
+    centres = {"chair": 0.0, "desk": 2.0, OTHER: 4.0}
+    features = rng.normal(size=(600, CLASSES + 21))
+    features[:, CLASSES] += [centres[name] for name in labels]
+    samples, check = tmp_path / "samples.npz", tmp_path / "check.npz"
+    np.savez(samples, features=features, labels=np.array(labels))
+    ours = [k for k, name in enumerate(labels) if name != OTHER][:200]  # validation: no things
+    np.savez(check, features=features[ours], labels=np.array([labels[k] for k in ours]))
+    out = tmp_path / "scene_classifier.json"
+    fitted_by_cli = CliRunner().invoke(app, ["fit", "scene-classifier", "--samples", str(samples),
+                                             "--threshold-samples", str(check), "--epochs", "200",
+                                             "--out", str(out)])  # fmt: skip
+    assert fitted_by_cli.exit_code == 0, fitted_by_cli.output
+    fitted = load_scene_classifier(out)
+    assert fitted is not None and fitted.classes == tuple(sorted(names))
+    assert fitted.fit["threshold"]["named_right"] > 0.9  # the categories' shares of the rest
+    things = features[[k for k, name in enumerate(labels) if name == OTHER]]
+    assert (fitted.probabilities(things).argmax(1) == fitted.classes.index(OTHER)).mean() > 0.9
