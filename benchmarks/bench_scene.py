@@ -259,7 +259,7 @@ def main(argv: list[str] | None = None) -> None:
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off, "flying_pixels": args.flying_pixels,
-        "distractors": args.distractors,
+        "distractors": args.distractors, "sensor": args.sensor,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options", "scene_classifier", "centre_table")},
         **({"centre_table": str(args.centre_table)} if args.centre_table is not None else {}),

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from itnet.model.feature_network_fit import FeatureFitConfig, cached, fit_network, write_fitted
 from itnet.model.scenes import (
@@ -38,6 +38,7 @@ from itnet.model.scenes import (
     matched_objects,
     split_shapes,
 )
+from itnet.model.sensor import SENSORS
 from itnet.pose.catalog import Catalog
 from itnet.scene import scene_catalog
 from itnet.scene.inputs import from_depth
@@ -57,17 +58,20 @@ PRECISION = 0.95  # the threshold: the lowest at which this share of the answers
 
 def scene_samples(
     shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False,
-    distractors: int = 0,
+    distractors: int = 0, sensors: tuple[str | None, ...] = (None,),
 ) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
     """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
-    view; ``distractors``: up to this many things of no category among the objects) -> the
+    view; ``distractors``: up to this many things of no category among the objects;
+    ``sensors``: each scene seen by one of these cameras, drawn at random (None: the scenes'
+    structured-light noise; ``make_scene``)) -> the
     features (S, F) of every cluster the segmentation found and matched to a scene object or
     thing, and those objects' categories (``OTHER`` for a thing) (S,)."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
     for _ in range(scenes):
+        sensor = sensors[int(rng.integers(len(sensors)))] if len(sensors) > 1 else sensors[0]
         scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off,
-                           distractors=distractors)  # fmt: skip
+                           distractors=distractors, sensor=sensor)  # fmt: skip
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points)
         if found.floor is None:
@@ -117,7 +121,29 @@ class SceneClassifierFit(FeatureFitConfig):
         description="up to this many things of no category in each scene of the first two "
         "kinds (its class OTHER; 0: none, no such class)",
     )
+    sensors: str = Field(
+        default="default,kinect_v1,kinect_v2,realsense_d435",
+        description="the cameras the scenes of the first two kinds are seen by, one drawn per "
+        "scene (default: the scenes' structured-light noise; model/sensor.py's presets)",
+    )
     hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
+
+    @field_validator("sensors")
+    @classmethod
+    def _known_cameras(cls, sensors: str) -> str:
+        names = {n.strip() for n in sensors.split(",") if n.strip()}
+        if not names or names - {"default", *SENSORS}:
+            raise ValueError(
+                f"unknown {sorted(names - {'default', *SENSORS})} (known: default, "
+                f"{', '.join(SENSORS)})"
+            )
+        return sensors
+
+    def cameras(self) -> tuple[str | None, ...]:
+        """``sensors`` as ``make_scene``'s ``sensor`` values (None: the default)."""
+        names = tuple(n.strip() for n in self.sensors.split(",") if n.strip())
+        return tuple(None if n == "default" else n for n in names)
+
     weight_decay: float = Field(default=1e-3, ge=0, description="chosen on validation")
     epochs: int = Field(default=1000, ge=1, description="chosen on validation")
     threshold_scenes: int = Field(
@@ -140,9 +166,9 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
         held_out = split_shapes(config.data, HELD_OUT_SPLIT, config.cache)
         trained = split_shapes(config.data, FIT_SPLIT, config.cache, limit=config.train_shapes)
         x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog,
-                               distractors=config.distractors)  # fmt: skip
+                               distractors=config.distractors, sensors=config.cameras())  # fmt: skip
         x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog,
-                               distractors=config.distractors)  # fmt: skip
+                               distractors=config.distractors, sensors=config.cameras())  # fmt: skip
         x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True)
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
@@ -170,7 +196,7 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
         "scenes": {HELD_OUT_SPLIT: [config.scenes, config.seed],
                    FIT_SPLIT: [config.train_scenes, config.train_seed, config.train_shapes],
                    "cut_off": [config.cut_off_scenes, config.cut_off_seed],
-                   "distractors": config.distractors},
+                   "distractors": config.distractors, "sensors": config.sensors},
         "clusters": {c: labels.count(c) for c in classes},
         "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
                     "epochs": config.epochs},

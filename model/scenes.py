@@ -31,12 +31,13 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model.categories import MODELNET10
 from itnet.model.data import load_shapes, split_files
 from itnet.model.distractors import KINDS, distractor
+from itnet.model.sensor import SENSORS, mixed_at_edges
 from itnet.model.shapes import Shape
 from itnet.scene.camera import Intrinsics
 
@@ -249,12 +250,14 @@ def _splat(
 def render(
     objects: list[tuple[Shape, float, NDArray]], camera: NDArray, wall: tuple[NDArray, float],
     intrinsics: Intrinsics, width: int, height: int, rng: np.random.Generator,
-    flying_pixels: float = 0.0,
+    flying_pixels: float = 0.0, sensor: str | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # fmt: skip
     """Objects (shape, metres per unit, T_world_from_canonical (4, 4) of the unit shape's
     rotation and placement), T_world_from_camera (4, 4), the wall (world normal (3,), offset)
     -> (depth (H, W) in metres with sensor effects, labels (H, W)); ``flying_pixels``: the
-    share of depth-edge pixels mixed with what lies behind them (``mixed_at_edges``)."""
+    share of depth-edge pixels mixed with what lies behind them (``mixed_at_edges``);
+    ``sensor``: a named camera's effects (``model.sensor.SENSORS``, drawn from a child of
+    ``rng``) instead of the structured-light noise and dropped pixels."""
     camera_from_world = invert_rigid(camera)
     rays = _rays(intrinsics, width, height)
     planes = [(np.array([0.0, 1.0, 0.0]), 0.0), wall]
@@ -270,6 +273,11 @@ def render(
         _splat(depth, labels, k, centres, normals @ t[:3, :3].T, 1.3 * spacing * scale,
                intrinsics)  # fmt: skip
     seen = np.isfinite(depth)
+    if sensor is not None:
+        depth[~seen] = 0.0
+        focal = (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
+        depth = SENSORS[sensor].apply_to_depth(depth, focal, rng.spawn(1)[0])
+        return np.round(depth * 1000) / 1000, labels
     z = depth[seen]
     depth[seen] = z + rng.normal(size=z.shape) * (0.0012 + 0.0019 * (z - 0.4) ** 2)
     depth[~seen] = 0.0
@@ -279,33 +287,12 @@ def render(
     return np.round(depth * 1000) / 1000, labels
 
 
-def mixed_at_edges(
-    depth: NDArray, share: float, rng: np.random.Generator, step_m: float = 0.1
-) -> NDArray[np.float64]:
-    """A depth image (H, W) (0: no reading) -> the same with a time-of-flight camera's flying
-    pixels: each pixel whose 4-neighbour reads over ``step_m`` farther is, with probability
-    ``share`` per such neighbour, given a depth drawn uniformly between its own and that
-    neighbour's (the pixel saw both surfaces and averaged them)."""
-    out = np.array(depth, dtype=np.float64)
-    z = np.where(out > 0, out, np.nan)
-    height, width = z.shape
-    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        behind = np.full_like(z, np.nan)  # each pixel's neighbour at (y + dy, x + dx)
-        behind[max(-dy, 0) : height - max(dy, 0), max(-dx, 0) : width - max(dx, 0)] = z[
-            max(dy, 0) : height + min(dy, 0), max(dx, 0) : width + min(dx, 0)
-        ]
-        with np.errstate(invalid="ignore"):
-            edge = (behind - z > step_m) & (rng.random(z.shape) < share)
-        mix = rng.random(z.shape)
-        out[edge] = (z + mix * (behind - z))[edge]
-    return out
-
-
 def make_scene(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, width: int = WIDTH,
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
     most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
+    sensor: str | None = None,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
@@ -316,7 +303,10 @@ def make_scene(
     ``flying_pixels``: the share of depth-edge pixels a time-of-flight camera mixes with what
     lies behind them (``mixed_at_edges``; default none). ``distractors``: up to this many things
     of no category (``model.distractors``) stand among the objects, apart from them (drawn from
-    a child of ``rng``: the objects, camera and wall are those of the same scene without)."""
+    a child of ``rng``: the objects, camera and wall are those of the same scene without).
+    ``sensor``: the depth as that camera returns it (``model.sensor.SENSORS``: ``kinect_v1``,
+    ``kinect_v2``, ``realsense_d435``, ``clean``; ``SensorModel.apply_to_depth``) instead of
+    the default structured-light noise."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     view = _View(intrinsics, invert_rigid(camera), width, height, cut_off)
@@ -340,7 +330,7 @@ def make_scene(
     ) + rng.uniform(0.3, 1.5)
     depth, labels = render([(s, k, w) for s, k, w, _, _ in placed + others], camera,
                            (wall_normal, wall_normal_offset), intrinsics, width, height, rng,
-                           flying_pixels)  # fmt: skip
+                           flying_pixels, sensor)  # fmt: skip
     truths = []
     for shape, scale, world, category, _ in placed:
         metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
@@ -453,9 +443,22 @@ class SceneKind(BaseModel):
         "cabinets) among the objects",
     )
 
+    sensor: str | None = Field(
+        default=None,
+        description="the depth as this camera returns it: kinect_v1, kinect_v2, realsense_d435 "
+        "or clean (default: structured-light noise and a few dropped pixels)",
+    )
+
+    @field_validator("sensor")
+    @classmethod
+    def _a_camera(cls, sensor: str | None) -> str | None:
+        if sensor is not None and sensor not in SENSORS:
+            raise ValueError(f"sensor: unknown camera {sensor!r} (known: {', '.join(SENSORS)})")
+        return sensor
+
     def keywords(self, drawn: tuple[str, ...]) -> dict[str, Any]:
         """``make_scene``'s keywords (``categories``, ``pitch_deg``, ``most``, ``cut_off``,
-        ``flying_pixels``, ``distractors``); ``drawn``: the categories without ``draw``. ValueError for a category
+        ``flying_pixels``, ``distractors``, ``sensor``); ``drawn``: the categories without ``draw``. ValueError for a category
         without scenes or a pitch that is not LOW,HIGH."""
         if self.draw is not None:
             drawn = tuple(self.draw.split(","))
@@ -467,7 +470,7 @@ class SceneKind(BaseModel):
             raise ValueError(f"pitch: expected LOW,HIGH in degrees, got {self.pitch!r}") from None
         return {"categories": drawn, "pitch_deg": (low, high), "most": self.most,
                 "cut_off": self.cut_off, "flying_pixels": self.flying_pixels,
-                "distractors": self.distractors}  # fmt: skip
+                "distractors": self.distractors, "sensor": self.sensor}  # fmt: skip
 
 
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:

@@ -21,7 +21,8 @@ the camera frame (x right, y down, z ahead), into what a given camera would retu
 The presets (``SENSORS``) take their numbers from the cameras' published characterisations
 (docs/training.md, "Sensor models", cites them): ``kinect_v1`` (structured light),
 ``kinect_v2`` (time of flight), ``realsense_d435`` (active stereo), and ``clean`` (an exact
-render: nothing done). Pure numpy and scipy.
+render: nothing done). ``SensorModel.apply_to_depth`` does the same to a rendered depth image
+(the development scenes'). Pure numpy and scipy.
 """
 
 from __future__ import annotations
@@ -99,6 +100,41 @@ class SensorModel:
             p += rng.normal(scale=self.misregistration_m, size=3)
         return p
 
+    def apply_to_depth(
+        self, depth: NDArray, focal: tuple[float, float, float, float], rng: np.random.Generator,
+        surfaces: int = 5,
+    ) -> NDArray[np.float64]:  # fmt: skip
+        """An exact depth image (H, W) in metres (0: nothing) seen through a pinhole camera
+        (``focal``: fx, fy, cx, cy in pixels) -> what this camera returns of it, (H, W) (0: no
+        return): no return at grazing incidence (the surface's normal from the neighbouring
+        pixels) and far away; holes, ``surfaces`` times a scan's count (a frame holds several
+        objects' worth of surface); axial noise and quantisation; flying pixels where a pixel's
+        neighbour lies over 0.1 m behind it (``mixed_at_edges``). The clean camera returns the
+        image as it is."""
+        z = np.array(depth, dtype=np.float64)
+        if self.clean:
+            return z
+        fx, fy, cx, cy = focal
+        h, w = z.shape
+        u, v = np.meshgrid(np.arange(w), np.arange(h))
+        p = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=-1)
+        valid = z > 0
+        theta = _image_incidence(p, valid)
+        keep = np.zeros_like(valid)
+        keep[valid] = self._returns(p[valid], theta[valid], rng)
+        for _ in range(surfaces * int(rng.integers(self.holes[0], self.holes[1] + 1))):
+            rows, cols = np.nonzero(keep)
+            if len(rows) == 0:
+                break
+            k = int(rng.integers(len(rows)))
+            centre = p[rows[k], cols[k]]
+            keep &= np.linalg.norm(p - centre, axis=-1) > rng.uniform(*self.hole_radius_m)
+        zk = z[keep]
+        noisy = zk + self.sigma_z(zk, theta[keep]) * rng.normal(size=len(zk))
+        out = np.zeros_like(z)
+        out[keep] = np.maximum(self._quantised(np.maximum(noisy, 1e-3)), 1e-3)
+        return mixed_at_edges(out, self.flying_share, rng)
+
     def _returns(self, p: NDArray, theta: NDArray, rng: np.random.Generator) -> NDArray[np.bool_]:
         """Which points return at all: not too grazing, not too far."""
         ramp = np.clip((np.degrees(theta) - (self.max_angle_deg - 10.0)) / 10.0, 0.0, 1.0)
@@ -134,6 +170,50 @@ class SensorModel:
             p = p.copy()
             p[edge] += ray * rng.uniform(*self.flying_depth_m, size=(len(edge), 1))
         return p
+
+
+def _image_incidence(p: NDArray, valid: NDArray) -> NDArray[np.float64]:
+    """Each pixel's angle (rad, (H, W)) between its ray and the surface's normal, the normal
+    from its four neighbours' points (``p`` (H, W, 3)); 0 where a neighbour has no depth or lies
+    across a depth edge (over 5% of the depth away)."""
+    z = p[..., 2]
+    dx, dy = np.zeros_like(p), np.zeros_like(p)
+    dx[:, 1:-1], dy[1:-1] = p[:, 2:] - p[:, :-2], p[2:] - p[:-2]
+    known = np.zeros_like(valid)
+    known[1:-1, 1:-1] = (
+        valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
+        & (np.abs(dx[1:-1, 1:-1, 2]) < 0.1 * z[1:-1, 1:-1])
+        & (np.abs(dy[1:-1, 1:-1, 2]) < 0.1 * z[1:-1, 1:-1])
+    )  # fmt: skip
+    normal = np.cross(dx, dy)
+    norm = np.linalg.norm(normal, axis=-1) * np.linalg.norm(p, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.abs(np.einsum("hwc,hwc->hw", normal, p)) / norm
+    return np.where(known, np.arccos(np.clip(np.nan_to_num(cosine, nan=1.0), 0.0, 1.0)), 0.0)
+
+
+def mixed_at_edges(
+    depth: NDArray, share: float, rng: np.random.Generator, step_m: float = 0.1
+) -> NDArray[np.float64]:
+    """A depth image (H, W) (0: no reading) -> the same with a time-of-flight camera's flying
+    pixels: each pixel whose 4-neighbour reads over ``step_m`` farther is, with probability
+    ``share`` per such neighbour, given a depth drawn uniformly between its own and that
+    neighbour's (the pixel saw both surfaces and averaged them)."""
+    out = np.array(depth, dtype=np.float64)
+    if share <= 0:
+        return out
+    z = np.where(out > 0, out, np.nan)
+    height, width = z.shape
+    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+        behind = np.full_like(z, np.nan)  # each pixel's neighbour at (y + dy, x + dx)
+        behind[max(-dy, 0) : height - max(dy, 0), max(-dx, 0) : width - max(dx, 0)] = z[
+            max(dy, 0) : height + min(dy, 0), max(dx, 0) : width + min(dx, 0)
+        ]
+        with np.errstate(invalid="ignore"):
+            edge = (behind - z > step_m) & (rng.random(z.shape) < share)
+        mix = rng.random(z.shape)
+        out[edge] = (z + mix * (behind - z))[edge]
+    return out
 
 
 def incidence(points: NDArray, tree: cKDTree | None = None, k: int = 8) -> NDArray[np.float64]:

@@ -70,3 +70,16 @@ def test_the_scenes_benchmark_counts_a_named_thing_false() -> None:
         assert report["false"]["count"] == false
         assert report["distractors_named"] == {"percent": 100.0 * false, "stderr": 0.0,
                                                "count": false, "of": 1}  # fmt: skip
+
+
+def test_a_scene_seen_by_a_named_camera_loses_far_and_grazing_returns() -> None:
+    from itnet.model.scenes import SceneKind
+
+    shapes = _shapes()
+    plain = make_scene(shapes, np.random.default_rng(2), categories=("chair",))
+    seen = make_scene(shapes, np.random.default_rng(2), categories=("chair",), sensor="kinect_v2")
+    np.testing.assert_array_equal(seen.labels, plain.labels)  # the same scene
+    assert (seen.depth > 0).mean() < (plain.depth > 0).mean() - 0.05
+    assert SceneKind(sensor="kinect_v2").keywords(("chair",))["sensor"] == "kinect_v2"
+    with pytest.raises(ValueError, match="unknown camera"):
+        SceneKind(sensor="kinect_v9")

@@ -110,3 +110,38 @@ def test_the_commands_take_a_camera_by_name_and_refuse_unknown_ones(tmp_path) ->
     result = runner.invoke(app, ["eval", "--onnx", "itnet/models/chair.onnx", "--scanner",
                                  "occluded+kinect_v9", "--out", str(tmp_path)])  # fmt: skip
     assert result.exit_code == 2 and "unknown sensor" in result.output
+
+
+def plane_image(depth_m: float, tilt_deg: float = 0.0, size: int = 120) -> np.ndarray:
+    """A depth image (size, size) of a plane ``depth_m`` ahead at the centre, turned
+    ``tilt_deg`` about the camera's y axis (focal FOCAL)."""
+    u = (np.arange(size) - size / 2) / FOCAL[0]
+    t = np.tan(np.radians(tilt_deg))
+    row = depth_m / (1 - u * t)  # z along each column's ray on the turned plane
+    return np.tile(row, (size, 1))
+
+
+FOCAL = (100.0, 100.0, 60.0, 60.0)
+
+
+def test_a_depth_image_is_seen_through_the_same_camera() -> None:
+    image = plane_image(2.0)
+    clean = SENSORS["clean"].apply_to_depth(image, FOCAL, np.random.default_rng(0))
+    np.testing.assert_array_equal(clean, image)
+    sensor = dataclasses.replace(SENSORS["kinect_v2"], flying_share=0.0, holes=(0, 0))
+    spread = []
+    for depth in (1.0, 4.0):
+        seen = sensor.apply_to_depth(plane_image(depth), FOCAL, np.random.default_rng(1))
+        assert (seen > 0).mean() > 0.9
+        spread.append(float(np.std(seen[seen > 0])))
+    assert spread[1] > 1.5 * spread[0] > 0  # noise grows with depth
+    facing = (sensor.apply_to_depth(plane_image(2.0), FOCAL, np.random.default_rng(2)) > 0).mean()
+    grazing = sensor.apply_to_depth(plane_image(2.0, 84.0), FOCAL, np.random.default_rng(2))
+    far = sensor.apply_to_depth(plane_image(7.5), FOCAL, np.random.default_rng(2))
+    assert (grazing > 0).mean() < 0.5 * facing and (far > 0).mean() < 0.5 * facing
+    holed = dataclasses.replace(sensor, holes=(2, 2), hole_radius_m=(0.1, 0.1))
+    assert (holed.apply_to_depth(plane_image(2.0), FOCAL, np.random.default_rng(3)) > 0).mean() < (
+        facing - 0.02
+    )
+    levels = SENSORS["kinect_v1"].apply_to_depth(plane_image(3.0), FOCAL, np.random.default_rng(4))
+    assert len(np.unique(np.round(levels[levels > 0], 4))) < 12  # on disparity steps

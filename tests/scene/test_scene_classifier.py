@@ -239,3 +239,7 @@ def test_the_fit_learns_things_of_no_category_apart(tmp_path: Path) -> None:
     assert fitted.fit["threshold"]["named_right"] > 0.9  # the categories' shares of the rest
     things = features[[k for k, name in enumerate(labels) if name == OTHER]]
     assert (fitted.probabilities(things).argmax(1) == fitted.classes.index(OTHER)).mean() > 0.9
+    config = scene_classifier_fit.SceneClassifierFit(sensors="default,kinect_v2")
+    assert config.cameras() == (None, "kinect_v2")
+    refused = CliRunner().invoke(app, ["fit", "scene-classifier", "--sensors", "kinect_v9"])
+    assert refused.exit_code == 2 and "kinect_v9" in refused.output
