@@ -114,6 +114,12 @@ class CardChanges(BaseModel):
         description="`benchmarks.bench_ensemble --up` JSON of the card's default runs: recorded "
         "as the card's up_evaluation",
     )
+    camera_report: Path | None = Field(
+        None,
+        description="`benchmarks.bench_ensemble` JSON of the card's default runs on views by a "
+        "depth camera (--scanners RULE+SENSOR, the served measurement's split and budget, with "
+        "--up where the card requires up): its views are added to the served evaluation",
+    )
     up_free_steps: int | None = Field(
         None,
         ge=0,

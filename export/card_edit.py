@@ -21,6 +21,7 @@ from itnet.export.card_measurements import (
     mirror_planes,
     switch_evaluation,
     up_evaluation,
+    with_camera_views,
 )
 from itnet.export.onnx_export import save_with_card
 from itnet.model.input_error import InputError
@@ -88,6 +89,7 @@ def card_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
     if changes.report is not None:
         update["accuracy"], update["evaluation"] = anytime_evaluation(changes.report)
     update |= up_update(current, changes)
+    update |= camera_update(current.model_copy(update=update), changes)
     if not planes:
         update["mirror_fused"] = False  # no planes: nothing to finish fused runs by
     return update
@@ -155,3 +157,18 @@ def up_update(current: ModelCard, changes: CardChanges) -> dict[str, Any]:
             raise InputError("--requires-up needs its measurement: --up-report")
         update["requires_up"] = changes.requires_up
     return update
+
+
+def camera_update(card: ModelCard, changes: CardChanges) -> dict[str, Any]:
+    """``--camera-report``'s views added to the card's served evaluation: ``up_evaluation``
+    for a card that requires up, else ``ensemble_evaluation`` (a card of one run has none)."""
+    if changes.camera_report is None:
+        return {}
+    field, kind = (
+        ("up_evaluation", "up") if card.requires_up else ("ensemble_evaluation", "ensemble")
+    )
+    served = getattr(card, field)
+    if not served:
+        raise InputError(f"--camera-report: the card has no {field} to add the views to")
+    runs = card.recommended_ensemble
+    return {field: with_camera_views(served, kind, changes.camera_report, runs)}

@@ -13,9 +13,16 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from itnet.measurements import Measurement
 from itnet.mirror import MIRROR_PLANES
 from itnet.model.input_error import InputError
-from itnet.model_card import describe_anytime, describe_ensemble, describe_up
+from itnet.model_card import (
+    describe_anytime,
+    describe_ensemble,
+    describe_up,
+    ensemble_measurement,
+    up_measurement,
+)
 
 
 def mirror_planes(text: str | None, default: Sequence[str]) -> list[str]:
@@ -72,3 +79,29 @@ def switch_evaluation(
         return describe(json.loads(without.read_text()), json.loads(with_it.read_text()))
     except (KeyError, ValueError) as err:
         raise InputError(f"--with-{name}: {err}") from None
+
+
+def with_camera_views(served: str, kind: str, report: Path, runs: int) -> str:
+    """The card's served evaluation line (``kind`` 'ensemble' or 'up', of ``runs``) with the
+    views that ``report`` (a ``benchmarks.bench_ensemble`` JSON of views by depth cameras,
+    ``RULE+SENSOR``) measured added, or replacing the same views; the rest kept. The report
+    must be of the same split and budget (and, for 'up', the same error of up)."""
+    try:
+        current = Measurement.parse(kind, served)  # type: ignore[arg-type]
+        measure = ensemble_measurement if kind == "ensemble" else up_measurement
+        added = measure(json.loads(report.read_text()), runs)
+    except (KeyError, ValueError) as err:
+        raise InputError(f"--camera-report: {err}") from None
+    if (added.split, added.budget_ms, added.up_error_deg) != (
+        current.split, current.budget_ms, current.up_error_deg,
+    ):  # fmt: skip
+        raise InputError(
+            f"--camera-report: measured on the {added.split} split within {added.budget_ms:g} "
+            f"ms, the card's on the {current.split} split within {current.budget_ms:g} ms"
+            + ("" if added.up_error_deg == current.up_error_deg else ", with another up error")
+        )
+    if not all("+" in row.views for row in added.results):
+        raise InputError("--camera-report: views by a depth camera only (RULE+SENSOR)")
+    views = {row.views for row in added.results}
+    kept = [row for row in current.results if row.views not in views]
+    return current.model_copy(update={"results": [*added.results, *kept]}).text()

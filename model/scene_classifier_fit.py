@@ -116,7 +116,7 @@ class SceneClassifierFit(FeatureFitConfig):
     )
     cut_off_seed: int = Field(default=23, description="their seed")
     distractors: int = Field(
-        default=2,
+        default=1,
         ge=0,
         description="up to this many things of no category in each scene of the first two "
         "kinds (its class OTHER; 0: none, no such class)",

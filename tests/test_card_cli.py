@@ -143,3 +143,34 @@ def test_card_records_an_eval_report_as_its_accuracy_per_iteration(tiny_model_di
     assert card.accuracy == {"0": 0.0, "1": 0.25, "2": 0.5}
     assert card.evaluation.startswith("40 partial scans (5 random occluded views")
     assert "the up direction given (2 deg off the truth), held upright" in card.evaluation
+
+
+def test_card_adds_views_by_a_depth_camera_to_the_served_measurement(tiny_model_dir, tmp_path):
+    path = tmp_path / "tiny.onnx"
+    shutil.copy(tiny_model_dir / "tiny.onnx", path)
+    report = bench_report(60.0)
+    report["paper"]["8"] = {"accuracy": 66.0, "gain": 6.0, "gain_stderr": 2.0, "scans": 40}
+    (tmp_path / "ens.json").write_text(json.dumps(report))
+    no_card = runner.invoke(app, ["card", str(path), "--camera-report", str(tmp_path / "ens.json")])
+    assert no_card.exit_code == 2 and "no ensemble_evaluation" in no_card.output
+    runner.invoke(app, ["card", str(path), "--recommended-ensemble", "8",
+                        "--ensemble-report", str(tmp_path / "ens.json")])  # fmt: skip
+    camera = {"machine": "test", "budget_ms": 20.0, "split": "test",
+              "occluded+kinect_v2": {"1": {"accuracy": 40.0, "gain": 0.0, "gain_stderr": 0.0,
+                                           "scans": 30},
+                                     "8": {"accuracy": 48.0, "gain": 8.0, "gain_stderr": 2.5,
+                                           "scans": 30}}}  # fmt: skip
+    (tmp_path / "camera.json").write_text(json.dumps(camera))
+    clean = runner.invoke(app, ["card", str(path), "--camera-report", str(tmp_path / "ens.json")])
+    assert clean.exit_code == 2 and "RULE+SENSOR" in clean.output
+    done = runner.invoke(app, ["card", str(path), "--camera-report", str(tmp_path / "camera.json")])
+    assert done.exit_code == 0, done.output
+    card = load_model(path, warm_up=False).card
+    assert "occluded+kinect_v2 48.0% (one run 40.0%, +8.0 ± 2.5; 30 scans)" in (
+        card.ensemble_evaluation
+    )
+    assert "paper 66.0%" in card.ensemble_evaluation  # the clean views kept
+    camera["budget_ms"] = 50.0
+    (tmp_path / "other.json").write_text(json.dumps(camera))
+    other = runner.invoke(app, ["card", str(path), "--camera-report", str(tmp_path / "other.json")])
+    assert other.exit_code == 2 and "within 50 ms" in other.output

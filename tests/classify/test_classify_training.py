@@ -575,3 +575,9 @@ def test_views_by_a_depth_camera_take_each_class_at_its_real_size(tmp_path: Path
         view_configs(("occluded+kinect_v9",))
     with pytest.raises(ValueError, match="unknown view rule"):
         view_configs(("sideways",))
+    (crop,) = view_configs(("paper+kinect_v2+crop",))
+    assert crop.surroundings is not None and crop.elevation is not None
+    x, y, up = training_batch(data, 8, 64, np.random.default_rng(2), [crop], upright=5)
+    assert x.shape == (8, 64, 3) and np.isfinite(x).all() and np.isfinite(up).all()
+    with pytest.raises(ValueError, match="needs a camera"):
+        view_configs(("occluded+crop",))
