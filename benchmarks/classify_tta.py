@@ -11,6 +11,10 @@ as ``itnet classify-size-prior`` measures it).
     python -m benchmarks.classify_tta --split val              # where the choice is made
     python -m benchmarks.classify_tta --split test --only 4:turns   # then the choice, once
 
+``--rules occluded+kinect_v2,paper+kinect_v2`` takes the views by a depth camera (each shape at
+a real piece's size, which the size prior then reads in metres) instead of the clean renders at
+ModelNet's own sizes; each row also gives the top-1 of every class (``by_class``).
+
 With ``--upright UPRIGHT.onnx`` (an upright classifier, ``itnet classify-train --upright``), each
 view also has its up direction, the truth tilted ``--up-error`` degrees (2) in a seeded
 direction, as a gravity sensor gives it, and two more modes: ``upright`` (that classifier on the
@@ -29,11 +33,14 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from itnet.metrics import paired_accuracy
+from itnet.model.categories import real_radius_m
+from itnet.model.classify.configs import view_rule_names
 from itnet.model.classify.data import class_names, load_splits, view_configs
 from itnet.model.classify.size_prior import INCH_M, source_radii
 from itnet.model.scanner import scan_of
@@ -57,6 +64,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--upright", type=Path, default=None, help="an upright classifier")
     parser.add_argument("--up-error", type=float, default=2.0, help="degrees off the true up")
+    parser.add_argument(
+        "--rules",
+        default="occluded,paper",
+        help="view rules in turn, comma-separated: RULE, RULE+SENSOR (by that depth camera, "
+        "each shape at a real piece's size), RULE+SENSOR+crop (cut out of a room)",
+    )
     args = parser.parse_args()
 
     classifier = load_any(args.model, threads=2)
@@ -67,17 +80,24 @@ def main() -> None:
     classes = class_names(args.data)
     shapes = load_splits(args.data, classes, 0.1, 0, args.cache)[args.split]
     rng = np.random.default_rng(2024 if args.split == "test" else 7)
-    configs = view_configs()
+    try:
+        configs = view_configs(view_rule_names(args.rules))
+    except ValueError as err:
+        parser.error(f"--rules: {err}")
     clouds, labels, metres, poses = [], [], [], []
     radii = source_radii(args.data, classes, args.split)  # ModelNet's units, read as inches
     for shape, label, radius in zip(shapes.shapes, shapes.labels, radii, strict=True):
         for v in range(args.views):
-            cloud, canonical_from_view = scan_of(shape, rng, configs[v % len(configs)])
+            config, size_m = configs[v % len(configs)], radius * INCH_M
+            if config.sensor != "clean":  # by a camera: a real piece's size, in metres
+                size_m = float(rng.uniform(*real_radius_m(classes[label])))
+                config = replace(config, radius_m=(size_m, size_m))
+            cloud, canonical_from_view = scan_of(shape, rng, config)
             poses.append(canonical_from_view)
             norm = estimate_normalization(cloud)
             clouds.append(norm.apply(cloud))
             labels.append(int(label))
-            metres.append(norm.scale * radius * INCH_M)
+            metres.append(norm.scale * size_m)
     prior = classifier.card.size_prior
     y = np.array(labels)
     given = sensed_ups(np.array(poses), args.up_error, np.random.default_rng(99))
@@ -165,16 +185,22 @@ def main() -> None:
             row |= {"mean_ms": round(float(np.mean(ms)), 2),
                     "mean_looks": round(float(np.mean(looked)), 3),
                     "second_opinion_share": round(float(np.mean(np.array(looked) > 1)), 4)}  # fmt: skip
+        row["by_class"] = {
+            classes[c]: round(100 * float(hit[y == c].mean()), 1) for c in np.unique(y)
+        }
         if sized:
             hit_sized = np.array(sized, float)
             first_sized = hit_sized if first_sized is None else first_sized
             both = paired_accuracy(hit_sized, first_sized)
             row |= {"top1_with_size": both["accuracy"], "gain_with_size": both["gain"],
-                    "gain_with_size_stderr": both["gain_stderr"]}  # fmt: skip
+                    "gain_with_size_stderr": both["gain_stderr"],
+                    "by_class_with_size": {classes[c]: round(100 * float(hit_sized[y == c].mean()), 1)
+                                           for c in np.unique(y)}}  # fmt: skip
         results[f"{k}:{mode}"] = row
         print(f"K={k} {mode:8s} {row}", flush=True)
     if args.out is not None:
-        meta = {"split": args.split, "views": len(clouds), "model": str(args.model),
+        meta = {"split": args.split, "views": len(clouds), "rules": args.rules,
+                "model": str(args.model),
                 "upright": None if upright is None else str(args.upright),
                 "up_error_deg": args.up_error}  # fmt: skip
         args.out.write_text(json.dumps({**meta, "results": results}, indent=1))
