@@ -45,5 +45,15 @@ def test_a_row_takes_the_served_measurement_and_the_paper_views_with_up():
     loaded.card, loaded.centre_viewpoint, loaded.centre_up_viewpoint = card, None, None
     info = model_info("table", loaded, False)
     assert accuracy_table([info])[2] == (
-        "| table | yaw180 | 8 | **60.0%** | 70.0% | **80.0%** | 90.0% | – |"
+        "| table | yaw180 | 8 | – | **60.0%** | 70.0% | **80.0%** | 90.0% | – |"
+    )  # no views by a depth camera measured: a dash
+    camera = ViewResult(views="occluded+kinect_v2", runs=8, scans=100, accuracy=45.5, before=44.0,
+                        gain=1.5, gain_stderr=0.5)  # fmt: skip
+    served = Measurement.parse("ensemble", card.ensemble_evaluation)
+    card.ensemble_evaluation = served.model_copy(
+        update={"results": [camera, *served.results]}
+    ).text()
+    info = model_info("table", loaded, False)
+    assert accuracy_table([info])[2] == (
+        "| table | yaw180 | 8 | **45.5%** | **60.0%** | 70.0% | **80.0%** | 90.0% | – |"
     )
