@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from itnet.scene import find_objects
+from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.warm_up import CAMERA, CAMERA_HEIGHT_M, made_up_view
 from itnet.service.app import create_app
 from itnet.service.settings import Settings
@@ -16,11 +16,15 @@ from itnet.service.settings import Settings
 def test_the_made_up_view_is_a_floor_with_one_object_on_it() -> None:
     depth = made_up_view()
     assert depth.dtype == np.uint16 and (depth[0] == 0).all()  # the upper rows see nothing
-    found = find_objects(depth / 1000.0, CAMERA, budget_ms=2000)
+    found = find_objects(
+        depth / 1000.0, CAMERA, budget_ms=2000, finishing=SceneFinishing(unknown=False)
+    )  # as warm_up finds it
     assert found.floor is not None
     assert abs(found.floor.offset - CAMERA_HEIGHT_M) < 0.02  # the camera 1.4 m over it
     (obj,) = found.objects
     assert obj.pose is not None and 0.7 < obj.box.size[1] < 0.9  # the 0.8 m box, posed
+    (plain,) = find_objects(depth / 1000.0, CAMERA, budget_ms=2000).objects
+    assert 0.7 < plain.box.size[1] < 0.9  # a plain box: named or unknown, never dropped
 
 
 @pytest.mark.parametrize("warm", [True, False])

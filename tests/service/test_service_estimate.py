@@ -175,8 +175,9 @@ def test_a_step_estimate_inflated_by_a_burst_does_not_stick(
     model = client.app.state.service.models["tiny"]  # type: ignore[attr-defined]
     assert 0 < model.baseline_ms < 100
     model.record_step_ms(10_000.0, weight=1.0, at=time.perf_counter() - 60.0)
-    body = post_json(client, make_cloud(), budget_ms=200, max_iterations=3).json()
-    assert body["iterations"] == 3
+    reply = post_json(client, make_cloud(), budget_ms=200, max_iterations=3)
+    assert reply.status_code == 200, reply.text
+    assert reply.json()["iterations"] == 3
     assert model.step_ms < 100
 
 
