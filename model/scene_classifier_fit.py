@@ -58,14 +58,15 @@ PRECISION = 0.95  # the threshold: the lowest at which this share of the answers
 
 def scene_samples(
     shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False,
-    distractors: int = 0, sensors: tuple[str | None, ...] = (None,),
+    distractors: int = 0, sensors: tuple[str | None, ...] = (None,), no_one_object: bool = False,
 ) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
     """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
     view; ``distractors``: up to this many things of no category among the objects;
     ``sensors``: each scene seen by one of these cameras, drawn at random (None: the scenes'
-    structured-light noise; ``make_scene``)) -> the
-    features (S, F) of every cluster the segmentation found and matched to a scene object or
-    thing, and those objects' categories (``OTHER`` for a thing) (S,)."""
+    structured-light noise; ``make_scene``); ``no_one_object``: a cluster half of whose points
+    belong to no one object or thing (a piece of wall, two objects joined) counts as ``OTHER``)
+    -> the features (S, F) of every cluster the segmentation found and matched to a scene
+    object or thing, and those objects' categories (``OTHER`` for a thing) (S,)."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
     for _ in range(scenes):
@@ -78,7 +79,9 @@ def scene_samples(
             continue
         returned = [given.indices[rows] for rows in found.objects]
         named = [o.category for o in scene.objects] + [OTHER] * len(scene.others)
-        for i, k in matched_objects(returned, scene.labels, len(named)):
+        for i, label in sorted(
+            cluster_labels(returned, scene.labels, named, no_one_object).items()
+        ):
             points = given.points[found.objects[i]]
             try:  # the classifier's probabilities as served
                 _, probabilities, _ = classifier_probabilities(catalog, points, found.up)
@@ -86,8 +89,28 @@ def scene_samples(
                 continue
             log_p = np.log(np.maximum(probabilities, 1e-12))
             features.append(cluster_features(points, log_p, found.floor, VIEWPOINT))
-            labels.append(named[k - 1])
+            labels.append(label)
     return np.array(features), labels
+
+
+def cluster_labels(
+    returned: list[NDArray[np.int64]], labels: NDArray[np.int64], named: list[str],
+    no_one_object: bool = False,
+) -> dict[int, str]:  # fmt: skip
+    """Clusters' pixel indices (each (K,), flat) against a scene's ``labels`` (H, W) (0: floor
+    or wall, k: the thing ``named[k - 1]``) -> the label each cluster is learned as, by its
+    index: the name of the object or thing it matches (``matched_objects``); with
+    ``no_one_object``, ``OTHER`` for one that matches none and of whose pixels no object or
+    thing holds half (a piece of wall, two objects joined). A cluster mostly of one object that
+    matches it poorly (a piece of it) is left out."""
+    out = {i: named[k - 1] for i, k in matched_objects(returned, labels, len(named))}
+    if no_one_object:
+        flat = labels.ravel()
+        for i, pixels in enumerate(returned):
+            most = np.bincount(flat[pixels], minlength=len(named) + 1)[1:].max(initial=0)
+            if i not in out and 2 * most < len(pixels):
+                out[i] = OTHER
+    return out
 
 
 def precision_threshold(
@@ -125,6 +148,11 @@ class SceneClassifierFit(FeatureFitConfig):
         default="default,kinect_v1,kinect_v2,realsense_d435",
         description="the cameras the scenes of the first two kinds are seen by, one drawn per "
         "scene (default: the scenes' structured-light noise; model/sensor.py's presets)",
+    )
+    no_one_object: bool = Field(
+        default=False,
+        description="clusters half of whose points belong to no one object or thing (a piece "
+        "of wall, two objects joined) join the class OTHER, in every kind of scene",
     )
     hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
 
@@ -165,11 +193,15 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
     def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
         held_out = split_shapes(config.data, HELD_OUT_SPLIT, config.cache)
         trained = split_shapes(config.data, FIT_SPLIT, config.cache, limit=config.train_shapes)
+        mixed = config.no_one_object
         x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog,
-                               distractors=config.distractors, sensors=config.cameras())  # fmt: skip
+                               distractors=config.distractors, sensors=config.cameras(),
+                               no_one_object=mixed)  # fmt: skip
         x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog,
-                               distractors=config.distractors, sensors=config.cameras())  # fmt: skip
-        x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True)
+                               distractors=config.distractors, sensors=config.cameras(),
+                               no_one_object=mixed)  # fmt: skip
+        x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True,
+                               no_one_object=mixed)  # fmt: skip
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
@@ -196,7 +228,8 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
         "scenes": {HELD_OUT_SPLIT: [config.scenes, config.seed],
                    FIT_SPLIT: [config.train_scenes, config.train_seed, config.train_shapes],
                    "cut_off": [config.cut_off_scenes, config.cut_off_seed],
-                   "distractors": config.distractors, "sensors": config.sensors},
+                   "distractors": config.distractors, "sensors": config.sensors,
+                   "no_one_object": config.no_one_object},
         "clusters": {c: labels.count(c) for c in classes},
         "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
                     "epochs": config.epochs},

@@ -243,3 +243,20 @@ def test_the_fit_learns_things_of_no_category_apart(tmp_path: Path) -> None:
     assert config.cameras() == (None, "kinect_v2")
     refused = CliRunner().invoke(app, ["fit", "scene-classifier", "--sensors", "kinect_v9"])
     assert refused.exit_code == 2 and "kinect_v9" in refused.output
+
+
+def test_clusters_that_are_no_one_object_are_learned_as_other() -> None:
+    labels = np.zeros((4, 10), dtype=np.int64)
+    labels[:, 0:4], labels[:, 5:8] = 1, 2  # a chair, then a thing of no category
+    flat = np.arange(40).reshape(4, 10)
+    chair = flat[:, 0:4].ravel()
+    thing = flat[:, 5:8].ravel()
+    wall = flat[:, 8:10].ravel()  # floor or wall only
+    joined = np.concatenate([flat[:, 2:4].ravel(), flat[:, 4].ravel(), flat[:, 5:7].ravel()])
+    piece = flat[0:2, 0:2].ravel()  # a quarter of the chair: its own, poorly matched
+    returned = [chair, thing, wall, joined, piece]
+    named = ["chair", OTHER]
+    assert scene_classifier_fit.cluster_labels(returned, labels, named) == {0: "chair", 1: OTHER}
+    assert scene_classifier_fit.cluster_labels(returned, labels, named, no_one_object=True) == {
+        0: "chair", 1: OTHER, 2: OTHER, 3: OTHER,
+    }  # fmt: skip
