@@ -33,16 +33,14 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from itnet.metrics import paired_accuracy
-from itnet.model.categories import real_radius_m
 from itnet.model.classify.configs import view_rule_names
 from itnet.model.classify.data import class_names, load_splits, view_configs
-from itnet.model.classify.size_prior import INCH_M, source_radii
+from itnet.model.classify.size_prior import INCH_M, at_real_size, source_radii
 from itnet.model.scanner import scan_of
 from itnet.pose.recognition import classify, mean_log_probability, turned_looks
 from itnet.pose.runtime import LoadedClassifier, load_any
@@ -90,8 +88,7 @@ def main() -> None:
         for v in range(args.views):
             config, size_m = configs[v % len(configs)], radius * INCH_M
             if config.sensor != "clean":  # by a camera: a real piece's size, in metres
-                size_m = float(rng.uniform(*real_radius_m(classes[label])))
-                config = replace(config, radius_m=(size_m, size_m))
+                config, size_m = at_real_size(config, classes[label], rng)
             cloud, canonical_from_view = scan_of(shape, rng, config)
             poses.append(canonical_from_view)
             norm = estimate_normalization(cloud)

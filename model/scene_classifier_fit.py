@@ -124,6 +124,16 @@ def precision_threshold(
     return float(probabilities[order][ok[-1]]) if len(ok) else 1.0
 
 
+def camera_names(sensors: str) -> tuple[str, ...]:
+    """'default,kinect_v2,...' -> the names, each 'default' (the scenes' own noise) or one of
+    ``SENSORS``; ValueError for none or another."""
+    names = tuple(n.strip() for n in sensors.split(",") if n.strip())
+    unknown = set(names) - {"default", *SENSORS}
+    if not names or unknown:
+        raise ValueError(f"unknown {sorted(unknown)} (known: default, {', '.join(SENSORS)})")
+    return names
+
+
 class SceneClassifierFit(FeatureFitConfig):
     """How the scene classifier is fitted: the scenes its samples come from and the network."""
 
@@ -159,18 +169,12 @@ class SceneClassifierFit(FeatureFitConfig):
     @field_validator("sensors")
     @classmethod
     def _known_cameras(cls, sensors: str) -> str:
-        names = {n.strip() for n in sensors.split(",") if n.strip()}
-        if not names or names - {"default", *SENSORS}:
-            raise ValueError(
-                f"unknown {sorted(names - {'default', *SENSORS})} (known: default, "
-                f"{', '.join(SENSORS)})"
-            )
+        camera_names(sensors)
         return sensors
 
     def cameras(self) -> tuple[str | None, ...]:
         """``sensors`` as ``make_scene``'s ``sensor`` values (None: the default)."""
-        names = tuple(n.strip() for n in self.sensors.split(",") if n.strip())
-        return tuple(None if n == "default" else n for n in names)
+        return tuple(None if n == "default" else n for n in camera_names(self.sensors))
 
     weight_decay: float = Field(default=1e-3, ge=0, description="chosen on validation")
     epochs: int = Field(default=1000, ge=1, description="chosen on validation")

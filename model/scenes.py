@@ -129,7 +129,7 @@ def _against(
     centre = anchor[2][:3, 3]
     others = [cKDTree(_floor_points(p[0], p[1], p[2][:3, :3], p[2][:3, 3])) for p in placed]
     mine = _floor_points(shape, scale, turn, np.zeros(3))
-    reach = anchor[4] + scale * float(np.linalg.norm(shape.points[:, [0, 2]], axis=1).max())
+    reach = anchor[4] + _footprint(shape, scale)
     for step in np.arange(reach + 0.1, 0.0, -0.01):
         where = centre + direction * step
         where[1] = floor_y

@@ -88,10 +88,8 @@ class SensorModel:
         p, theta = p[keep], theta[keep]
         if len(p) == 0:  # nothing returns (all grazing or too far)
             return p
-        z = p[:, 2]
         ray = p / np.linalg.norm(p, axis=1, keepdims=True)
-        depth = z + self.sigma_z(z, theta) * rng.normal(size=len(p))
-        depth = np.maximum(self._quantised(np.maximum(depth, 1e-3)), 1e-3)
+        depth = self._sensed_depth(p[:, 2], theta, rng)
         p = ray * (depth / ray[:, 2])[:, None]  # the same ray, the new depth along the axis
         if self.lateral_px > 0:
             p[:, :2] += rng.normal(size=(len(p), 2)) * (self.lateral_px * p[:, 2:3] / self.focal_px)
@@ -129,11 +127,17 @@ class SensorModel:
             k = int(rng.integers(len(rows)))
             centre = p[rows[k], cols[k]]
             keep &= np.linalg.norm(p - centre, axis=-1) > rng.uniform(*self.hole_radius_m)
-        zk = z[keep]
-        noisy = zk + self.sigma_z(zk, theta[keep]) * rng.normal(size=len(zk))
         out = np.zeros_like(z)
-        out[keep] = np.maximum(self._quantised(np.maximum(noisy, 1e-3)), 1e-3)
+        out[keep] = self._sensed_depth(z[keep], theta[keep], rng)
         return mixed_at_edges(out, self.flying_share, rng)
+
+    def _sensed_depth(
+        self, z: NDArray, theta: NDArray, rng: np.random.Generator
+    ) -> NDArray[np.float64]:
+        """True depths (K,) at incidences ``theta`` (K,) -> the depths the camera reports: the
+        axial noise, then quantised (at least 1 mm)."""
+        depth = z + self.sigma_z(z, theta) * rng.normal(size=len(z))
+        return np.maximum(self._quantised(np.maximum(depth, 1e-3)), 1e-3)
 
     def _returns(self, p: NDArray, theta: NDArray, rng: np.random.Generator) -> NDArray[np.bool_]:
         """Which points return at all: not too grazing, not too far."""

@@ -75,12 +75,19 @@ def test_card_sets_mirror_fused_only_with_planes(tiny_model_dir, tmp_path):
     assert card.mirror_planes == [] and card.mirror_fused is False
 
 
-def test_card_sets_the_recommended_ensemble_with_its_measurement(tiny_model_dir, tmp_path):
+def tiny_and_its_ensemble_report(tiny_model_dir, tmp_path):
+    """A copy of the tiny model, and a bench_ensemble JSON of 8 runs against one (paper views,
+    66.0% against 60.0%) beside it as ens.json."""
     path = tmp_path / "tiny.onnx"
     shutil.copy(tiny_model_dir / "tiny.onnx", path)
     report = bench_report(60.0)
     report["paper"]["8"] = {"accuracy": 66.0, "gain": 6.0, "gain_stderr": 2.0, "scans": 40}
     (tmp_path / "ens.json").write_text(json.dumps(report))
+    return path
+
+
+def test_card_sets_the_recommended_ensemble_with_its_measurement(tiny_model_dir, tmp_path):
+    path = tiny_and_its_ensemble_report(tiny_model_dir, tmp_path)
     bare = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "8"])
     assert bare.exit_code == 2 and "--ensemble-report" in bare.output
     wrong = runner.invoke(app, ["card", str(path), "--recommended-ensemble", "4",
@@ -146,11 +153,7 @@ def test_card_records_an_eval_report_as_its_accuracy_per_iteration(tiny_model_di
 
 
 def test_card_adds_views_by_a_depth_camera_to_the_served_measurement(tiny_model_dir, tmp_path):
-    path = tmp_path / "tiny.onnx"
-    shutil.copy(tiny_model_dir / "tiny.onnx", path)
-    report = bench_report(60.0)
-    report["paper"]["8"] = {"accuracy": 66.0, "gain": 6.0, "gain_stderr": 2.0, "scans": 40}
-    (tmp_path / "ens.json").write_text(json.dumps(report))
+    path = tiny_and_its_ensemble_report(tiny_model_dir, tmp_path)
     no_card = runner.invoke(app, ["card", str(path), "--camera-report", str(tmp_path / "ens.json")])
     assert no_card.exit_code == 2 and "no ensemble_evaluation" in no_card.output
     runner.invoke(app, ["card", str(path), "--recommended-ensemble", "8",

@@ -136,8 +136,9 @@ def view_configs(
     rules: tuple[str, ...] = ("occluded", "paper"), elevation: tuple[float, float] | None = None
 ) -> list[ScanConfig]:
     """The scanner settings of named view rules (``VIEW_RULES``; ``RULE+SENSOR``: by that depth
-    camera, the size left to ``LabelledShapes.sized``; ``RULE+SENSOR+crop``: cut out of a room), each from any direction or, with
-    ``elevation`` (degrees), from a camera that high over the shape's horizon."""
+    camera, the size left to ``LabelledShapes.sized``; ``RULE+SENSOR+crop``: cut out of a
+    room), each from any direction or, with ``elevation`` (degrees), from a camera that high
+    over the shape's horizon."""
     extra = {} if elevation is None else {"elevation": tuple(elevation)}
     configs = []
     for name in rules:

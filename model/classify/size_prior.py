@@ -33,7 +33,7 @@ from itnet.model.classify.data import (
     view_configs,
 )
 from itnet.model.data import split_files
-from itnet.model.scanner import scan_of
+from itnet.model.scanner import ScanConfig, scan_of
 from itnet.model.shapes import to_canonical
 from itnet.model_card import SizePrior
 from itnet.pose.runtime import LoadedClassifier
@@ -62,6 +62,18 @@ def source_radii(data: Path, classes: list[str], split: str, seed: int = 0) -> l
     ]
 
 
+def at_real_size(
+    config: ScanConfig, category: str, rng: np.random.Generator
+) -> tuple[ScanConfig, float]:
+    """A real piece of ``category``'s bounding radius in metres, drawn from its range
+    (``real_radius_m``), and ``config`` with a depth camera's object at that size (a clean
+    render's as it is)."""
+    metres = float(rng.uniform(*real_radius_m(category)))
+    if config.sensor != "clean":
+        config = replace(config, radius_m=(metres, metres))
+    return config, metres
+
+
 def sized_views(
     shapes: LabelledShapes,
     radii: list[float],
@@ -83,9 +95,7 @@ def sized_views(
         for v in range(views):
             config = configs[v % len(configs)]
             if real:  # the shape's bounding radius in metres, also the camera's
-                metres = float(rng.uniform(*real_radius_m(shapes.names[label])))
-                if config.sensor != "clean":
-                    config = replace(config, radius_m=(metres, metres))
+                config, metres = at_real_size(config, shapes.names[label], rng)
             else:
                 metres = radius * unit_m
             cloud, _ = scan_of(shape, rng, config)

@@ -156,26 +156,42 @@ def test_find_objects_names_by_the_scene_classifier_unless_told_not_to(
     assert plain.category == "chair"
 
 
+def separable_samples(
+    names: tuple[str, ...], rng: np.random.Generator
+) -> tuple[np.ndarray, list[str]]:
+    """600 clusters' features, each of one of ``names`` drawn at random, told apart by the
+    top's height alone (2 apart a class), and their labels."""
+    labels = [names[k] for k in rng.integers(0, len(names), 600)]
+    features = rng.normal(size=(600, CLASSES + 21))
+    features[:, CLASSES] += [2.0 * names.index(name) for name in labels]
+    return features, labels
+
+
+def fitted_by_cli(
+    tmp_path: Path, features: np.ndarray, labels: list[str], check: list[int]
+) -> SceneClassifier:
+    """The scene classifier ``itnet fit scene-classifier`` fits on the samples, its threshold
+    chosen on the rows ``check`` of them."""
+    samples, checked = tmp_path / "samples.npz", tmp_path / "check.npz"
+    np.savez(samples, features=features, labels=np.array(labels))
+    np.savez(checked, features=features[check], labels=np.array([labels[k] for k in check]))
+    out = tmp_path / "scene_classifier.json"
+    done = CliRunner().invoke(app, ["fit", "scene-classifier", "--samples", str(samples),
+                                    "--threshold-samples", str(checked), "--epochs", "200",
+                                    "--out", str(out)])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    fitted = load_scene_classifier(out)
+    assert fitted is not None
+    return fitted
+
+
 def test_the_fit_learns_the_categories_from_features_and_sets_the_threshold(
     tmp_path: Path,
 ) -> None:
-    rng = np.random.default_rng(3)
     names = ("chair", "desk", "dresser")
-    labels = [names[k] for k in rng.integers(0, 3, 600)]
-    centres = {"chair": 0.0, "desk": 2.0, "dresser": 4.0}
-    features = rng.normal(size=(600, CLASSES + 21))
-    features[:, CLASSES] += [centres[name] for name in labels]  # the top's height tells them apart
-    samples = tmp_path / "samples.npz"
-    np.savez(samples, features=features, labels=np.array(labels))
-    check = tmp_path / "check.npz"
-    np.savez(check, features=features[:200], labels=np.array(labels[:200]))
-    out = tmp_path / "scene_classifier.json"
-    fitted_by_cli = CliRunner().invoke(app, ["fit", "scene-classifier", "--samples", str(samples),
-                                             "--threshold-samples", str(check), "--epochs", "200",
-                                             "--out", str(out)])  # fmt: skip
-    assert fitted_by_cli.exit_code == 0, fitted_by_cli.output
-    fitted = load_scene_classifier(out)
-    assert fitted is not None and fitted.classes == names
+    features, labels = separable_samples(names, np.random.default_rng(3))
+    fitted = fitted_by_cli(tmp_path, features, labels, list(range(200)))
+    assert fitted.classes == names
     named = np.array(names)[fitted.probabilities(features).argmax(1)]
     assert (named == np.array(labels)).mean() > 0.9
     assert fitted.fit["threshold"]["clusters"] == 200 and 0 < fitted.threshold <= 1
@@ -219,23 +235,11 @@ def test_a_cluster_likelier_none_of_the_categories_is_answered_unknown_not_ours(
 
 
 def test_the_fit_learns_things_of_no_category_apart(tmp_path: Path) -> None:
-    rng = np.random.default_rng(4)
     names = ("chair", "desk", OTHER)
-    labels = [names[k] for k in rng.integers(0, 3, 600)]
-    centres = {"chair": 0.0, "desk": 2.0, OTHER: 4.0}
-    features = rng.normal(size=(600, CLASSES + 21))
-    features[:, CLASSES] += [centres[name] for name in labels]
-    samples, check = tmp_path / "samples.npz", tmp_path / "check.npz"
-    np.savez(samples, features=features, labels=np.array(labels))
+    features, labels = separable_samples(names, np.random.default_rng(4))
     ours = [k for k, name in enumerate(labels) if name != OTHER][:200]  # validation: no things
-    np.savez(check, features=features[ours], labels=np.array([labels[k] for k in ours]))
-    out = tmp_path / "scene_classifier.json"
-    fitted_by_cli = CliRunner().invoke(app, ["fit", "scene-classifier", "--samples", str(samples),
-                                             "--threshold-samples", str(check), "--epochs", "200",
-                                             "--out", str(out)])  # fmt: skip
-    assert fitted_by_cli.exit_code == 0, fitted_by_cli.output
-    fitted = load_scene_classifier(out)
-    assert fitted is not None and fitted.classes == tuple(sorted(names))
+    fitted = fitted_by_cli(tmp_path, features, labels, ours)
+    assert fitted.classes == tuple(sorted(names))
     assert fitted.fit["threshold"]["named_right"] > 0.9  # the categories' shares of the rest
     things = features[[k for k, name in enumerate(labels) if name == OTHER]]
     assert (fitted.probabilities(things).argmax(1) == fitted.classes.index(OTHER)).mean() > 0.9
