@@ -14,7 +14,10 @@ each in its own camera frame, with the true T_b_from_a and each scan's true up.
   so one scan may have many times the other's points);
 * ``overlap``: the same object seen by a RealSense D435 from two cameras at one height, the second
   turned about the object's up by 15-180 degrees from the first, so the two views share from
-  nearly all to almost none of their surface; ``overlap_of`` measures how much.
+  nearly all to almost none of their surface; ``overlap_of`` measures how much;
+* ``paper``: two independent viewpoints from any direction by the IT-Net paper's rule (the
+  nearest point of each pixel, no noise): the views on which the networks are surest, so the
+  composed poses are a strong prior that a rival must not displace.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from itnet.model.scanner import (
 from itnet.model.shapes import Shape, load_shape
 from itnet.symmetry import symmetry_group
 
-GENERATORS = ("any_view", "camera", "overlap")
+GENERATORS = ("any_view", "camera", "overlap", "paper")
 OVERLAP_TURN_DEG = (15.0, 180.0)  # the second camera's turn about the object's up
 
 
@@ -122,6 +125,8 @@ def generator_config(generator: str, category: str) -> ScanConfig:
         return named_views("base_hidden+kinect_v2", category)
     if generator == "overlap":
         return replace(named_views("occluded+realsense_d435", category), distance=(2.0, 3.5))
+    if generator == "paper":
+        return named_views("paper", category)
     raise ValueError(f"unknown pair generator {generator!r} (known: {', '.join(GENERATORS)})")
 
 
