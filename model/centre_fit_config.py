@@ -22,7 +22,14 @@ class CentreFitOptions(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     data: Path = Field(Path("../shared/data/modelnet10"), description="ModelNet-style root")
-    views: int = Field(3, ge=1, description="views per training shape (each of two view kinds)")
+    views: int = Field(3, ge=1, description="views per training shape (each kind of view)")
+    kinds: str = Field(
+        "occluded,paper",
+        pattern=r"^[a-z0-9_+]+(,[a-z0-9_+]+)*$",
+        description="the kinds of view fitted on and measured on, comma-separated view rules "
+        "(a rule with a camera, such as occluded+kinect_v2, scans real-sized pieces through its "
+        "sensor model)",
+    )
     val_views: int = Field(8, ge=1, description="views per validation shape, to measure it")
     ridge: float = Field(10.0, ge=0.0, description="ridge weight (standardised features)")
     seed: int = Field(4242, description="seed of the training shapes' views")

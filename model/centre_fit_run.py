@@ -31,12 +31,9 @@ from itnet.model.category_set import training_scans, validation_scans
 from itnet.model.centre_fit_config import CentreFitOptions
 from itnet.model.data import ScanSet
 from itnet.model.input_error import InputError
-from itnet.model.scanner import VIEW_RULES, ScanConfig, scan_config
+from itnet.model.scanner import ScanConfig, named_views
 from itnet.pose.runtime import LoadedModel, load_model
 from itnet.upright import sensed_ups
-
-KINDS = ("occluded", "paper")
-"""The kinds of view fitted on and measured on."""
 
 Results = dict[str, dict[str, Any]]
 """``centre_fit.measure``'s results by kind of view."""
@@ -68,7 +65,7 @@ def fit_model_centre(
     InputError where too few training scans are posed right to fit on."""
     loaded = load_model(model)
     cat = category(loaded.card.category, loaded.card.symmetry)
-    kinds = {kind: scan_config(VIEW_RULES[kind]) for kind in KINDS}
+    kinds = view_kinds(options.kinds, cat.name)
     served = []
     for i, (kind, scan) in enumerate(kinds.items()):
         seed = options.seed + i
@@ -95,6 +92,15 @@ def fit_model_centre(
         options.report.write_text(json.dumps(measurement, indent=1))
     written = write_corrections(model, loaded, done, options) if options.write else None
     return replace(done, report=options.report, written=written)
+
+
+def view_kinds(names: str, category: str) -> dict[str, ScanConfig]:
+    """The ScanConfig of each comma-separated view rule of ``names`` (``model.scanner``'s
+    names, a camera's included). Raises InputError for a name it does not know."""
+    try:
+        return {name: named_views(name, category) for name in names.split(",")}
+    except (KeyError, ValueError) as err:
+        raise InputError(f"--kinds: {err}") from None
 
 
 def serve(

@@ -104,3 +104,22 @@ def test_up_fits_the_correction_held_upright_into_its_own_field(setup) -> None: 
     assert fitted.card.centre_evaluation == before.card.centre_evaluation != ""
     # the upright runs differ from the unheld ones: another fit
     assert fitted.card.centre_correction_up != before.card.centre_correction
+
+
+def test_kinds_names_the_views_fitted_and_measured_a_camera_included(setup) -> None:  # type: ignore[no-untyped-def]
+    """--kinds: the view rules the correction is fitted on and measured on, a camera's views
+    (real-sized pieces through its sensor model) among them; an unknown rule or camera is one
+    line and exit 2."""
+    root, data = setup
+    report = root / "kinds.json"
+    done = _fit(root, data, "--max-rotation", "181", "--kinds", "occluded,paper+kinect_v2",
+                "--report", str(report))  # fmt: skip
+    assert done.exit_code == 0, done.output
+    measured = json.loads(report.read_text())
+    assert set(measured["results"]) == {"occluded", "paper+kinect_v2"}
+    assert measured["results"]["paper+kinect_v2"]["scans"] > 0
+    assert "paper+kinect_v2" in measured["evaluation"]
+    for wrong, says in (("occluded,lidar", "unknown view rule 'lidar'"),
+                        ("occluded+lidar", "unknown sensor 'lidar'")):  # fmt: skip
+        refused = _fit(root, data, "--kinds", wrong)
+        assert refused.exit_code == 2 and says in refused.output, refused.output
