@@ -1,10 +1,11 @@
 """Fit the alignment's calibrated choice on validation pairs, and see what each setting does.
 
-    .venv/bin/python -m benchmarks.align_calibrate --pairs 40 \
-        --write itnet/alignment/calibration.json --json docs/align_calibration.json
+    .venv/bin/python -m benchmarks.align_calibrate --pairs 40 --generators any_view camera \
+        overlap --write itnet/alignment/calibration.json --json docs/align_calibration.json
 
 For every category of ``--categories`` and every pair generator (``benchmarks.align_pairs``),
-validation pairs of held-out shapes are aligned with every rival judged (``sure`` above 1), and
+validation pairs of held-out shapes are aligned with every rival judged (``sure`` above 1;
+``--refine``: refined by ICP as ``itnet-align`` judges them, without it, or both), and
 each judged candidate's evidence (``itnet.alignment.choice.FEATURES``) is kept with whether it is
 right (10 degrees, 0.1 radii). A logistic model is fitted on all of them (``--write``: the
 shipped calibration), then the choice is replayed on the same pairs for each threshold of
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from itertools import product
 from pathlib import Path
 
 import numpy as np
@@ -38,15 +40,16 @@ SURE = (0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
 
 def collect(catalog: Catalog, category: str, generator: str, pairs: int, seed: int,
             data: Path, budget_ms: float, ensemble: int | None = None,
-            candidates: int = 6, finalists: int = 3) -> list[dict]:  # fmt: skip
-    """Every pair's judged candidates: evidence, right or not, composed or rival."""
+            candidates: int = 6, finalists: int = 3, refine: bool = True) -> list[dict]:  # fmt: skip
+    """Every pair's judged candidates: evidence, right or not, composed or rival (``refine``:
+    each refined by ICP, as ``itnet-align`` judges them with open3d; else as without it)."""
     model = catalog.model(category)
     card = model.card
     estimate = in_process_estimator(
         catalog, PoseRequest(model=category, budget_ms=budget_ms, ensemble=ensemble)
     )
     options = AlignOptions(symmetry=rival_turns(card.category, card.symmetry),
-                           refine=True, sure=2.0, candidates=candidates,
+                           refine=refine, sure=2.0, candidates=candidates,
                            finalists=finalists)  # fmt: skip
     out = []
     for pair in make_pairs(generator, split_shapes(data, category, "validation"), pairs, seed,
@@ -59,7 +62,7 @@ def collect(catalog: Catalog, category: str, generator: str, pairs: int, seed: i
             right.append(pair.right(h.T_b_from_a))
         composed = sum(1 for h in result.hypotheses if h.served and not h.turned)
         out.append({"category": category, "generator": generator, "rows": rows, "right": right,
-                    "composed": composed, "ms": result.timings_ms})  # fmt: skip
+                    "composed": composed, "ms": result.timings_ms, "refine": refine})  # fmt: skip
     return out
 
 
@@ -102,6 +105,9 @@ def main() -> None:
     parser.add_argument("--finalists", type=int, default=3, help="rivals ICP finishes")
     parser.add_argument("--records", type=Path, default=ROOT / "runs/align_calibration.json",
                         help="the collected evidence (read back with --from-records)")  # fmt: skip
+    parser.add_argument("--refine", choices=("on", "off", "both"), default="on",
+                        help="judge the candidates refined by ICP (on), as without open3d "
+                        "(off), or both, every pair each way")  # fmt: skip
     parser.add_argument("--from-records", action="store_true")
     parser.add_argument("--write", type=Path, default=None, help="write the fitted calibration")
     parser.add_argument("--json", type=Path, default=None, help="write the replay's numbers")
@@ -112,16 +118,16 @@ def main() -> None:
     else:
         catalog = Catalog.load()
         records = []
-        for category in args.categories:
-            for generator in args.generators:
-                start = time.perf_counter()
-                got = collect(catalog, category, generator, args.pairs, args.seed, args.data,
-                              args.budget_ms, args.ensemble, args.candidates,
-                              args.finalists)  # fmt: skip
-                records += got
-                right = np.mean([r["right"][0] for r in got])
-                print(f"{category:8s} {generator:9s} {len(got)} pairs, composed right "
-                      f"{right:.1%}, {time.perf_counter() - start:.0f} s", flush=True)  # fmt: skip
+        modes = {"on": (True,), "off": (False,), "both": (True, False)}[args.refine]
+        for category, generator, refine in product(args.categories, args.generators, modes):
+            start = time.perf_counter()
+            got = collect(catalog, category, generator, args.pairs, args.seed, args.data,
+                          args.budget_ms, args.ensemble, args.candidates, args.finalists,
+                          refine)  # fmt: skip
+            records += got
+            right = np.mean([r["right"][0] for r in got])
+            print(f"{category:8s} {_group(got[0]):20s} {len(got)} pairs, composed right "
+                  f"{right:.1%}, {time.perf_counter() - start:.0f} s", flush=True)  # fmt: skip
         args.records.parent.mkdir(parents=True, exist_ok=True)
         args.records.write_text(json.dumps(records))
 
@@ -133,12 +139,12 @@ def main() -> None:
     print("weights:", dict(zip(FEATURES, np.round(weights, 3))))
     report: dict = {"pairs": len(records), "candidates": len(rows), "weights":
                     dict(zip(FEATURES, np.round(weights, 4).tolist())), "sure": {}}  # fmt: skip
-    groups = sorted({(r["generator"]) for r in records})
+    groups = sorted({_group(r) for r in records})
     for sure in SURE:
         out = replay(records, fitted, sure)
         line = {"all": _summary(out, np.ones(len(records), bool))}
         for g in groups:
-            line[g] = _summary(out, np.array([r["generator"] == g for r in records]))
+            line[g] = _summary(out, np.array([_group(r) == g for r in records]))
         for c in sorted({r["category"] for r in records}):
             line[c] = _summary(out, np.array([r["category"] == c for r in records]))
         report["sure"][str(sure)] = line
@@ -161,6 +167,11 @@ def main() -> None:
                      f"--pairs {args.pairs} --seed {args.seed}")  # fmt: skip
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=1) + "\n")
+
+
+def _group(record: dict) -> str:
+    """A pair's generator, and ``--no-refine`` where its candidates were judged without ICP."""
+    return record["generator"] + ("" if record.get("refine", True) else " --no-refine")
 
 
 def _summary(out: dict, mask: np.ndarray) -> dict:

@@ -102,10 +102,12 @@ def itnet_methods(
         "composed poses": AlignRequest(budget_ms=budget_ms, rivals=False, refine=False),
         "composed poses + ICP": AlignRequest(budget_ms=budget_ms, rivals=False, refine=True),
         # each cloud's pose as ``itnet pose --budget-ms 1000`` serves it: the card's runs
-        "composed served poses": AlignRequest(budget_ms=SERVED_BUDGET_MS / POSE_SHARE,
-                                              starts=model.card.recommended_ensemble,
-                                              rivals=False, refine=False),
-        "itnet-align --no-refine": AlignRequest(budget_ms=budget_ms, refine=False),
+        "composed served poses": AlignRequest(
+            budget_ms=SERVED_BUDGET_MS / POSE_SHARE,
+            starts=model.card.recommended_ensemble,
+            rivals=False,
+            refine=False,
+        ),
         "itnet-align": AlignRequest(budget_ms=budget_ms, refine=True),
     }
 

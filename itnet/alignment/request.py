@@ -57,10 +57,12 @@ class AlignRequest(RequestModel):
         description="symmetry turns tried as rivals: auto (the model's category and card), "
         "none, yaw180, yaw90, yaw",
     )
-    rivals: bool = Field(
-        default=True,
+    rivals: bool | None = Field(
+        default=None,
         description="judge rivals (other runs' poses, symmetric turns) where the composed pose "
-        "is in doubt; false: the composed pose, refined with refine, only",
+        "is in doubt; false: the composed pose, refined with refine, only (default: where ICP "
+        "refines them; unrefined rivals replace a right composed pose about as often as a "
+        "wrong one)",
     )
     candidates: int = Field(
         default=6,
@@ -109,5 +111,6 @@ class AlignRequest(RequestModel):
         if symmetry == "auto":
             symmetry = rival_turns(card.category, card.symmetry)
         return AlignOptions(symmetry=symmetry, refine=refine, budget_ms=self.budget_ms,
-                            rivals=self.rivals, candidates=self.candidates,
+                            rivals=refine if self.rivals is None else self.rivals,
+                            candidates=self.candidates,
                             finalists=self.finalists)  # fmt: skip

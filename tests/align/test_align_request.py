@@ -31,6 +31,10 @@ def test_the_request_gives_each_cloud_its_share_and_the_pipeline_its_knobs(tiny_
     body = request.body(np.zeros((5, 3)), np.ones((6, 3)))
     assert len(body["points_a"]) == 5 and body["budget_ms"] == 80 and body["rivals"] is False
     assert AlignRequest().budget_ms == DEFAULT_BUDGET_MS
+    # rivals by default where ICP refines them; unrefined, only where asked for
+    assert AlignRequest().options(card, refine=True).rivals is True
+    assert AlignRequest().options(card, refine=False).rivals is False
+    assert AlignRequest(rivals=True).options(card, refine=False).rivals is True
 
 
 BAD_FIELDS = [{"budget_ms": 0}, {"symmetry": "yaw45"}, {"starts": 17}, {"candidates": 0},
