@@ -163,13 +163,13 @@ def plan(
     limits: Limits = Limits(),
     spent_ms: float = 0.0,
     seed: int = 0,
-    schedule: bool = True,
 ) -> PosePlan:
     """The plan of ``request`` on ``model`` (its ``model`` field is already resolved to it);
-    ``spent_ms``: what the budget already paid before the run (the classification of ``auto``);
-    ``schedule``: fused runs whose every step does not fit the budget follow the card's coarse
-    first steps and halving before fewer runs are tried (off: every run on all its points every
-    step, as a path measured without them asks).
+    ``spent_ms``: what the budget already paid before the run (the classification of ``auto``).
+    Fused runs whose every step does not fit the budget follow the card's coarse first steps and
+    halving before fewer runs are tried, unless the request's ``schedule`` is false (every run
+    on all its points every step, as a path measured without them asks); each run sees at most
+    the request's ``points_per_run`` (default: the card's), and the runs are sized at that count.
     Raises BadCloudError (a 422) for what the request cannot have: a budget or iteration cap
     over the limits, ``up`` or ``viewpoint`` that are not directions or points, a model that
     needs ``up`` without it, or a finishing stage asked for that this model or request cannot
@@ -211,8 +211,10 @@ def plan(
         stages=(),
         limits=limits,
         seed=seed,
+        points=request.points_per_run,
     )
     available = request.budget_ms - spent_ms
+    schedule = request.schedule is not False
 
     @cache  # each count of runs sized once: the one chosen is not sized again
     def sized(runs: int) -> PosePlan:
@@ -220,7 +222,7 @@ def plan(
 
     def work_ms(runs: int) -> float:
         """The steps of ``runs`` runs as they would be planned, on an idle machine."""
-        return sized(runs).work_ms(iterations, card.points, base.idle_run_ms)
+        return sized(runs).work_ms(iterations, base.most_points, base.idle_run_ms)
 
     runs = request.ensemble
     if runs is None:
@@ -241,7 +243,7 @@ def _sized(base: PosePlan, runs: int, available_ms: float, schedule: bool) -> Po
     full = replace(base, starts=np.repeat(base.starts, runs, axis=0))
     if runs == 1 or not schedule or (card.coarse_steps is None and card.halving is None):
         return full
-    if full.work_ms(base.max_iterations, card.points, base.idle_run_ms) <= available_ms:
+    if full.work_ms(base.max_iterations, base.most_points, base.idle_run_ms) <= available_ms:
         return full
     return replace(full, halving=card.halving, coarse=card.coarse_steps)
 

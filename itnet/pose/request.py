@@ -54,6 +54,20 @@ class PoseRequest(RequestModel):
         "every iteration; a step costs about K times as much (default: the model's "
         "recommended_ensemble, halved until its iterations fit budget_ms on an idle server)",
     )
+    points_per_run: int | None = Field(
+        default=None,
+        ge=16,
+        le=2048,
+        description="the most points each run sees of the cloud (default: the model card's, "
+        "the count it was trained on); a step costs about in proportion to them",
+    )
+    schedule: bool | None = Field(
+        default=None,
+        description="where every step of the fused runs does not fit budget_ms, follow the "
+        "model card's cheaper schedule (its first steps on fewer points, then only the runs the "
+        "verifier finds likeliest) before planning fewer runs (default: where the card has one); "
+        "false: fewer runs instead",
+    )
     mirror: bool | None = Field(
         default=None,
         description="finish the final pose by the category's mirror symmetries (a few "

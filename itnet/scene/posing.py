@@ -4,13 +4,14 @@ anytime pipeline with up and the viewpoint given, within a share of the scene's 
 
 Everything a scene needs of the pose side goes through a ``Catalog`` and ``pose_object``: the
 classification restricted to the scene's categories, then the one pose pipeline
-(``itnet.pose.plan`` and its anytime loop) with up and the viewpoint in the request.
+(``Catalog.start``, as every path) by a request with up, the viewpoint, the points each run sees
+and no schedule.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +20,6 @@ from numpy.typing import NDArray
 
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError, BudgetTooSmallError
-from itnet.pose.loop import AnytimeRun
-from itnet.pose.plan import plan
 from itnet.pose.recognition import classify, pose_model_for
 from itnet.pose.reply import pose_fields
 from itnet.pose.request import PoseRequest
@@ -215,10 +214,11 @@ def posed_as(
     model: LoadedModel | None = None,
 ) -> ObjectPose:
     """``seen`` (its category) with its pose: the category's anytime pipeline (or ``model``'s)
-    run on the cluster (K, 3) with up and the viewpoint (at least SCENE_LEAST_RUNS fused runs,
-    or one where the budget holds no more; each run on at most SCENE_RUN_POINTS points), within
-    ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none (no model for the
-    category, or the budget)."""
+    started by ``catalog.start`` on the cluster (K, 3) with up and the viewpoint (at least
+    SCENE_LEAST_RUNS fused runs, or one where the budget holds no more; each run on at most
+    SCENE_RUN_POINTS points; no schedule: the cards' schedules were measured on views of single
+    objects), within ``budget_ms`` from ``started``; ``no_pose`` says why not where it has none
+    (no model for the category, or the budget)."""
     model = model or (
         None if seen.category is None else pose_model_for(seen.category, catalog.models)
     )
@@ -232,13 +232,12 @@ def posed_as(
     runs = SCENE_LEAST_RUNS if model.card.recommended_ensemble < SCENE_LEAST_RUNS else None
     run = None
     for ensemble in (runs, 1):  # a share too small for the fused runs gets one run
-        request = PoseRequest(budget_ms=float(budget_ms), up=[float(v) for v in up],
-                              viewpoint=[float(v) for v in viewpoint], ensemble=ensemble)  # fmt: skip
+        request = PoseRequest(model=model.card.name, budget_ms=float(budget_ms),
+                              up=[float(v) for v in up], viewpoint=[float(v) for v in viewpoint],
+                              ensemble=ensemble, points_per_run=SCENE_RUN_POINTS,
+                              schedule=False)  # fmt: skip
         try:
-            planned = replace(
-                plan(model, request, catalog.limits, schedule=False), points=SCENE_RUN_POINTS
-            )
-            run = AnytimeRun(planned, points, started)
+            run = catalog.start(points, request, started)
             break
         except BudgetTooSmallError:
             continue

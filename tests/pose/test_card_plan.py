@@ -65,19 +65,21 @@ def test_fused_runs_take_the_cards_schedule_where_every_step_does_not_fit(model,
     plain.idle_ms, plain.baseline_ms = model.idle_ms, model.baseline_ms
     every_step = 8 * model.run_step_ms(1, card.points, idle=True) * card.recommended_iterations
 
-    def planned(which, budget_ms, **kwargs):
-        request = PoseRequest(budget_ms=budget_ms, ensemble=ensemble, verify=False)
-        return plan(which, request, **kwargs)
+    def planned(which, budget_ms, **fields):
+        request = PoseRequest(budget_ms=budget_ms, ensemble=ensemble, verify=False, **fields)
+        return plan(which, request)
 
     roomy = planned(scheduled, 10 * every_step)  # every step fits: the full plan
     assert (roomy.coarse, roomy.halving, roomy.runs) == (None, None, 8)
     tight = planned(scheduled, 0.8 * every_step)  # it does not: the schedule, all 8 runs
     assert (tight.coarse, tight.halving, tight.runs) == ((3, 32), (3, 2), 8)
     # without a schedule the same budget gets half the runs (a request naming 8 keeps 8, and
-    # its steps stop by the budget); a path that asks for no schedule gets none
+    # its steps stop by the budget); a request that asks for no schedule gets none, and fewer
+    # runs where it names none, as the plain card does
     assert planned(plain, 0.8 * every_step).runs == (4 if ensemble is None else 8)
     unscheduled = planned(scheduled, 0.8 * every_step, schedule=False)
     assert (unscheduled.coarse, unscheduled.halving) == (None, None)
+    assert unscheduled.runs == planned(plain, 0.8 * every_step).runs
     # measured on fused runs: a single run takes every step, however tight
     single = plan(scheduled, PoseRequest(budget_ms=0.05 * every_step, ensemble=1))
     assert (single.coarse, single.halving) == (None, None)

@@ -55,6 +55,21 @@ def test_the_card_runs_are_kept_where_the_budget_holds_them_whatever_the_load(mo
     assert fitting_ensemble(8, lambda k: 0.0, 1.0) == 8
 
 
+def test_points_per_run_caps_each_runs_points_and_sizes_the_runs_at_them(model, cloud):
+    """A request's ``points_per_run``: each run sees at most that many of the cloud, and the
+    runs a budget holds are counted at that many points (a step costs about in proportion)."""
+    card8 = with_card(model, recommended_ensemble=8)
+    steps, points = card8.card.recommended_iterations, card8.card.points
+    tight = 8 * steps * card8.run_step_ms(1, points, idle=True) * 0.5  # half of 8 full runs
+    assert plan(card8, PoseRequest(budget_ms=tight)).runs == 4
+    quarter = plan(card8, PoseRequest(budget_ms=tight, points_per_run=points // 4))
+    assert quarter.runs == 8 and quarter.most_points == points // 4
+    run = AnytimeRun(quarter, cloud)
+    assert run.points.shape[:2] == (8, points // 4)
+    with pytest.raises(ValidationError):
+        PoseRequest(points_per_run=8)
+
+
 def test_stages_are_on_by_the_card_and_refused_with_the_stage_reason(model):
     assert plan(model, PoseRequest()).stages == ()  # the tiny card has no mirror, centre, ...
     with pytest.raises(BadCloudError, match="declares no mirror symmetry"):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scene_helpers import boxes_shape, chair_shape, make_test_scene
 
+from itnet.pose.request import PoseRequest
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, VoxelCloud, segment, working_points
@@ -177,20 +178,25 @@ def test_every_object_of_a_usual_frame_is_posed_within_the_default_budget() -> N
 
 
 def test_a_scene_objects_runs_each_see_at_most_the_scenes_points(monkeypatch) -> None:
-    """Every run that poses a scene's object sees at most SCENE_RUN_POINTS of its points."""
+    """A scene's object is posed through ``Catalog.start``, as every path is, by a request that
+    says its points per run (SCENE_RUN_POINTS) and no schedule: every run sees at most that."""
+    import itnet.pose.catalog as catalog
     import itnet.scene.posing as posing
 
-    seen: list[tuple[int, ...]] = []
+    seen: list[tuple[tuple[int, ...], PoseRequest]] = []
 
-    class Recorded(posing.AnytimeRun):
+    class Recorded(catalog.AnytimeRun):
         def __init__(self, *args, **kwargs) -> None:
             super().__init__(*args, **kwargs)
-            seen.append(self.points.shape)
+            seen.append((self.points.shape, self.plan.request))
 
-    monkeypatch.setattr(posing, "AnytimeRun", Recorded)
+    monkeypatch.setattr(catalog, "AnytimeRun", Recorded)
     warm_up()
     scene = make_test_scene([(chair_shape(), 0.5, 0.0, 2.8, 160.0)], width=640, height=480)
     result = find_objects(scene.depth, scene.intrinsics, budget_ms=1000)
     assert result.objects and result.objects[0].pose is not None
-    assert seen and all(shape[1] <= posing.SCENE_RUN_POINTS for shape in seen)
-    assert max(shape[1] for shape in seen) == posing.SCENE_RUN_POINTS
+    assert seen and all(shape[1] <= posing.SCENE_RUN_POINTS for shape, _ in seen)
+    assert max(shape[1] for shape, _ in seen) == posing.SCENE_RUN_POINTS
+    for _, request in seen:
+        assert request.points_per_run == posing.SCENE_RUN_POINTS and request.schedule is False
+        assert request.up is not None and request.viewpoint is not None
