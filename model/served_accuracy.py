@@ -77,8 +77,6 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     )
 
     model = load_model(model_path)
-    if points is not None:  # each run's points, as a card that says so would have them
-        model.card = model.card.model_copy(update={"points": points})
     if verifier == "beside":  # as the service loads the model's folder
         found = load_beside(model_path.parent, skip=frozenset({model_path.resolve()}))[1]
         attach_verifiers({model.card.name: model}, found, model_path.parent)
@@ -106,6 +104,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 up=None if ups is None else [float(v) for v in ups[i]],
                 verify=verify if k != 1 else None,
                 recheck=recheck if k == 1 else None,
+                points_per_run=points,
             )
             planned = plan(model, request)
             if full:  # every run on all its points every step, whatever the card's plan says
