@@ -127,10 +127,8 @@ class Segmentation:
 def find_floor(
     points: NDArray, expected_up: NDArray, options: SegmentOptions, rng: np.random.Generator
 ) -> Plane | None:
-    """The floor plane of a cloud (N, 3), its normal up (on ``expected_up``'s side), or None
-    where no plane is near-normal to ``expected_up`` (3,, unit) or the one found has most of
-    the points below it (a ceiling). Nothing here assumes a camera at the origin: a room's
-    fused cloud in any frame, given its up, has its floor found as a camera's view has."""
+    """The floor plane of a camera-frame cloud (N, 3), its normal toward the camera (the
+    origin), or None where no plane is near-normal to ``expected_up`` (3,, unit)."""
     cos_tilt = math.cos(math.radians(options.max_tilt_deg))
     found = ransac_plane(
         points,
@@ -140,17 +138,14 @@ def find_floor(
         hypotheses=options.floor_hypotheses,
         beyond_m=options.floor_beyond_m,
         local=options.floor_hypotheses // 2,
-        toward=expected_up,
     )
     if found is None:
         return None
     plane, _ = found
-    if plane.normal @ expected_up < 0:
+    if plane.offset < 0:  # toward the camera: the camera's height is positive
         plane = Plane(-plane.normal, -plane.offset)
-    heights = plane.distance(points)
-    threshold = options.floor_threshold_m
-    if np.count_nonzero(heights < -threshold) > np.count_nonzero(heights > threshold):
-        return None  # the view lies mostly below it: a ceiling, seen from below
+    if plane.normal @ expected_up < cos_tilt:  # a ceiling, seen from below
+        return None
     return plane
 
 

@@ -287,28 +287,3 @@ def test_a_steep_camera_s_strip_of_wall_is_a_wall_not_an_object():
     assert len(found.objects) == 1 and (labels[found.objects[0]] == 1).mean() > 0.95
     blind = segment(given.points, SegmentOptions(split_touching=False, wall_view_top_deg=-90.0))
     assert len(blind.objects) == 2  # without the rule the strip of wall is an object
-
-
-def test_a_rooms_cloud_in_a_frame_of_its_own_has_its_floor_and_objects_given_up(two_boxes):
-    """A room's fused cloud has no camera at its origin: the same view moved into a z-up frame
-    whose origin lies below the floor (as a reconstruction's may) and turned about up, with
-    that up given, has the same floor (its normal on up) and the same two objects."""
-    scene = from_depth(two_boxes.depth, two_boxes.intrinsics)
-    turn = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
-    camera_y_down_to_z_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-    rotation = turn @ camera_y_down_to_z_up
-    world = scene.points @ rotation.T + np.array([4.0, -3.0, 3.0])  # the floor over the origin
-    camera = segment(scene.points)
-    moved = segment(world, expected_up=(0.0, 0.0, 1.0))  # the camera's 15 degrees pitch: near
-    assert camera.floor is not None and moved.floor is not None
-    assert moved.floor.normal @ (rotation @ camera.floor.normal) > math.cos(math.radians(1.0))
-    assert moved.floor.distance(np.zeros((1, 3)))[0] < -1.0  # the origin well below it
-    assert sorted(map(len, moved.objects)) == sorted(map(len, camera.objects))
-    assert len(moved.objects) == 2
-    # a ceiling with the rest of the view below it is no floor, whichever side the origin is
-    rng = np.random.default_rng(4)
-    ceiling = np.c_[rng.uniform(-3, 3, (4000, 2)), np.full(4000, 3.0)]
-    below = rng.normal(size=(3000, 3)) * 0.5 + np.array([0.0, 0.0, 1.2])
-    for origin_z in (0.0, 5.0):
-        room = np.concatenate([ceiling, below]) - np.array([0.0, 0.0, origin_z])
-        assert segment(room, expected_up=(0.0, 0.0, 1.0)).floor is None
