@@ -17,8 +17,8 @@ rotation error and the distance between where the estimate and the truth put A's
 over the object radius, the least over the category's symmetric equivalents; success at
 (10 deg, 0.1). "composed poses" is inv(T_canonical_from_b) · T_canonical_from_a of the two
 served poses alone, the prior itnet-align must never be worse than (paired, per generator);
-"composed served poses" composes the poses ``itnet pose --budget-ms 1000`` serves (the card's
-fused runs, every step), what a user composing two ``itnet pose`` replies gets.
+"composed served poses" composes the poses ``itnet pose --budget-ms 1000 --no-schedule`` serves
+(the card's fused runs, every step).
 ``--up ERROR_DEG`` adds the itnet-align variants given each scan's up direction, tilted by that
 error as a gravity sensor's would be; a model whose card requires up runs only those. Writes
 align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the README's is ``--out docs``).

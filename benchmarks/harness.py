@@ -189,8 +189,21 @@ def sample_cloud(points: int, seed: int = 0) -> np.ndarray:
 
 # Closed-loop clients in separate processes (``run_clients``): one asyncio loop serving 64
 # clients on the server's two cores would measure its own queueing as the server's.
-# A row per reply: (status, client wall ms, server elapsed_ms or nan, iterations, last step ms).
-Row = tuple[int, float, float, int, float]
+# A row per reply: (status, client wall ms, server elapsed_ms or nan, iterations, when the last
+# step ended, when the first step ended: both ms since the request arrived, 0 without a step).
+Row = tuple[int, float, float, int, float, float]
+
+
+def answered_row(data: dict, ms: float) -> Row:
+    """A 200's row from its reply ``data`` and the client's wall time ``ms``."""
+    steps = [e["elapsed_ms"] for e in data["estimates"]]
+    return (200, ms, data["elapsed_ms"], data["iterations"], steps[-1] if steps else 0.0,
+            steps[0] if steps else 0.0)  # fmt: skip
+
+
+def failed_row(status: int, ms: float) -> Row:
+    """A refusal's (or a transport error's: status 0) row."""
+    return (status, ms, float("nan"), 0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -208,7 +221,6 @@ class ClientPlan:
 async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float,
                        probe: bool) -> dict:  # fmt: skip
     import asyncio
-    import math
 
     rows: list[Row] = []
     health: list[int] = []
@@ -222,16 +234,14 @@ async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float
                 reply = await http.post("/v1/estimate", content=plan.body, params=plan.params,
                                         headers={"content-type": plan.content_type})  # fmt: skip
             except httpx.HTTPError:
-                rows.append((0, (time.perf_counter() - begin) * 1e3, math.nan, 0, 0.0))
+                rows.append(failed_row(0, (time.perf_counter() - begin) * 1e3))
                 await asyncio.sleep(0.05)
                 continue
             ms = (time.perf_counter() - begin) * 1e3
             if reply.status_code == 200:
-                data = reply.json()
-                last = data["estimates"][-1]["elapsed_ms"] if data["estimates"] else 0.0
-                rows.append((200, ms, data["elapsed_ms"], data["iterations"], last))
+                rows.append(answered_row(reply.json(), ms))
                 continue
-            rows.append((reply.status_code, ms, math.nan, 0, 0.0))
+            rows.append(failed_row(reply.status_code, ms))
             if reply.status_code == 503:
                 wait = plan.retry_s
                 await asyncio.sleep(float(reply.headers.get("retry-after", 1)) if wait is None
@@ -254,7 +264,6 @@ async def _client_loop(plan: ClientPlan, clients: int, start: float, stop: float
 def _client_threads(plan: ClientPlan, clients: int, start: float, stop: float) -> dict:
     """``clients`` threads, each a synchronous ``httpx.Client`` in a closed loop, as many users
     write them: send, read, send again at once; after a 503 wait ``retry_s`` (or Retry-After)."""
-    import math
     import threading
 
     rows: list[Row] = []
@@ -270,18 +279,17 @@ def _client_threads(plan: ClientPlan, clients: int, start: float, stop: float) -
                                       headers={"content-type": plan.content_type})  # fmt: skip
                 except httpx.HTTPError:
                     with lock:
-                        rows.append((0, (time.perf_counter() - begin) * 1e3, math.nan, 0, 0.0))
+                        rows.append(failed_row(0, (time.perf_counter() - begin) * 1e3))
                     time.sleep(0.05)
                     continue
                 ms = (time.perf_counter() - begin) * 1e3
                 if reply.status_code == 200:
-                    data = reply.json()
-                    last = data["estimates"][-1]["elapsed_ms"] if data["estimates"] else 0.0
+                    row = answered_row(reply.json(), ms)
                     with lock:
-                        rows.append((200, ms, data["elapsed_ms"], data["iterations"], last))
+                        rows.append(row)
                     continue
                 with lock:
-                    rows.append((reply.status_code, ms, math.nan, 0, 0.0))
+                    rows.append(failed_row(reply.status_code, ms))
                 if reply.status_code == 503:
                     wait = plan.retry_s
                     time.sleep(float(reply.headers.get("retry-after", 1)) if wait is None

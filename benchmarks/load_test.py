@@ -102,6 +102,9 @@ def summarise(result: dict, clients: int, budget_ms: float) -> dict:
         "overrun_max_ms": float(overrun.max()) if len(ok) else float("nan"),
         "iterations_mean": float(np.mean([r[3] for r in ok])) if ok else float("nan"),
         "iterations_median": float(np.median([r[3] for r in ok])) if ok else float("nan"),
+        # when the first step ended, ms after the request arrived: what receiving, decoding,
+        # queueing and one step took
+        "first_step_p50_ms": percentile([r[5] for r in ok if r[3] > 0], 50),
         "zero_iteration_share": float(np.mean([r[3] == 0 for r in ok])) if ok else float("nan"),
         "overruns_over_1ms": causes,
         **result["cpu"],
@@ -114,8 +117,9 @@ def table(rows: list[dict], margin_ms: float) -> str:
         "| batching | clients kind | budget ms | clients | requests | 200 / 503 / other | ok/s "
         "| ≥5 iterations/s | share of the first row's | round trip p50 / p99 ms "
         "| engine p50 / p99 / max ms | overrun p99 / max ms | wall - budget p99 ms "
-        "| iterations (mean / median) | budget held | CPU busy (machine) / server / clients |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| iterations (mean / median) | first step ends p50 ms | budget held "
+        "| CPU busy (machine) / server / clients |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     first: dict[tuple, float] = {}
     for r in rows:
@@ -134,7 +138,8 @@ def table(rows: list[dict], margin_ms: float) -> str:
             f"{r['engine_p50_ms']:.1f} / {r['engine_p99_ms']:.1f} / {r['engine_max_ms']:.1f} | "
             f"{r['overrun_p99_ms']:+.1f} / {r['overrun_max_ms']:+.1f} | "
             f"{r['wall_minus_budget_p99_ms']:+.1f} | {r['iterations_mean']:.2f} / "
-            f"{r.get('iterations_median', float('nan')):.0f} | {held} | "
+            f"{r.get('iterations_median', float('nan')):.0f} | "
+            f"{r.get('first_step_p50_ms', float('nan')):.1f} | {held} | "
             f"{r['machine_busy_share']:.0%} / {r['server_cores']:.2f} / {r['client_cores']:.2f} |"
         )
     return "\n".join(lines)
@@ -179,6 +184,12 @@ def main(
         max=16,
         help="'ensemble' of every request (default: none, the card's plan)",
     ),
+    schedule: bool = typer.Option(
+        True,
+        "--schedule/--no-schedule",
+        help="--no-schedule: every request asks for no schedule (every run on all its points "
+        "every step: the card's plan without its cheaper steps)",
+    ),
     batching: str = typer.Option(
         "on",
         help="'on' (steps of requests in flight share calls), 'off' (ITNET_BATCH_JOBS=1), "
@@ -211,12 +222,13 @@ def main(
     for setting in settings:
         jobs = {} if setting == "on" else {"ITNET_BATCH_JOBS": "1"}
         with serve(folder, log, {**env, **jobs}, args=["--workers", str(workers)]) as server:
-            warm = _bodies(cloud, budgets[0], ensemble, binary=False)[0]
+            warm = _bodies(cloud, budgets[0], ensemble, schedule, binary=False)[0]
             for _ in range(20 * workers):  # warm up (each worker)
                 assert httpx.post(f"{server.url}/v1/estimate", content=warm, headers=JSON,
                                   timeout=30).status_code == 200  # fmt: skip
             rss_before = server.rss_mb()
-            bodies = {budget: _bodies(cloud, budget, ensemble, binary) for budget in budgets}
+            bodies = {budget: _bodies(cloud, budget, ensemble, schedule, binary)
+                      for budget in budgets}  # fmt: skip
             counts = [int(c) for c in concurrency.split(",")]
             for kind, budget, clients in product(kinds, budgets, counts):
                 sent, content_type, params = bodies[budget]
@@ -236,9 +248,10 @@ def main(
                            err=True)  # fmt: skip
             health[setting] = httpx.get(f"{server.url}/healthz", timeout=5).status_code
             rss[setting] = f"{rss_before:.0f} -> {server.rss_mb():.0f} MiB"
-    sent = _bodies(cloud, budgets[0], ensemble, binary)[0]
+    sent = _bodies(cloud, budgets[0], ensemble, schedule, binary)[0]
     typer.echo(f"model: {folder / 'chair.onnx'}; cloud {points} points "
-               f"({'float32' if binary else 'JSON'}, {len(sent):,} bytes); ensemble {ensemble or 'by the card'}; "
+               f"({'float32' if binary else 'JSON'}, {len(sent):,} bytes); ensemble {ensemble or 'by the card'}"
+               f"{'' if schedule else ', no schedule'}; "
                f"{workers} server process(es), "
                f"each: limit {max_concurrent} concurrent estimates, {threads} onnxruntime threads, "
                f"gc_freeze {gc_freeze}")  # fmt: skip
@@ -250,13 +263,14 @@ def main(
         json_out.write_text(json.dumps({"rows": rows, "budgets_ms": budgets}, indent=1))
 
 
-def _bodies(cloud: np.ndarray, budget_ms: float, ensemble: int | None,
+def _bodies(cloud: np.ndarray, budget_ms: float, ensemble: int | None, schedule: bool,
             binary: bool) -> tuple[bytes, str, dict[str, str] | None]:  # fmt: skip
     """A request of ``cloud`` (N, 3) at ``budget_ms``: (body, content type, query parameters):
     JSON with the fields, or float32 with the fields in the query."""
-    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {})}
+    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {}),
+              **({} if schedule else {"schedule": False})}  # fmt: skip
     if binary:
-        params = {k: str(v) for k, v in fields.items()}
+        params = {k: str(v).lower() if isinstance(v, bool) else str(v) for k, v in fields.items()}
         return cloud.astype("<f4").tobytes(), "application/octet-stream", params
     return json.dumps({"points": cloud.tolist(), **fields}).encode(), JSON["content-type"], None
 

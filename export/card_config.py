@@ -73,9 +73,8 @@ class CardChanges(BaseModel):
     )
     coarse_steps: str | None = Field(
         None,
-        description="ITERATIONS,POINTS: where the budget does not hold every step of the fused "
-        "runs, each run's first ITERATIONS steps on at most POINTS of its points, or none; a "
-        "schedule needs its measurement (--with-plan)",
+        description="ITERATIONS,POINTS: the served schedule's first ITERATIONS steps on at most "
+        "POINTS of each run's points, or none; a schedule needs its measurement (--with-plan)",
     )
     halving: str | None = Field(
         None,

@@ -27,7 +27,7 @@ SWITCHES: dict[str, tuple[str, str]] = {
     "mirror": ("the mirror planes", "finished in time"),
     "recheck": ("the recheck", "rechecked"),
     "verify": ("verify", "verified in time"),
-    "plan": ("the coarse first steps and the halving", "planned"),
+    "plan": ("the coarse first steps and the halving", "of the work"),
 }
 FUSED_KINDS = ("verify", "plan")  # measured on fused runs
 
@@ -162,7 +162,7 @@ def _up(head: str, parts: str) -> dict:
 
 def _switch_text(m: Measurement) -> str:
     words, share_words = SWITCHES[m.kind]
-    fused = m.kind in FUSED_KINDS
+    fused = m.kind in FUSED_KINDS and any(r.runs > 1 for r in m.results)  # a plan: maybe one
     parts = []
     for r in m.results:
         gain = "" if r.gain is None else f"{r.gain:+.1f} ± {r.gain_stderr:.1f}, "

@@ -142,17 +142,16 @@ class ModelCard(BaseModel):
     evaluation: str = ""
     coarse_steps: tuple[int, int] | None = Field(
         None,
-        description="(ITERATIONS, POINTS): where the budget does not hold every step of the "
-        "fused runs, each run's first ITERATIONS steps see at most POINTS of its points (a step "
-        "costs about linearly in runs x points), the later ones all of them, before fewer runs "
-        "are tried; chosen per category on validation (plan_evaluation says how); none: fewer "
-        "runs at once",
+        description="(ITERATIONS, POINTS): the served schedule's first ITERATIONS steps see at "
+        "most POINTS of each run's points (a step costs about linearly in runs x points), the "
+        "later ones all of them; chosen per category on validation (plan_evaluation says how); "
+        "none: every step on all the points",
     )
     halving: tuple[int, int] | None = Field(
         None,
-        description="(AT, KEEP): with coarse_steps, the same schedule's successive halving of "
-        "fused runs: after AT iterations only the KEEP runs the category's verifier finds "
-        "likeliest go on (where the budget holds its call); none: every run to the end",
+        description="(AT, KEEP): the served schedule's successive halving of fused runs: after "
+        "AT iterations only the KEEP runs the category's verifier finds likeliest go on (where "
+        "the budget holds its call); none: every run to the end",
     )
     plan_evaluation: str = Field(
         "",
@@ -371,23 +370,26 @@ def describe_up(report: dict, k: int) -> str:
     return up_measurement(report, k).text()
 
 
-def _paired_rows(without: dict, with_it: dict, fused: bool) -> list[tuple[str, str, dict, dict]]:
+def _paired_rows(without: dict, with_it: dict,
+                 fused: bool | None) -> list[tuple[str, str, dict, dict]]:  # fmt: skip
     """(kind, runs, row without, row with) of two ``benchmarks.bench_ensemble`` JSONs of the
-    same views: the one-run rows, or (``fused``) those of more than one run. Raises ValueError
-    where they share none or measured different scans."""
+    same views: the one-run rows, or (``fused``) those of more than one run, or (None) every
+    row. Raises ValueError where they share none or measured different scans."""
     pairs = []
     for kind, rows in with_it.items():
         if not isinstance(rows, dict) or not isinstance(without.get(kind), dict):
             continue
         for runs, row in rows.items():
-            if not runs.isdigit() or (int(runs) > 1) != fused or runs not in without[kind]:
+            if not runs.isdigit() or runs not in without[kind]:
+                continue
+            if fused is not None and (int(runs) > 1) != fused:
                 continue
             plain = without[kind][runs]
             if plain["scans"] != row["scans"] or without.get("split") != with_it.get("split"):
                 raise ValueError(f"{kind}: the two reports measured different scans")
             pairs.append((kind, runs, plain, row))
     if not pairs:
-        many = "more than one run" if fused else "one run"
+        many = {True: "more than one run", False: "one run", None: "any runs"}[fused]
         raise ValueError(f"the reports share no kind of view measured with {many}")
     return pairs
 
@@ -396,16 +398,21 @@ def switch_measurement(without: dict, with_it: dict, kind: Kind) -> Measurement:
     """A finishing stage the engine can switch on or off (``kind``: mirror, recheck, verify),
     from two ``benchmarks.bench_ensemble`` JSONs of the same views without and with it: each
     kind of view's accuracy before and after, with the paired gain where the second was
-    measured against the first (``--baseline``) and the share of scans the stage got to; one
-    run's rows, or (verify) those of more. Raises ValueError where they share no such
+    measured against the first (``--baseline``) and the share of scans the stage got to (plan:
+    the share of the network's work, points stepped, the schedule took); one run's rows, or
+    (verify, plan) those of more. Raises ValueError where they share no such
     measurement or measured different scans."""
     fused = kind in FUSED_KINDS
+    if kind == "plan":  # a schedule is measured on the card's runs, however many
+        fused = None
     share_key = {"mirror": "mirror_finished", "recheck": "rechecked", "verify": "verified",
-                 "plan": "planned"}[kind]  # fmt: skip
+                 "plan": "mean_point_steps"}[kind]  # fmt: skip
     results = []
     for views, runs, plain, row in _paired_rows(without, with_it, fused):
         paired = row.get("versus_baseline") or {}
         done = row.get(share_key)
+        if kind == "plan":  # the plan's share: its network work over every step's
+            done = done / plain[share_key] if done and plain.get(share_key) else None
         results.append(ViewResult(views=views, runs=int(runs), scans=row["scans"],
                                   accuracy=row["accuracy"], before=plain["accuracy"],
                                   gain=paired.get("gain"), gain_stderr=paired.get("gain_stderr"),

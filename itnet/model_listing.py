@@ -20,9 +20,9 @@ HEADER = ("name", "category", "symmetry", "mirror", "centre", "up", "precision",
 """The table's columns; the last marks the default model."""
 
 LEGEND = (
-    "runs: fused per estimate by default, as many as the budget holds (where every step of "
-    "them does not fit, the card's schedule first: 'IxP pts', the first I steps on P points a "
-    "run; 'K kept', then only the K runs the verifier finds likeliest); mirror: the planes (x: "
+    "runs: fused per estimate by default, as many as the budget holds, on the card's schedule "
+    "('IxP pts', the first I steps on P points a run; 'K kept', then only the K runs the "
+    "verifier finds likeliest); mirror: the planes (x: "
     "left-right, z: front-back) a single run's final pose is finished by, fused runs' too where "
     "--json says mirror_fused; centre: the final pose's object centre is finished by the card's "
     "correction (+vp: another for requests that give the sensor's position, +up for those that "

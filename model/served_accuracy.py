@@ -93,7 +93,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
     out, first = {}, None
     for k in ensembles:
         poses, iterations, elapsed, mirrored, runs, verified = [], [], [], [], [], []
-        rechecked = []
+        rechecked, point_steps = [], []
         for i, cloud in enumerate(scans.clouds):
             request = PoseRequest(
                 budget_ms=budget_ms,
@@ -123,6 +123,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             elapsed.append(run.elapsed_ms())
             mirrored.append(result.get("mirror"))
             runs.append(result["ensemble"])
+            point_steps.append(run.point_steps)
         _, rot, trans = report(np.stack(poses)[:, None], scans, cat.symmetry)  # symmetry-aware
         correct = is_correct(rot[:, -1], trans[:, -1]).astype(float)
         first = correct if first is None else first
@@ -139,6 +140,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             "misses": misses(rot[:, -1], trans[:, -1]),
             **versus,
             "median_iterations": float(np.median(iterations)),
+            # the network's work a pose took: points stepped over runs and steps, stages too
+            "mean_point_steps": round(float(np.mean(point_steps)), 1),
             **({"runs": {str(r): runs.count(r) for r in sorted(set(runs))}} if k == 0 else {}),
             "median_elapsed_ms": round(float(np.median(elapsed)), 2),
             "p99_elapsed_ms": round(float(np.percentile(elapsed, 99)), 2),

@@ -21,6 +21,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from itnet.scale.table import BatchTable
 
 
@@ -34,7 +36,9 @@ class BatchStats:
     errors: int
     rows: int
     seconds: float  # the whole run, Ray's start and the models' loading included
-    steady_per_second: float  # items a second once every worker had answered (0: too few)
+    # items a second once every worker had answered, by when the workers finished their batches
+    # (0: too few batches to tell)
+    steady_per_second: float
 
 
 def worker_threads(workers: int, threads: int | None, address: str | None) -> int:
@@ -87,13 +91,14 @@ def run_batch(
             for batch in ds.iter_batches(batch_size=None, batch_format="numpy"):
                 rows = [json.loads(text) for text in batch["row"]]
                 seen.update(int(w) for w in batch["worker"])
+                done_at = float(np.max(batch["done_at"])) if len(rows) else 0.0
                 if not first_at and len(seen) >= workers:  # all up: steady from here
-                    first_at, first_rows = time.perf_counter(), rows_now + len(rows)
+                    first_at, first_rows = done_at, rows_now + len(rows)
                 table.write_part(rows)
                 errors += sum("error" in row for row in rows)
                 rows_now += len(rows)
                 bar.update(len(rows))
-                last_at = time.perf_counter()
+                last_at = max(last_at, done_at)
         finally:
             bar.close()
             if owned:
@@ -103,7 +108,8 @@ def run_batch(
     return BatchStats(
         done=rows_now, skipped=len(items) - len(todo), errors=errors, rows=total,
         seconds=time.perf_counter() - started,
-        steady_per_second=after_first / (last_at - first_at) if after_first > 0 else 0.0,
+        steady_per_second=(after_first / (last_at - first_at)
+                           if after_first > 0 and last_at > first_at else 0.0),
     )  # fmt: skip
 
 

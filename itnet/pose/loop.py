@@ -85,6 +85,8 @@ class AnytimeRun(Iterator[Estimate]):
         self._finished = False
         self._cancel = threading.Event()
         self._last_step_ms = 0.0
+        # the network's work so far: points stepped, summed over runs and steps (stages too)
+        self.point_steps = 0
 
     # -- the loop ------------------------------------------------------------------------------
 
@@ -145,6 +147,8 @@ class AnytimeRun(Iterator[Estimate]):
         start = time.perf_counter()
         stepped = self.model.batched_step(points, poses, self._latest())
         self._last_step_ms = (time.perf_counter() - start) * 1e3  # the wait included
+        if stepped is not None:
+            self.point_steps += points.shape[0] * points.shape[1]
         return stepped  # a step done counts, cancelled or not
 
     def extra_call(self, work: Callable[[], T], predicted_ms: float) -> T | None:

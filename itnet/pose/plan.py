@@ -166,9 +166,10 @@ def plan(
 ) -> PosePlan:
     """The plan of ``request`` on ``model`` (its ``model`` field is already resolved to it);
     ``spent_ms``: what the budget already paid before the run (the classification of ``auto``).
-    Fused runs whose every step does not fit the budget follow the card's coarse first steps and
-    halving before fewer runs are tried, unless the request's ``schedule`` is false (every run
-    on all its points every step, as a path measured without them asks); each run sees at most
+    The runs follow the card's schedule (coarse first steps, successive halving: the same
+    accuracy for a fraction of the steps, as the card's plan_evaluation measured) unless the
+    request's ``schedule`` is false (every run on all its points every step, as a path measured
+    without it asks); the runs a budget holds are counted on that plan; each run sees at most
     the request's ``points_per_run`` (default: the card's), and the runs are sized at that count.
     Raises BadCloudError (a 422) for what the request cannot have: a budget or iteration cap
     over the limits, ``up`` or ``viewpoint`` that are not directions or points, a model that
@@ -218,7 +219,7 @@ def plan(
 
     @cache  # each count of runs sized once: the one chosen is not sized again
     def sized(runs: int) -> PosePlan:
-        return _sized(base, runs, available, schedule)
+        return _sized(base, runs, schedule)
 
     def work_ms(runs: int) -> float:
         """The steps of ``runs`` runs as they would be planned, on an idle machine."""
@@ -234,16 +235,17 @@ def plan(
                    stages=_stages(model, request, runs))  # fmt: skip
 
 
-def _sized(base: PosePlan, runs: int, available_ms: float, schedule: bool) -> PosePlan:
+def _sized(base: PosePlan, runs: int, schedule: bool) -> PosePlan:
     """``base`` with ``runs`` runs (as many starts; what their work needs, not yet turned apart
-    or given their stages): on every step where that fits ``available_ms`` on an idle machine,
-    else on the card's schedule (where ``schedule`` and the card has one; it was measured on
-    fused runs: a single run takes every step)."""
+    or given their stages): on the card's schedule where ``schedule`` and the card has one (its
+    first steps on fewer points, then the runs the verifier finds likeliest), else every run on
+    all its points every step. A schedule measured on fused runs leaves a single run every
+    step; a card that fuses no runs measured its schedule on its single run."""
     card = base.model.card
     full = replace(base, starts=np.repeat(base.starts, runs, axis=0))
-    if runs == 1 or not schedule or (card.coarse_steps is None and card.halving is None):
+    if not schedule or (card.coarse_steps is None and card.halving is None):
         return full
-    if full.work_ms(base.max_iterations, base.most_points, base.idle_run_ms) <= available_ms:
+    if runs == 1 and card.recommended_ensemble > 1:
         return full
     return replace(full, halving=card.halving, coarse=card.coarse_steps)
 

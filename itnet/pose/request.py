@@ -63,10 +63,10 @@ class PoseRequest(RequestModel):
     )
     schedule: bool | None = Field(
         default=None,
-        description="where every step of the fused runs does not fit budget_ms, follow the "
-        "model card's cheaper schedule (its first steps on fewer points, then only the runs the "
-        "verifier finds likeliest) before planning fewer runs (default: where the card has one); "
-        "false: fewer runs instead",
+        description="follow the model card's schedule: the first steps on fewer points, then "
+        "only the runs the verifier finds likeliest (the same accuracy for about a third of the "
+        "network's work; default: where the card has one); false: every run on all its points "
+        "every step",
     )
     mirror: bool | None = Field(
         default=None,

@@ -23,6 +23,10 @@ def test_the_request_gives_each_cloud_its_share_and_the_pipeline_its_knobs(tiny_
     assert pose.budget_ms == pytest.approx(80 * POSE_SHARE) and pose.ensemble == ALIGN_RUNS
     assert cloud_request(AlignRequest(starts=2).pose_request()).ensemble == 2
     assert cloud_request(AlignRequest(budget_ms=5000).pose_request()).ensemble == ALIGN_RUNS
+    # each cloud's runs take every step (the choice was calibrated on them), unless asked
+    assert pose.schedule is False
+    scheduled = AlignRequest().pose_request().model_copy(update={"schedule": True})
+    assert cloud_request(scheduled).schedule is True
     card = Catalog(load_models(tiny_model_dir, warm_up=False)).model("tiny").card
     options = request.options(card, refine=True)
     assert options.budget_ms == 80 and options.candidates == 3 and options.rivals is False

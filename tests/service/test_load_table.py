@@ -26,7 +26,7 @@ def test_each_setting_is_shared_against_its_own_first_row() -> None:
         ("off", "1", "100%"),
         ("off", "16", "80%"),
     ]
-    assert [c[15].strip() for c in lines] == ["yes", "yes", "yes", "NO"]  # p99 overrun vs margin
+    assert [c[16].strip() for c in lines] == ["yes", "yes", "yes", "NO"]  # p99 overrun vs margin
 
 
 def test_each_client_mix_and_budget_is_shared_against_its_own_first_row() -> None:

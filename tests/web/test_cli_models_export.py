@@ -78,10 +78,12 @@ def test_models_table_shows_the_shipped_cards():
     # the dresser too, its centre finished by the correction fitted held upright
     dresser = load_model(SHIPPED / "dresser.onnx", warm_up=False)
     row = next(r for r in rows if r.startswith("dresser "))
-    assert row.split()[:9] == ["dresser", "dresser", "yaw180", "x,z", "up+upvp", "needed", "int8",
-                               "256", "1"]  # fmt: skip
-    # one run by default: its verifier anchors only the runs a request asks to fuse
-    assert dresser.card.verify_fused and row.split()[9] == "verify-if-fused"
+    assert row.split()[:8] == ["dresser", "dresser", "yaw180", "x,z", "up+upvp", "needed", "int8",
+                               "256"]  # fmt: skip
+    # one run by default, its first 9 steps on 64 points; its verifier anchors only the runs a
+    # request asks to fuse
+    assert " 1, 9x64 pts " in row and dresser.card.coarse_steps == (9, 64)
+    assert dresser.card.verify_fused and row.split()[11] == "verify-if-fused"
     assert dresser.card.requires_up and dresser.centre_up is not None and dresser.centre is None
     assert "held upright" in dresser.card.centre_up_evaluation
     bed = load_model(SHIPPED / "bed.onnx", warm_up=False).card
@@ -90,17 +92,17 @@ def test_models_table_shows_the_shipped_cards():
         bed.mirror_fused
         and not load_model(SHIPPED / "bathtub.onnx", warm_up=False).card.mirror_fused
     )
-    # the bathtub: 8 runs fused within the default 50 ms; two mirror planes
+    # the bathtub: 8 runs fused within the default 50 ms (on its schedule); two mirror planes
     row = next(r for r in rows if r.startswith("bathtub "))
     tub = load_model(SHIPPED / "bathtub.onnx", warm_up=False).card
     assert row.split()[:9] == ["bathtub", "bathtub", "yaw180", "x,z",
-                               centre_column(tub), "-", "int8", "256", "8"]  # fmt: skip
+                               centre_column(tub), "-", "int8", "256", "8,"]  # fmt: skip
     assert "8 runs fused, within 50 ms" in tub.ensemble_evaluation
     # the sofa: 8 runs fused, finished by its left-right mirror too
     row = next(r for r in rows if r.startswith("sofa "))
     sofa = load_model(SHIPPED / "sofa.onnx", warm_up=False).card
     assert row.split()[:9] == ["sofa", "sofa", "none", "x",
-                               centre_column(sofa), "-", "int8", "256", "8"]  # fmt: skip
+                               centre_column(sofa), "-", "int8", "256", "8,"]  # fmt: skip
     assert sofa.mirror_fused and "8 runs fused, within 50 ms" in sofa.ensemble_evaluation
 
 
