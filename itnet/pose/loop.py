@@ -325,10 +325,11 @@ class AnytimeRun(Iterator[Estimate]):
         """Where the budget ran out before the first step, the start is no pose and must never be
         handed back as one: BudgetTooSmallError (422) where one step of this plan takes longer
         than the whole budget on an idle machine, or where the run was ``alone`` (no other run
-        admitted beside it) and its own decoding (``decode_ms``) alone passed the budget:
-        retrying the same request cannot succeed. (Decoding that left too little for a step,
-        but did not pass the budget itself, is a busy moment: a retry may succeed.) Else
-        OverloadedError (503: the machine was too busy, or the request too slow to arrive)."""
+        admitted beside it) and its own decoding (``decode_ms``) took at least half the budget
+        and left no room for one idle step: retrying the same body cannot succeed. (Decoding
+        that took less, yet left no room for a step, is a busy moment: a retry may succeed.)
+        Else OverloadedError (503: the machine was too busy, or the request too slow to
+        arrive)."""
         if self.iteration > 0 or self.stopped_by != "budget":
             return
         step_ms = self.plan.first_step_ms(len(self.cloud))  # on an idle machine: not the load
@@ -337,7 +338,7 @@ class AnytimeRun(Iterator[Estimate]):
                 f"budget_ms {self.plan.budget_ms:g} is below one step of model "
                 f"{self.model.card.name!r} (about {step_ms:.3g} ms here): no pose fits it"
             )
-        if alone and self.decode_ms > self.plan.budget_ms:
+        if alone and _unmeetable(self.decode_ms, step_ms, self.plan.budget_ms):
             raise BudgetTooSmallError(
                 f"decoding this request took {self.decode_ms:.1f} ms of its "
                 f"budget_ms {self.plan.budget_ms:g}, and one step takes about {step_ms:.3g} ms: "
@@ -356,3 +357,10 @@ class AnytimeRun(Iterator[Estimate]):
         first estimate."""
         assert self.recognition is not None
         return {"type": "category", "model": self.model.card.name, **self.recognition.as_dict()}  # type: ignore[attr-defined]
+
+
+def _unmeetable(decode_ms: float, step_ms: float, budget_ms: float) -> bool:
+    """Whether a body whose decoding took ``decode_ms`` can never be posed within
+    ``budget_ms``: its decoding takes half the budget or more, and with one step of
+    ``step_ms`` (on an idle machine) it passes the budget."""
+    return decode_ms >= budget_ms / 2 and decode_ms + step_ms > budget_ms

@@ -163,13 +163,19 @@ def test_a_request_whose_own_arrival_spent_its_budget_is_refused_as_unmeetable(m
         run.check_served(alone=True)
     with pytest.raises(OverloadedError, match="no step"):
         run.check_served(alone=False)
-    # Decoding that left no room for a step without passing the budget itself is a busy moment
-    # (a loaded replica), not the body: a retry may succeed.
+    # Decoding that took most of the budget and left no room for one idle step: the body
+    # cannot be posed in time however often it is sent (422); decoding that took little of it
+    # while no step fit is a busy moment (a loaded replica), not the body: a retry may succeed.
     squeezed = AnytimeRun(plan(model, PoseRequest(budget_ms=budget)), cloud, late,
                           decode_ms=0.9 * budget)  # fmt: skip
     assert list(squeezed) == []
-    with pytest.raises(OverloadedError, match="no step"):
+    with pytest.raises(BudgetTooSmallError, match="application/octet-stream"):
         squeezed.check_served(alone=True)
+    busy = AnytimeRun(plan(model, PoseRequest(budget_ms=budget)), cloud, late,
+                      decode_ms=0.3 * budget)  # fmt: skip
+    assert list(busy) == []
+    with pytest.raises(OverloadedError, match="no step"):
+        busy.check_served(alone=True)
     catalog = Catalog({"tiny": model})
     late_run = catalog.start(cloud, PoseRequest(budget_ms=budget, model="tiny"), late)
     with (
