@@ -27,7 +27,10 @@ p99 overrun is within ``--margin-ms``. ``--batching on,off`` runs every row agai
 that batches the steps of requests in flight into shared calls (the default) and then one that
 makes a call a step (``ITNET_BATCH_JOBS=1``), side by side; ``--clients-kind async,threads``
 and ``--budget-ms 20,50`` run a set of rows for each client mix and budget against the same
-server. Each set's share column is its replies with at least 5 iterations over its first row's.
+server. Each set's share column is its replies with at least 5 iterations over its first row's;
+"first step ends" is when the first step ended after the request arrived (receiving, decoding,
+queueing and one step). ``--no-schedule`` asks every request for every step of its runs (the
+card's cheaper schedule off), to compare against the default plan.
 Prints a markdown table; ``--json-out`` saves the rows.
 """
 
