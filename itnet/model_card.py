@@ -402,9 +402,8 @@ def switch_measurement(without: dict, with_it: dict, kind: Kind) -> Measurement:
     the share of the network's work, points stepped, the schedule took); one run's rows, or
     (verify, plan) those of more. Raises ValueError where they share no such
     measurement or measured different scans."""
-    fused = kind in FUSED_KINDS
-    if kind == "plan":  # a schedule is measured on the card's runs, however many
-        fused = None
+    # a schedule is measured on the card's runs, however many
+    fused: bool | None = None if kind == "plan" else kind in FUSED_KINDS
     share_key = {"mirror": "mirror_finished", "recheck": "rechecked", "verify": "verified",
                  "plan": "mean_point_steps"}[kind]  # fmt: skip
     results = []
