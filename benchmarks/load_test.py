@@ -53,6 +53,8 @@ from benchmarks.harness import (
     sample_cloud,
     serve,
 )
+from itnet.clients.wire import json_request, request_fields
+from itnet.pose.request import PoseRequest
 from itnet.service.benchmark import GOOD_ITERATIONS
 from itnet.service.settings import Settings
 
@@ -269,13 +271,14 @@ def main(
 def _bodies(cloud: np.ndarray, budget_ms: float, ensemble: int | None, schedule: bool,
             binary: bool) -> tuple[bytes, str, dict[str, str] | None]:  # fmt: skip
     """A request of ``cloud`` (N, 3) at ``budget_ms``: (body, content type, query parameters):
-    JSON with the fields, or float32 with the fields in the query."""
-    fields = {"budget_ms": budget_ms, **({"ensemble": ensemble} if ensemble else {}),
-              **({} if schedule else {"schedule": False})}  # fmt: skip
+    JSON with the fields, or float32 with the fields in the query, as the clients send them."""
+    request = PoseRequest(budget_ms=budget_ms, ensemble=ensemble,
+                          schedule=None if schedule else False)  # fmt: skip
     if binary:
-        params = {k: str(v).lower() if isinstance(v, bool) else str(v) for k, v in fields.items()}
+        params = {"budget_ms": str(budget_ms), **request.to_query()}
         return cloud.astype("<f4").tobytes(), "application/octet-stream", params
-    return json.dumps({"points": cloud.tolist(), **fields}).encode(), JSON["content-type"], None
+    body = json_request(cloud, request_fields(request))
+    return json.dumps(body).encode(), JSON["content-type"], None
 
 
 if __name__ == "__main__":
