@@ -12,8 +12,15 @@ development scenes render it as they render their objects (``model.scenes``):
 * ``cabinet``: a tall narrow case 0.3-0.6 m wide, 1.2-2.0 m tall (a wardrobe's side, a
   bookcase seen from the side), taller than any night stand or dresser.
 
-Sizes are those of common retail pieces (IKEA's ottomans, bins, floor lamps and bookcases). Pure
-numpy.
+Things hung on a room's wall (``hung``, ``HUNG_KINDS``) are none of them either: they stand
+out of the wall by a few centimetres and run along it, past the furniture standing against it:
+
+* ``picture``: a frame 0.3-1.0 m wide, 0.3-0.9 m tall, 2-5 cm deep;
+* ``mirror``: 0.5-1.2 m wide, 0.6-1.2 m tall, 2-6 cm deep (a dresser's mirror hung above it);
+* ``skirting``: a board along the floor, 7-15 cm tall, 1-2.5 cm deep, as long as the wall seen.
+
+Sizes are those of common retail pieces (IKEA's ottomans, bins, floor lamps, bookcases, frames
+and mirrors). Pure numpy.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from numpy.typing import NDArray
 from itnet.model.shapes import Shape
 
 KINDS = ("ottoman", "bin", "lamp", "plant", "cabinet")
+HUNG_KINDS = ("picture", "mirror", "skirting")
 POINTS = 1536  # surface points a distractor's shape holds
 
 
@@ -40,6 +48,23 @@ def distractor(kind: str, rng: np.random.Generator) -> tuple[Shape, float]:
     centre = (points.min(0) + points.max(0)) / 2
     radius = float(np.linalg.norm(points - centre, axis=1).max())
     return Shape(f"{kind}", (points - centre) / radius), radius
+
+
+def hung(kind: str, rng: np.random.Generator, length_m: float = 6.0) -> tuple[Shape, float]:
+    """A thing of ``kind`` (``HUNG_KINDS``) hung on a wall -> (its Shape: unit bounding radius
+    about its box's centre, x along the wall, y up, z out of the wall; metres per unit of it);
+    ``length_m``: a skirting board's length."""
+    sizes = {
+        "picture": lambda: (rng.uniform(0.3, 1.0), rng.uniform(0.3, 0.9), rng.uniform(0.02, 0.05)),
+        "mirror": lambda: (rng.uniform(0.5, 1.2), rng.uniform(0.6, 1.2), rng.uniform(0.02, 0.06)),
+        "skirting": lambda: (length_m, rng.uniform(0.07, 0.15), rng.uniform(0.01, 0.025)),
+    }
+    if kind not in sizes:
+        raise ValueError(f"unknown hung thing {kind!r} (known: {', '.join(HUNG_KINDS)})")
+    points = _box_surface(np.array(sizes[kind]()), POINTS, rng)
+    points[:, 1] -= points[:, 1].max() / 2  # about its box's centre
+    radius = float(np.linalg.norm(points, axis=1).max())
+    return Shape(kind, points / radius), radius
 
 
 def _box_surface(size: NDArray, count: int, rng: np.random.Generator) -> NDArray[np.float64]:

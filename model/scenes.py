@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from itnet.geometry import axis_angle_to_matrix, invert_rigid
 from itnet.model.categories import MODELNET10
 from itnet.model.data import load_shapes, split_files
-from itnet.model.distractors import KINDS, distractor
+from itnet.model.distractors import KINDS, distractor, hung
 from itnet.model.sensor import SENSORS, mixed_at_edges
 from itnet.model.shapes import Shape
 from itnet.scene.camera import Intrinsics
@@ -292,7 +292,7 @@ def make_scene(
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
     most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
-    sensor: str | None = None,
+    sensor: str | None = None, against_wall: bool = False,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
@@ -306,7 +306,10 @@ def make_scene(
     a child of ``rng``: the objects, camera and wall are those of the same scene without).
     ``sensor``: the depth as that camera returns it (``model.sensor.SENSORS``: ``kinect_v1``,
     ``kinect_v2``, ``realsense_d435``, ``clean``; ``SensorModel.apply_to_depth``) instead of
-    the default structured-light noise."""
+    the default structured-light noise. ``against_wall``: the wall stands 0-4 cm behind the
+    farthest object (or thing), as furniture stands in a room, with a skirting board and one to
+    three pictures or mirrors hung on it (``model.distractors.hung``; drawn from a child of
+    ``rng``), which are wall in ``labels``."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     view = _View(intrinsics, invert_rigid(camera), width, height, cut_off)
@@ -328,9 +331,13 @@ def make_scene(
     wall_normal_offset = max(
         [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed + others] or [3.0]
     ) + rng.uniform(0.3, 1.5)
-    depth, labels = render([(s, k, w) for s, k, w, _, _ in placed + others], camera,
-                           (wall_normal, wall_normal_offset), intrinsics, width, height, rng,
-                           flying_pixels, sensor)  # fmt: skip
+    rendered = [(s, k, w) for s, k, w, _, _ in placed + others]
+    if against_wall:
+        wall_normal_offset, on_wall = _against_wall(rendered, wall_normal, camera, rng.spawn(1)[0])
+        rendered += on_wall
+    depth, labels = render(rendered, camera, (wall_normal, wall_normal_offset), intrinsics,
+                           width, height, rng, flying_pixels, sensor)  # fmt: skip
+    labels[labels > len(placed) + len(others)] = 0  # what hangs on the wall is wall
     truths = []
     for shape, scale, world, category, _ in placed:
         metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
@@ -339,6 +346,37 @@ def make_scene(
             SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
         )
     return Scene(depth, intrinsics, labels, truths, [kind for _, _, _, kind, _ in others])
+
+
+def _against_wall(
+    rendered: list[tuple[Shape, float, NDArray]], normal: NDArray, camera: NDArray,
+    rng: np.random.Generator,
+) -> tuple[float, list[tuple[Shape, float, NDArray]]]:  # fmt: skip
+    """The wall (normal (3,) toward the camera) 0-4 cm behind the farthest of the ``rendered``
+    (shape, scale, T_world_from_canonical) -> (its offset, what hangs on it: a skirting board
+    along it and one to three pictures or mirrors near the things before it, 0.6-1.9 m up)."""
+    reach = [float((-(s.points * k @ w[:3, :3].T + w[:3, 3]) @ normal).max())
+             for s, k, w in rendered]  # fmt: skip
+    offset = max(reach or [3.0]) + rng.uniform(0.0, 0.04)
+    along = np.cross([0.0, 1.0, 0.0], normal)
+    rotation = np.stack([along, [0.0, 1.0, 0.0], normal], axis=1)  # the thing's x, y, z
+
+    def on_wall(shape: Shape, scale: float, at: float, height: float) -> tuple:
+        depth = scale * float(np.ptp(shape.points[:, 2]))
+        world = np.eye(4)
+        world[:3, :3] = rotation
+        world[:3, 3] = -offset * normal + at * along + [0.0, height, 0.0] + normal * depth / 2
+        return shape, scale, world
+
+    skirting, scale = hung("skirting", rng)
+    height = scale * float(np.ptp(skirting.points[:, 1])) / 2
+    things = [on_wall(skirting, scale, float(camera[:3, 3] @ along), height)]
+    for _ in range(int(rng.integers(1, 4))):
+        shape, scale = hung(("picture", "mirror")[int(rng.integers(2))], rng)
+        near = rendered[int(rng.integers(len(rendered)))][2][:3, 3] if rendered else camera[:3, 3]
+        things.append(on_wall(shape, scale, float(near @ along) + rng.uniform(-0.8, 0.8),
+                              rng.uniform(0.6, 1.9)))  # fmt: skip
+    return offset, things
 
 
 def _footprint(shape: Shape, scale: float) -> float:
@@ -443,6 +481,12 @@ class SceneKind(BaseModel):
         "cabinets) among the objects",
     )
 
+    against_wall: bool = Field(
+        default=False,
+        description="the wall right behind the farthest object, pictures, mirrors and a "
+        "skirting board on it",
+    )
+
     sensor: str | None = Field(
         default=None,
         description="the depth as this camera returns it: kinect_v1, kinect_v2, realsense_d435 "
@@ -458,7 +502,7 @@ class SceneKind(BaseModel):
 
     def keywords(self, drawn: tuple[str, ...]) -> dict[str, Any]:
         """``make_scene``'s keywords (``categories``, ``pitch_deg``, ``most``, ``cut_off``,
-        ``flying_pixels``, ``distractors``, ``sensor``); ``drawn``: the categories without ``draw``. ValueError for a category
+        ``flying_pixels``, ``distractors``, ``sensor``, ``against_wall``); ``drawn``: the categories without ``draw``. ValueError for a category
         without scenes or a pitch that is not LOW,HIGH."""
         if self.draw is not None:
             drawn = tuple(self.draw.split(","))
@@ -470,7 +514,8 @@ class SceneKind(BaseModel):
             raise ValueError(f"pitch: expected LOW,HIGH in degrees, got {self.pitch!r}") from None
         return {"categories": drawn, "pitch_deg": (low, high), "most": self.most,
                 "cut_off": self.cut_off, "flying_pixels": self.flying_pixels,
-                "distractors": self.distractors, "sensor": self.sensor}  # fmt: skip
+                "distractors": self.distractors, "sensor": self.sensor,
+                "against_wall": self.against_wall}  # fmt: skip
 
 
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:

@@ -15,7 +15,10 @@ stands on the floor, filtered by size.
 3. Clusters: what is left, in voxels of ``voxel_m``, linked where voxels lie within ``link_m``
    (3-D) or their footprints on the floor within ``footprint_m`` (so the parts of one object that
    occlusion cut apart, a chair's back above a table, stay one object): the connected components
-   (scipy's KD-tree and csgraph).
+   (scipy's KD-tree and csgraph). What lies within ``wall_band_m`` of a wall links nothing:
+   pictures, mirrors and mouldings on a wall, its noise, and the backs of the furniture standing
+   against it would otherwise join everything along the wall into one cluster; each of its
+   voxels joins the cluster it is fewest links from.
 4. Filters: at least ``min_points`` working voxels (``least_voxels``), a top at least
    ``min_height_m`` above the floor (no floor fragments), at most ``max_size_m`` across and tall (no
    room-sized leftovers), its median point farther than ``wall_piece_m`` from every wall (a wall's
@@ -43,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from itnet.columns import column_max, column_min
@@ -86,6 +89,9 @@ class SegmentOptions:
     link_voxels: float = 1.6  # ... or this many of the working cloud's voxels, if farther
     footprint_m: float = 0.04
     wall_piece_m: float = 0.15  # a cluster whose median point lies this near a wall is of it
+    # what lies this near a wall (things hung on it, mouldings, its noise, the backs of what
+    # stands against it) joins a cluster but links none (step 3)
+    wall_band_m: float = 0.12
     max_base_m: float = 0.15  # a cluster whose lowest point is higher floats: a piece ...
     min_object_m: float = 0.35  # ... as is one whose top is lower (a leg seen below a seat) ...
     attach_m: float = 0.3  # ... of the object within this, else no object ...
@@ -194,13 +200,15 @@ def find_walls(
 
 
 def clusters(
-    points: NDArray, up: NDArray, options: SegmentOptions, voxel_m: float | None = None
-) -> list[NDArray[np.int64]]:
+    points: NDArray, up: NDArray, options: SegmentOptions, voxel_m: float | None = None,
+    band: NDArray[np.bool_] | None = None,
+) -> list[NDArray[np.int64]]:  # fmt: skip
     """Points (N, 3) standing on the floor -> connected groups of them (indices into
     ``points``), linked in 3-D and by footprint (see the module). ``voxel_m``: the points are
     already the centroids of voxels this large (``VoxelCloud``), linked within ``link_m`` or
     ``link_voxels`` voxels (neighbours' centroids lie up to two voxels apart), whichever is
-    farther."""
+    farther. ``band`` (N,): the points in a wall's band, which join groups but link none
+    (``_off_the_band``)."""
     if len(points) == 0:
         return []
     if voxel_m is None:
@@ -214,15 +222,49 @@ def clusters(
     first = np.full(cell_of.max() + 1, -1)
     first[cell_of[::-1]] = np.arange(len(cell_of))[::-1]  # each cell's first voxel
     stars = np.stack([np.arange(len(cell_of)), first[cell_of]], axis=1)
-    links = cKDTree(centres).query_pairs(link, output_type="ndarray")
-    pairs = np.concatenate([links.reshape(-1, 2), stars])
-    n = len(centres)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, label_of_voxel = connected_components(graph, directed=False)
+    links = cKDTree(centres).query_pairs(link, output_type="ndarray").reshape(-1, 2)
+    if band is None or not band[voxel_of].any():
+        label_of_voxel = _components(len(centres), np.concatenate([links, stars]))
+    else:
+        in_band = np.zeros(len(centres), bool)
+        in_band[voxel_of[band]] = True
+        label_of_voxel = _off_the_band(len(centres), links, stars, in_band)
     labels = label_of_voxel[voxel_of]
     order = np.argsort(labels, kind="stable")
     bounds = np.flatnonzero(np.diff(labels[order])) + 1
     return list(np.split(order, bounds))
+
+
+def _components(n: int, pairs: NDArray) -> NDArray[np.int64]:
+    """The connected component (n,) of each of ``n`` nodes linked by ``pairs`` (P, 2)."""
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _off_the_band(
+    n: int, links: NDArray, stars: NDArray, in_band: NDArray[np.bool_]
+) -> NDArray[np.int64]:
+    """Components (n,) of nodes linked by ``links`` (P, 2) and ``stars`` (S, 2) where the nodes
+    ``in_band`` (n,) (a wall's band: what hangs on it, its mouldings, its noise, and the backs of
+    what stands against it) link no two components: the rest is linked without them, and each
+    of them joins the component it is fewest 3-D links from (through the band), or, reaching
+    none, one of its own with the band's nodes it links to."""
+    pairs = np.concatenate([links, stars])
+    label = _components(n, pairs[~in_band[pairs[:, 0]] & ~in_band[pairs[:, 1]]])
+    near_band = links[in_band[links[:, 0]] | in_band[links[:, 1]]]
+    reached = np.full(n, -1)
+    if (~in_band).any() and len(near_band):
+        graph = coo_matrix((np.ones(len(near_band)), (near_band[:, 0], near_band[:, 1])),
+                           shape=(n, n))  # fmt: skip
+        reached = dijkstra(graph, directed=False, indices=np.flatnonzero(~in_band),
+                           unweighted=True, min_only=True, return_predecessors=True)[2]  # fmt: skip
+    lost = in_band & (reached < 0)
+    joined = in_band & ~lost
+    label[joined] = label[reached[joined]]
+    if lost.any():
+        own = _components(n, links[lost[links[:, 0]] & lost[links[:, 1]]])
+        label[lost] = label.max() + 1 + own[lost]
+    return label
 
 
 def _voxels(points: NDArray, size: float) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -421,7 +463,10 @@ def segment(
     cloud = VoxelCloud.of(rest, options.work_voxel_m, working_points_of(options))
     work = cloud.points
     heights = floor.distance(work)
-    groups = clusters(work, up, options, cloud.voxel_m)
+    band = np.zeros(len(work), bool)
+    for wall in walls:
+        band |= wall.distance(work) <= options.wall_band_m
+    groups = clusters(work, up, options, cloud.voxel_m, band)
     least = least_voxels(options, cloud.voxel_m)
     objects = [g for g in groups if standing(work[g], heights[g], up, walls, options, least)]
     floor_seen = planar[np.abs(floor.distance(planar)) <= options.floor_threshold_m]

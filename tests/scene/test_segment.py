@@ -287,3 +287,55 @@ def test_a_steep_camera_s_strip_of_wall_is_a_wall_not_an_object():
     assert len(found.objects) == 1 and (labels[found.objects[0]] == 1).mean() > 0.95
     blind = segment(given.points, SegmentOptions(split_touching=False, wall_view_top_deg=-90.0))
     assert len(blind.objects) == 2  # without the rule the strip of wall is an object
+
+
+def test_what_hangs_on_a_wall_does_not_join_the_furniture_against_it():
+    """Two cabinets 1 m apart with their backs 2 cm from a wall, and a picture frame hung on the
+    wall across both, just above them: two objects, each one cabinet (the frame, within the
+    wall's band, links neither to the other). Without the band they are one."""
+    from itnet.model.scenes import render, world_from_camera
+    from itnet.scene import Intrinsics
+    from itnet.scene.segment import SegmentOptions
+
+    cabinet = boxes_shape([((0, 0, 0), (0.6, 0.9, 0.5))], points=3000)
+    frame = boxes_shape([((0, 0, 0), (2.0, 0.5, 0.04))], points=3000, seed=1)
+    placed = []
+    for shape, x, y, z in ((cabinet, -0.8, 0.45, 3.5), (cabinet, 0.8, 0.45, 3.5),
+                           (frame, 0.0, 1.12, 3.75)):  # fmt: skip
+        world = np.eye(4)
+        world[:3, 3] = [x, y, z]
+        scale = float(np.ptp(shape.points[:, 1]))  # unit shapes: metres per unit
+        placed.append((shape, (0.9 if shape is cabinet else 0.5) / scale, world))
+    intrinsics = Intrinsics.from_fov(320, 240, 60.0)
+    depth, labels = render(placed, world_from_camera(1.4, 15.0, 0.0), (np.array([0, 0, -1.0]), 3.77),
+                           intrinsics, 320, 240, np.random.default_rng(0))  # fmt: skip
+    given = from_depth(depth, intrinsics)
+    owner = labels.ravel()[given.indices]
+    for options, count in ((SegmentOptions(), 2), (SegmentOptions(wall_band_m=0.0), 1)):
+        found = segment(given.points, options)
+        cabinets = [rows for rows in found.objects if np.isin(owner[rows], (1, 2)).mean() > 0.5]
+        assert len(cabinets) == count
+        if count == 2:
+            assert sorted(int(np.bincount(owner[rows]).argmax()) for rows in cabinets) == [1, 2]
+
+
+def test_scenes_against_a_wall_stand_their_farthest_object_at_it():
+    """``make_scene(against_wall=True)``: the wall the segmentation finds lies within a few
+    centimetres of some object's points, and what hangs on it is labelled wall (0)."""
+    from itnet.geometry import invert_rigid
+    from itnet.model.scenes import SIZES, make_scene
+
+    shapes = {name: [boxes_shape([((0, 0, 0), (0.6, 0.8, 0.5))], seed=k)]
+              for k, name in enumerate(SIZES)}  # fmt: skip
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        scene = make_scene(shapes, rng, against_wall=True)
+        assert scene.labels.max() <= len(scene.objects)
+        walls = segment(from_depth(scene.depth, scene.intrinsics).points).walls
+        gaps = []
+        for truth in scene.objects:
+            to_camera = invert_rigid(truth.pose)
+            points = shapes[truth.category][0].points * truth.radius
+            points = points @ to_camera[:3, :3].T + to_camera[:3, 3]
+            gaps += [float(np.abs(wall.distance(points)).min()) for wall in walls]
+        assert gaps and min(gaps) < 0.07
