@@ -19,6 +19,10 @@ decoding included. Scoring:
 * right: matched, the category right, and the pose within (10 degrees, 0.1 radius) of the truth
   with the category's symmetry (SPEC.md); counted over the scene objects that are visible
   (at least ``--min-pixels`` pixels at 320x240, four times as many at 640x480).
+
+With ``--room-views N`` each scene is a room's fused cloud instead (``make_room``: N cameras'
+views fused, thinned to 1 cm, in a z-up frame whose origin lies on the floor), sent as a cloud
+with up, the view or room decided by ``find_objects`` itself; objects' points for pixels.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from itnet.model.scenes import (
     Scene,
     SceneObjectTruth,
     add_kind_arguments,
+    make_room,
     make_scene,
     matched_objects,
     scene_kind,
@@ -54,6 +59,8 @@ from itnet.scene.scene_classifier import load_scene_classifier
 from itnet.scene.segment import SegmentOptions
 from itnet.scene.warm_up import warm_up
 from itnet.symmetry import symmetric_rotation_error_deg
+
+ROOM_UP = (0.0, 0.0, 1.0)  # make_room's frame
 
 
 def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
@@ -205,6 +212,13 @@ def main(argv: list[str] | None = None) -> None:
         "--touching", action="store_true", help="objects standing against each other (2-3)"
     )
     add_kind_arguments(parser, "the eight")
+    parser.add_argument(
+        "--room-views",
+        type=int,
+        default=0,
+        help="rooms' fused clouds instead of depth images: each scene seen by this many cameras, "
+        "fused, in a z-up frame of its own, sent with up (model.scenes.make_room)",
+    )
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else {"validation": 1, "test": 2}[args.split]
@@ -240,14 +254,19 @@ def main(argv: list[str] | None = None) -> None:
     rows: list[dict] = []
     returned, times, times_large, rows_large, returned_large = 0, [], [], [], 0
     for s in range(args.scenes):
-        scene = make_scene(shapes, rng, **kind)
-        png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
-        start = time.perf_counter()
-        result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
+        if args.room_views:
+            points, scene = make_room(shapes, rng, args.room_views, **kind)
+            start = time.perf_counter()
+            result = find_objects(points, started=start, expected_up=ROOM_UP, **budget)
+        else:
+            scene = make_scene(shapes, rng, **kind)
+            png = depth_to_png(np.round(scene.depth * 1000).astype(np.uint16))
+            start = time.perf_counter()
+            result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
         times.append((time.perf_counter() - start) * 1e3)
         rows += match(result, scene, args.min_pixels)
         returned += len(result.objects)
-        if not args.no_large:
+        if not args.no_large and not args.room_views:
             big = large_scene(shapes, seed, s, **kind)
             png = depth_to_png(np.round(big.depth * 1000).astype(np.uint16))
             start = time.perf_counter()
@@ -259,7 +278,7 @@ def main(argv: list[str] | None = None) -> None:
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off, "flying_pixels": args.flying_pixels,
-        "distractors": args.distractors, "sensor": args.sensor,
+        "distractors": args.distractors, "sensor": args.sensor, "room_views": args.room_views,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options", "scene_classifier", "centre_table")},
         **({"centre_table": str(args.centre_table)} if args.centre_table is not None else {}),

@@ -39,7 +39,7 @@ from itnet.model.data import load_shapes, split_files
 from itnet.model.distractors import KINDS, distractor, hung
 from itnet.model.sensor import SENSORS, mixed_at_edges
 from itnet.model.shapes import Shape
-from itnet.scene.camera import Intrinsics
+from itnet.scene.camera import Intrinsics, depth_to_cloud
 
 # The development scenes' categories (the default), in the order they are drawn: the desk joins
 # where asked (make_scene's ``categories``); the monitor stands on a desk, not on the floor.
@@ -310,7 +310,94 @@ def make_scene(
     farthest object (or thing), as furniture stands in a room, with a skirting board and one to
     three pictures or mirrors hung on it (``model.distractors.hung``; drawn from a child of
     ``rng``), which are wall in ``labels``."""
+    layout = _layout(shapes, rng, Intrinsics.from_fov(width, height, fov_deg), width, height,
+                     touching, categories, pitch_deg, most, cut_off, distractors, against_wall)  # fmt: skip
+    depth, labels = render(layout.rendered, layout.camera, layout.wall, layout.intrinsics,
+                           width, height, rng, flying_pixels, sensor)  # fmt: skip
+    labels[labels > layout.counted] = 0  # what hangs on the wall is wall
+    truths = [SceneObjectTruth(t.category, t.name, t.pose @ layout.camera, t.radius)
+              for t in layout.truths]  # fmt: skip
+    return Scene(depth, intrinsics=layout.intrinsics, labels=labels, objects=truths,
+                 others=layout.others)  # fmt: skip
+
+
+def make_room(
+    shapes: dict[str, list[Shape]], rng: np.random.Generator, views: int = 3,
+    width: int = WIDTH, height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
+    categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
+    most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
+    sensor: str | None = None, against_wall: bool = False, voxel_m: float = 0.01,
+) -> tuple[NDArray[np.float64], Scene]:  # fmt: skip
+    """A room's fused cloud, as a reconstruction (a SLAM map, a room scan) gives it: the scene
+    ``make_scene`` lays out (its keywords), seen by ``views`` cameras (its own, then each turned
+    about the objects' middle by 35-70 degrees, alternately to either side, 1.1-1.7 m high and
+    looking at it), the views' points fused in the world and thinned to one a ``voxel_m``
+    voxel, then moved into a frame of the room's own: z up, the origin on the floor 0-3 m from
+    the objects, turned by any yaw. -> (points (N, 3), the Scene whose ``labels`` (N,) and
+    objects' truths are the points', ``depth`` empty)."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
+    layout = _layout(shapes, rng, intrinsics, width, height, touching, categories, pitch_deg,
+                     most, cut_off, distractors, against_wall)  # fmt: skip
+    middle = np.mean([invert_rigid(t.pose)[:3, 3] for t in layout.truths], axis=0)
+    ahead = (middle - layout.camera[:3, 3])[[0, 2]]
+    reach, heading = float(np.linalg.norm(ahead)), math.atan2(ahead[0], ahead[1])
+    cameras = [layout.camera]
+    for k in range(1, views):
+        turn = heading + (1 if k % 2 else -1) * math.radians(rng.uniform(35, 70))
+        lift = rng.uniform(1.1, 1.7)
+        look = world_from_camera(lift, math.degrees(math.atan2(lift - middle[1], reach)), 0.0)
+        yaw = np.eye(4)
+        yaw[:3, :3] = axis_angle_to_matrix([0.0, 1.0, 0.0], turn)
+        yaw[:3, 3] = middle - reach * np.array([math.sin(turn), 0.0, math.cos(turn)])
+        yaw[1, 3] = 0.0
+        cameras.append(yaw @ look)
+    points, labels = [], []
+    for camera in cameras:
+        depth, seen = render(layout.rendered, camera, layout.wall, intrinsics, width, height,
+                             rng, flying_pixels, sensor)  # fmt: skip
+        cloud, pixels = depth_to_cloud(depth, intrinsics)
+        points.append(cloud @ camera[:3, :3].T + camera[:3, 3])
+        labels.append(seen.ravel()[pixels])
+    world, label = np.concatenate(points), np.concatenate(labels)
+    label[label > layout.counted] = 0  # what hangs on the wall is wall
+    _, first = np.unique(np.floor(world / voxel_m).astype(np.int64), axis=0, return_index=True)
+    world, label = world[first], label[first]
+    room_from_world = np.eye(4)  # world y up -> room z up, turned, the origin on the floor
+    turn = axis_angle_to_matrix([0.0, 0.0, 1.0], rng.uniform(0, 2 * math.pi))
+    room_from_world[:3, :3] = turn @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    offset = rng.uniform(0.0, 3.0) * np.array([*np.sign(rng.normal(size=2)), 0.0])
+    room_from_world[:3, 3] = -(room_from_world[:3, :3] @ np.array([middle[0], 0.0, middle[2]]))
+    room_from_world[:3, 3] += offset
+    world_from_room = invert_rigid(room_from_world)
+    truths = [SceneObjectTruth(t.category, t.name, t.pose @ world_from_room, t.radius)
+              for t in layout.truths]  # fmt: skip
+    room = world @ room_from_world[:3, :3].T + room_from_world[:3, 3]
+    return room, Scene(np.zeros((0, 0)), intrinsics, label, truths, layout.others)
+
+
+@dataclass
+class _Layout:
+    """A scene before it is seen: its camera (T_world_from_camera (4, 4)) and intrinsics, what
+    is rendered ((shape, metres per unit, T_world_from_canonical)), of which the first
+    ``counted`` are objects and things (the rest hang on the wall), the wall (world normal (3,),
+    offset), the objects' truths in the world frame and the things' kinds."""
+
+    camera: NDArray[np.float64]
+    intrinsics: Intrinsics
+    rendered: list[tuple[Shape, float, NDArray]]
+    counted: int
+    wall: tuple[NDArray, float]
+    truths: list[SceneObjectTruth]
+    others: list[str]
+
+
+def _layout(
+    shapes: dict[str, list[Shape]], rng: np.random.Generator, intrinsics: Intrinsics,
+    width: int, height: int, touching: bool, categories: tuple[str, ...],
+    pitch_deg: tuple[float, float], most: int, cut_off: bool, distractors: int,
+    against_wall: bool,
+) -> _Layout:  # fmt: skip
+    """Where ``make_scene``'s camera, objects, things and wall stand (its draws, in order)."""
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
     view = _View(intrinsics, invert_rigid(camera), width, height, cut_off)
     placed: list[tuple[Shape, float, NDArray, str, float]] = []
@@ -332,20 +419,15 @@ def make_scene(
         [float(-wall_normal @ p[2][:3, 3]) + p[4] for p in placed + others] or [3.0]
     ) + rng.uniform(0.3, 1.5)
     rendered = [(s, k, w) for s, k, w, _, _ in placed + others]
+    counted = len(rendered)
     if against_wall:
         wall_normal_offset, on_wall = _against_wall(rendered, wall_normal, camera, rng.spawn(1)[0])
         rendered += on_wall
-    depth, labels = render(rendered, camera, (wall_normal, wall_normal_offset), intrinsics,
-                           width, height, rng, flying_pixels, sensor)  # fmt: skip
-    labels[labels > len(placed) + len(others)] = 0  # what hangs on the wall is wall
-    truths = []
-    for shape, scale, world, category, _ in placed:
-        metric = world.copy()  # canonical in metres: the unit shape scaled, then placed
-        camera_from_canonical = view.camera_from_world @ metric
-        truths.append(
-            SceneObjectTruth(category, shape.name, invert_rigid(camera_from_canonical), scale)
-        )
-    return Scene(depth, intrinsics, labels, truths, [kind for _, _, _, kind, _ in others])
+    # canonical in metres: the unit shape scaled, then placed (T_canonical_from_world)
+    truths = [SceneObjectTruth(category, shape.name, invert_rigid(world), scale)
+              for shape, scale, world, category, _ in placed]  # fmt: skip
+    return _Layout(camera, intrinsics, rendered, counted, (wall_normal, wall_normal_offset),
+                   truths, [kind for _, _, _, kind, _ in others])  # fmt: skip
 
 
 def _against_wall(

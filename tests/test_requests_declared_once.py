@@ -42,7 +42,7 @@ SET: dict[type[RequestModel], dict] = {
     SceneRequest: {"budget_ms": 400.0, "depth_scale": 5000.0, "up": [0.0, 0.0, 1.0],
                    "floor_centre": False, "along_floor": False, "recheck": False,
                    "scene_classifier": False, "split_touching": False, "unknown": False,
-                   "named_split": False},
+                   "named_split": False, "room": True},
 }  # fmt: skip
 KINDS = list(COMMANDS)
 

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from itnet.columns import column_max, column_mean, column_min
 from itnet.pose.catalog import Catalog
-from itnet.scene.camera import Intrinsics
+from itnet.scene.camera import Intrinsics, SceneInputError
 from itnet.scene.category_recheck import rechecked
 from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
@@ -49,18 +49,18 @@ from itnet.scene.posing import (
 )
 from itnet.scene.request import DEFAULT_BUDGET_MS, SceneFinishing, up_direction
 from itnet.scene.result import Box, SceneObject, SceneResult
+from itnet.scene.room import segment_scene
 from itnet.scene.scene_classifier import SceneClassifier, load_scene_classifier
 from itnet.scene.segment import (
     CAMERA_UP,
     Segmentation,
     SegmentOptions,
-    segment,
     working_points,
 )
 from itnet.scene.touching import load_cut_judge
 from itnet.scene.view_edges import ViewEdges
 
-VIEWPOINT = np.zeros(3)  # the camera, in its own frame
+VIEWPOINT = np.zeros(3)  # a camera's view's camera, in its own frame (the fits look from it)
 
 
 def find_objects(
@@ -77,6 +77,7 @@ def find_objects(
     centre_table: CentreTable | None = None,
     categories: frozenset[str] | None = None,
     scene_classifier: SceneClassifier | bool = True,
+    room: bool | None = None,
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
@@ -88,7 +89,10 @@ def find_objects(
     fitted for the catalog's classifier; False, the classifier with the height alone.
     ``expected_up``: roughly which way is up in the camera's frame (default −y: a camera held
     about level; from an IMU's gravity for one pitched 45° or more, or turned on its side): the
-    floor is searched within 45° of it. Raises SceneInputError for a scene that cannot be used,
+    floor is searched within 45° of it. ``room``: the cloud is a room's (a fused reconstruction
+    with no camera at its origin; ``itnet.scene.room``): True, False (a camera's view from the
+    origin), None (decided from the cloud; a depth image is a camera's). Raises
+    SceneInputError for a scene that cannot be used (a depth image asked to be a room's),
     ValueError for a budget that is not positive or an up that is no direction."""
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
@@ -106,7 +110,10 @@ def find_objects(
     catalog = catalog or shipped_catalog()
     if options.work_points is None:
         options = replace(options, work_points=working_points(budget_ms))
-    found = segment(given.points, options, expected)
+    try:
+        found = segment_scene(given.points, options, expected, room, given.image_shape is not None)
+    except ValueError as err:
+        raise SceneInputError(str(err)) from None
     segment_ms = (time.perf_counter() - started) * 1e3
     objects = []
     table = load_table() if centre_table is None else centre_table
@@ -122,7 +129,7 @@ def find_objects(
     return SceneResult(
         objects, found.up if found.floor is not None else None, found.floor, found.walls,
         len(given.points), given.image_shape, budget_ms, segment_ms,
-        (time.perf_counter() - started) * 1e3,
+        (time.perf_counter() - started) * 1e3, found.room,
     )  # fmt: skip
 
 
@@ -177,7 +184,7 @@ def _answered(
     height = None if found.floor is None else top_height(seen_points, found.floor)
     pose_ms = max(share_ms - context.finish.ms, 0.0)
     try:
-        seen = pose_object(catalog, seen_points, found.up, VIEWPOINT, pose_ms,
+        seen = pose_object(catalog, seen_points, found.up, found.viewpoint, pose_ms,
                            categories=context.categories, floor=found.floor,
                            scene_classifier=context.namer, base_hidden=hidden,
                            base_hidden_models=finishing.base_hidden_models,
@@ -200,7 +207,7 @@ def _answered(
                      found=found, table=context.table, floor_centre=finishing.floor_centre)  # fmt: skip
     seen = finish(seen)
     if finishing.recheck:
-        seen = rechecked(catalog, seen, seen_points, found.up, VIEWPOINT, now + pose_ms / 1e3,
+        seen = rechecked(catalog, seen, seen_points, found.up, found.viewpoint, now + pose_ms / 1e3,
                          finish, hidden)  # fmt: skip
     box = object_box(points, found.up, found.floor, seen.pose)
     context.finish.took((time.perf_counter() - finishing_from) * 1e3)
@@ -213,7 +220,7 @@ def _parts(context: _Context, points: NDArray, deadline: float) -> list[NDArray[
     """A too large cluster's (K, 3) objects, as the recognition parts it (``named_parts``)."""
     assert context.found.floor is not None
     namer = Namer(context.catalog, context.namer, context.categories, context.found.floor,
-                  VIEWPOINT)  # fmt: skip
+                  context.found.viewpoint)  # fmt: skip
     return named_parts(points, namer, load_cut_judge(), deadline)
 
 
@@ -254,7 +261,8 @@ def stood_on_floor(
     correction = table.for_model(model.card.name, model.path)
     if correction is not None:
         try:
-            seen.pose = centred_along_floor(points, seen.pose, correction, VIEWPOINT, found.up)
+            seen.pose = centred_along_floor(points, seen.pose, correction, found.viewpoint,
+                                            found.up)  # fmt: skip
         except ValueError:  # the pose puts the camera on the object's centre
             correction = None
     seen.pose = floor_centred(seen.pose, height, found.floor)

@@ -61,14 +61,16 @@ def ransac_plane(
     beyond_m: float | None = None,
     local: int = 0,
     neighbours: int = 16,
+    toward: NDArray | None = None,
 ) -> tuple[Plane, NDArray[np.bool_]] | None:
     """The plane with most points within ``threshold`` among ``hypotheses`` random triples
     whose normals (K, 3) ``accept`` keeps (K,) bool, counted on ``sample`` random points, then
     refined twice by ``fit_plane`` on its inliers among ``refine`` random points -> (plane,
     inlier mask (N,)), or None when no hypothesis is kept. With ``beyond_m``, each point
-    farther than that beyond a hypothesis, on its side away from the origin (the camera),
-    counts against it: nothing is seen below a floor, while a plane through a seat or a
-    tub's rim has the floor and the objects' lower parts below it. ``local`` of the
+    farther than that beyond a hypothesis, on its side away from the origin (the camera; with
+    ``toward`` (3,), on its side away from that direction: up, for a cloud with no camera at
+    its origin), counts against it: nothing is seen below a floor, while a plane through a seat
+    or a tub's rim has the floor and the objects' lower parts below it. ``local`` of the
     hypotheses take their second and third points among the first's ``neighbours`` nearest
     in the sample: a plane that is a small part of the view (a floor seen past the objects
     before it) is then still drawn often, where three points drawn anywhere rarely all lie
@@ -91,8 +93,9 @@ def ransac_plane(
         return None
     normals, anchors = normals[kept], triples[kept, 0]
     offsets = -np.einsum("kj,kj->k", normals, anchors)
-    if beyond_m is not None:  # the origin on each plane's positive side
-        side = np.where(offsets < 0, -1.0, 1.0)
+    if beyond_m is not None:  # the origin (or ``toward``) on each plane's positive side
+        facing = offsets if toward is None else normals @ np.asarray(toward, dtype=np.float64)
+        side = np.where(facing < 0, -1.0, 1.0)
         normals, offsets = normals * side[:, None], offsets * side
     # (S, K) distances in float32: the sample's points to every hypothesis
     signed = scored.astype(np.float32) @ normals.T.astype(np.float32) + offsets.astype(np.float32)

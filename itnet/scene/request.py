@@ -114,6 +114,13 @@ class SceneRequest(RequestModel):
         "two objects",
     )
 
+    room: bool | None = Field(
+        default=None,
+        description="the cloud is a room's: a fused reconstruction with no camera at its origin "
+        "(a SLAM map, a room scan; give its up); false: a camera's view from the origin "
+        "(default: decided from the cloud; a depth image is a camera's view)",
+    )
+
     @field_validator("up")
     @classmethod
     def _a_direction(cls, up: list[float] | None) -> list[float] | None:
@@ -133,4 +140,5 @@ class SceneRequest(RequestModel):
             "scene_classifier": self.scene_classifier,
             "options": SegmentOptions(split_touching=self.split_touching),
             "expected_up": CAMERA_UP if self.up is None else tuple(self.up),
+            "room": self.room,
         }

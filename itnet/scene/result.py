@@ -96,6 +96,7 @@ class SceneResult:
     budget_ms: float = 0.0
     segment_ms: float = 0.0
     elapsed_ms: float = 0.0
+    room: bool = False  # taken for a room's cloud (no camera at its origin; itnet.scene.room)
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
         return {
@@ -108,6 +109,7 @@ class SceneResult:
             "budget_ms": self.budget_ms,
             "segment_ms": round(self.segment_ms, 3),
             "elapsed_ms": round(self.elapsed_ms, 3),
+            "room": self.room,
         }
 
 

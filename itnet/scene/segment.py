@@ -41,6 +41,7 @@ stands on the floor, filtered by size.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -100,9 +101,19 @@ class SegmentOptions:
     sliver_share: float = 0.3  # ... with at most this share of its points is a piece of it
     far_sliver_m: float = 0.20  # so is one this near an object ...
     far_sliver_share: float = 0.2  # ... with at most this share of its points
+    # ... and whose top rises at most this above that object's (a piece a gap cuts off an object
+    # does not stand over it; the mirror of a dresser beside a bed does)
+    sliver_rise_m: float = 0.15
     # a cluster covers at least this much surface: this many of the working cloud's voxels
     # of 3 cm (more of smaller voxels, fewer of larger: ``least_voxels``)
     min_points: int = 12
+    # pieces that stand on a floor the camera does not see cover at least this many voxels of
+    # 3 cm (a tenth of a square metre: a headboard's or a cabinet's front, more than the pieces
+    # that a gap cuts off an object; ``_on_hidden_floor``) ...
+    hidden_min_points: int = 100
+    # ... and rise this far from their lowest point to their top (a flat piece, the top of a
+    # table or a block seen past what stands before it, is no object of its own)
+    hidden_min_rise_m: float = 0.25
     min_height_m: float = 0.2
     max_size_m: float = 3.0
     # the objects' working cloud: the centroids of voxels of this size, or larger where there
@@ -121,13 +132,17 @@ class SegmentOptions:
 class Segmentation:
     """What ``segment`` found: the floor (None where there is none), ``up`` (3,) (the floor's
     normal toward the camera, else the expected up), the walls, each object's point indices
-    into the cloud, largest first, and the view's edges (None where no point lies ahead)."""
+    into the cloud, largest first, the view's edges (None where no point lies ahead, or no
+    camera saw the cloud), where it was looked at from (3,): the camera, or a room's lookout,
+    and whether it is a room's cloud (``itnet.scene.room``)."""
 
     floor: Plane | None
     up: NDArray[np.float64]
     walls: list[Plane] = field(default_factory=list)
     objects: list[NDArray[np.int64]] = field(default_factory=list)
     edges: ViewEdges | None = None
+    viewpoint: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    room: bool = False
 
 
 def find_floor(
@@ -281,10 +296,10 @@ def _voxels(points: NDArray, size: float) -> tuple[NDArray[np.int64], NDArray[np
     return voxel_of, centres
 
 
-def least_voxels(options: SegmentOptions, voxel_m: float) -> int:
-    """The fewest working voxels of ``voxel_m`` a cluster has (``min_points`` at 3 cm, the
-    same surface in voxels of another size)."""
-    return max(3, round(options.min_points * (0.03 / voxel_m) ** 2))
+def least_voxels(options: SegmentOptions, voxel_m: float, at_3cm: int | None = None) -> int:
+    """The fewest working voxels of ``voxel_m`` a cluster has (``at_3cm``, default
+    ``min_points``, at 3 cm: the same surface in voxels of another size)."""
+    return max(3, round((options.min_points if at_3cm is None else at_3cm) * (0.03 / voxel_m) ** 2))
 
 
 def standing(
@@ -309,6 +324,7 @@ def standing(
 def attach_pieces(
     points: NDArray, heights: NDArray, groups: list[NDArray[np.int64]], up: NDArray,
     options: SegmentOptions, weights: NDArray | None = None, floor_from: float | None = None,
+    stands: Callable[[NDArray[np.int64]], bool] | None = None,
 ) -> list[NDArray[np.int64]]:  # fmt: skip
     """Clusters (indices into points (N, 3), heights (N,)) -> the ones standing on the floor,
     each with the pieces whose nearest point lies within ``attach_m`` of it. A cluster whose
@@ -316,7 +332,9 @@ def attach_pieces(
     floor, than any floor the camera sees: its base is below the view (a level camera at head
     height sees the floor only from a few metres on): ``floor_from`` says how near, along the
     floor, the floor is seen (``nearest_floor``; default: from the points on the floor among
-    ``points``). ``weights`` (N,): how many of the camera's points each point stands for."""
+    ``points``). ``weights`` (N,): how many of the camera's points each point stands for.
+    Pieces that no object takes stand as one where the floor under them is hidden
+    (``_on_hidden_floor``) and ``stands`` (default: any) keeps them (an object's size)."""
     if floor_from is None:  # the floor among the points
         floor_from = nearest_floor(points[np.abs(heights) <= options.floor_threshold_m], up)
 
@@ -331,10 +349,10 @@ def attach_pieces(
             floor_from
         )
 
-    based = slivers_joined(points, [g for g in groups if whole(g)], options, weights)
+    based = slivers_joined(points, [g for g in groups if whole(g)], options, weights, heights)
     near = _Near(points, based)
     joined = [[g] for g in based]
-    low = []
+    low, strays = [], []
     for piece in (g for g in groups if not whole(g)):
         gaps = near.gaps(piece, list(range(len(based))), options.attach_m)
         nearest = int(np.argmin(gaps)) if gaps else -1
@@ -344,7 +362,49 @@ def attach_pieces(
             options.low_object_m
         ):
             low.append(piece)  # a low object of its own on the floor (a small tub, a low table)
-    return [np.sort(np.concatenate(parts)) for parts in joined] + low
+        else:
+            strays.append(piece)
+    hidden = _on_hidden_floor(points, heights, strays, up, options)
+    kept = [g for g in hidden if stands is None or stands(g)]
+    return [np.sort(np.concatenate(parts)) for parts in joined] + low + kept
+
+
+def _on_hidden_floor(
+    points: NDArray, heights: NDArray, strays: list[NDArray[np.int64]], up: NDArray,
+    options: SegmentOptions,
+) -> list[NDArray[np.int64]]:  # fmt: skip
+    """Pieces no object took (indices into points (N, 3), heights (N,)) -> the objects among
+    them whose floor the camera (the origin) does not see: each group of pieces within
+    ``attach_m`` of each other (a headboard and the mattress before it) stands where its top is
+    an object's (``min_object_m``), it rises ``hidden_min_rise_m`` from its lowest point, and
+    the floor under most of its lowest points is hidden
+    behind something nearer (an ottoman before a bed), as a base below the view stands."""
+    if not strays:
+        return []
+    near = _Near(points, strays)
+    parts = _components(len(strays), np.array(
+        [(i, j) for i in range(len(strays)) for j, gap in enumerate(
+            near.gaps(strays[i], list(range(i + 1, len(strays))), options.attach_m), start=i + 1)
+         if gap <= options.attach_m] or np.zeros((0, 2)), dtype=np.int64).reshape(-1, 2))  # fmt: skip
+    ranges = np.linalg.norm(points, axis=1)
+    directions = cKDTree(points / np.maximum(ranges, 1e-9)[:, None])
+    out = []
+    for label in np.unique(parts):
+        group = np.concatenate([strays[k] for k in np.flatnonzero(parts == label)])
+        top = float(np.percentile(heights[group], 98))
+        if top < options.min_object_m or top - heights[group].min() < options.hidden_min_rise_m:
+            continue
+        lowest = group[np.argsort(heights[group])[: max(1, len(group) // 10)]]
+        below = points[lowest] - np.outer(heights[lowest], up)  # their footprints on the floor
+        reach = np.linalg.norm(below, axis=1)
+        rays = directions.query_ball_point(below / reach[:, None], HIDDEN_RAY)
+        hidden = [
+            bool(np.any(ranges[nearer] < r - options.attach_m))
+            for r, nearer in zip(reach, rays, strict=True)
+        ]
+        if np.mean(hidden) > 0.5:
+            out.append(np.sort(group))
+    return out
 
 
 def _width(points: NDArray, up: NDArray) -> float:
@@ -356,19 +416,23 @@ def _width(points: NDArray, up: NDArray) -> float:
 
 def slivers_joined(
     points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions,
-    weights: NDArray | None = None,
+    weights: NDArray | None = None, heights: NDArray | None = None,
 ) -> list[NDArray[np.int64]]:  # fmt: skip
     """Standing clusters (indices into points (N, 3)) -> the same, each small one that lies
     within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points, or
     within ``far_sliver_m`` of one with at least 1 / ``far_sliver_share`` times, joined to the
-    nearest such (smallest first, so a chain of pieces ends in its object). ``weights`` (N,):
-    how many of the camera's points each point stands for (a voxel's), else one each."""
+    nearest such (smallest first, so a chain of pieces ends in its object), where its top rises
+    at most ``sliver_rise_m`` over that one's (``heights`` (N,) over the floor; default: no
+    such limit). ``weights`` (N,): how many of the camera's points each point stands for (a
+    voxel's), else one each."""
     parts: list[list[NDArray[np.int64]] | None] = [[g] for g in groups]
     sizes = [len(g) if weights is None else float(weights[g].sum()) for g in groups]
+    tops = [math.inf if heights is None else float(np.percentile(heights[g], 98)) for g in groups]
     apart = _Near(points, groups)
     reach = max(options.sliver_m, options.far_sliver_m)
     for i in sorted(range(len(groups)), key=lambda k: sizes[k]):
-        larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]]
+        larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]
+                  and not tops[i] > tops[j] + options.sliver_rise_m]  # fmt: skip
         if not larger:
             continue
         gaps = []
@@ -430,24 +494,23 @@ def segment(
     options: SegmentOptions = SegmentOptions(),
     expected_up: NDArray | tuple[float, float, float] = CAMERA_UP,
     seed: int = 0,
+    view: bool = True,
 ) -> Segmentation:
     """A scene cloud (N, 3) in the camera's frame, metres -> its Segmentation (see the
     module). ``expected_up``: roughly which way is up in the cloud (the floor is searched
-    within ``max_tilt_deg`` of it).
+    within ``max_tilt_deg`` of it). ``view``: the cloud is what one camera's view holds (its
+    edges are the view's); off for a room's cloud looked at from the origin.
 
     The planes are found among voxels of ``plane_points`` of the points, the objects on a working
     cloud of what is neither floor nor wall (``VoxelCloud``, at most ``work_points`` voxels, from at
     most ``max_input`` points): the cost follows the room and the budget, not the camera's
     resolution; each object then gets every point of its voxels."""
     rng = np.random.default_rng(seed)
-    edges = ViewEdges.of_points(points)
+    edges = ViewEdges.of_points(points) if view else None
     prior = np.asarray(expected_up, dtype=np.float64)
     prior = prior / np.linalg.norm(prior)
     thinned = points[:: max(1, -(-len(points) // options.max_input))]
-    # the planes on voxels of a sample: each stands for a piece of surface, not for the pixels
-    # a near surface fills and a far one does not
-    sample = thinned[:: max(1, -(-len(thinned) // options.plane_points))]
-    planar = VoxelCloud.of(sample, options.plane_voxel_m, len(sample)).points
+    planar = plane_sample(thinned, options)
     floor = find_floor(planar, prior, options, rng)
     if floor is None:
         return Segmentation(None, prior, edges=edges)
@@ -468,10 +531,13 @@ def segment(
         band |= wall.distance(work) <= options.wall_band_m
     groups = clusters(work, up, options, cloud.voxel_m, band)
     least = least_voxels(options, cloud.voxel_m)
+    hidden_least = least_voxels(options, cloud.voxel_m, options.hidden_min_points)
     objects = [g for g in groups if standing(work[g], heights[g], up, walls, options, least)]
     floor_seen = planar[np.abs(floor.distance(planar)) <= options.floor_threshold_m]
     objects = attach_pieces(work, heights, objects, up, options, cloud.weights,
-                            nearest_floor(floor_seen, up))  # fmt: skip
+                            nearest_floor(floor_seen, up),
+                            lambda g: view and standing(work[g], heights[g], up, walls, options,
+                                                        hidden_least))  # fmt: skip
     judge = load_cut_judge() if options.split_touching else None
     if judge is not None:
         objects = split_touching(work, objects, floor, judge)
@@ -481,6 +547,14 @@ def segment(
     objects = [off[rows] for rows in cloud.spread(points[off], objects)]
     objects.sort(key=len, reverse=True)
     return Segmentation(floor, up, walls, objects, edges)
+
+
+def plane_sample(points: NDArray, options: SegmentOptions) -> NDArray[np.float64]:
+    """What the planes are found among: the centroids of voxels of ``plane_voxel_m`` of at most
+    ``plane_points`` of the points (N, 3). Each stands for a piece of surface, not for the
+    pixels a near surface fills and a far one does not."""
+    sample = points[:: max(1, -(-len(points) // options.plane_points))]
+    return VoxelCloud.of(sample, options.plane_voxel_m, len(sample)).points
 
 
 def off_planes(
@@ -506,6 +580,9 @@ def nearest_floor(floor_points: NDArray, up: NDArray) -> float:
 # cut, the scene classifier) were fitted on, and what a larger budget buys goes to posing the
 # objects, whose cost grows with their number, not to segmenting them finer.
 WORK_POINTS_PER_MS = 75
+# the floor under a point is hidden where a nearer point lies within this (the chord of about
+# 1.5 degrees) of the ray to it
+HIDDEN_RAY = 0.026
 WORK_POINTS_RANGE = (4_000, 10_500)
 
 

@@ -326,7 +326,8 @@ async function runSceneTab() {
     }
     setStatus(`finding the objects of ${file.name}…`);
     const reply = await runScene({ view, file, intrinsics: $('intrinsics').value,
-      depthScale: $('depth-scale').value, up: $('scene-up').value, budgetMs: Number($('budget').value) });
+      depthScale: $('depth-scale').value, up: $('scene-up').value, room: $('scene-room').value,
+      budgetMs: Number($('budget').value) });
     describeObjects($('scene-objects'), reply);
     $('scene-summary').textContent = `${reply.objects.length} object(s) in ${reply.elapsed_ms.toFixed(0)} ms `
       + `(segmenting ${reply.segment_ms.toFixed(0)} ms, ${reply.points} points)`;

@@ -31,14 +31,16 @@ async function sceneBody(file) {
  * Find the objects of `file` through the service and draw them in `view`. `intrinsics`: the
  * text 'fx,fy,cx,cy' (depth images), `depthScale`: depth units per metre or '' (the default),
  * `up`: which way is up in the camera's frame, the text 'x,y,z', or '' (the floor searched about
- * -y). Returns the reply.
+ * -y); `room`: 'true' (a room's fused cloud), 'false' (a camera's view) or '' (decided by the
+ * service). Returns the reply.
  */
-export async function runScene({ view, file, intrinsics, depthScale, up = '', budgetMs }) {
+export async function runScene({ view, file, intrinsics, depthScale, up = '', room = '', budgetMs }) {
   const query = new URLSearchParams({ budget_ms: String(budgetMs), indices: 'false', points: String(SHOWN_POINTS) });
   const camera = intrinsics.split(',').map((v) => v.trim()).filter((v) => v !== '');
   if (camera.length === 4) ['fx', 'fy', 'cx', 'cy'].forEach((k, i) => query.set(k, camera[i]));
   if (depthScale) query.set('depth_scale', depthScale);
   if (up.trim()) query.set('up', up.trim());
+  if (room) query.set('room', room);
   const { body, kind } = await sceneBody(file);
   const response = await fetch(`/v1/scene?${query}`, { method: 'POST', body, headers: { 'content-type': kind } });
   const reply = await response.json();

@@ -339,3 +339,21 @@ def test_scenes_against_a_wall_stand_their_farthest_object_at_it():
             points = points @ to_camera[:3, :3].T + to_camera[:3, 3]
             gaps += [float(np.abs(wall.distance(points)).min()) for wall in walls]
         assert gaps and min(gaps) < 0.07
+
+
+def test_an_object_whose_base_another_hides_stands_on_the_floor_the_camera_does_not_see():
+    """A headboard-like board 0.85 m behind a low, wide box (a bed's foot, an ottoman) is seen
+    only from 0.7 m up: it floats, and no object lies within ``attach_m`` of it. The floor under
+    it is hidden by the box, so it stands; where pieces on a hidden floor must be larger than
+    it is, it is dropped."""
+    from itnet.scene.segment import SegmentOptions
+
+    front = boxes_shape([((0, 0, 0), (1.6, 0.9, 0.5))], points=3000)
+    board = boxes_shape([((0, 0, 0), (1.6, 1.5, 0.1))], points=3000, seed=1)
+    scene = make_test_scene([(front, 0.951, 0.0, 2.5, 0.0), (board, 1.098, 0.0, 3.65, 0.0)])
+    given = from_depth(scene.depth, scene.intrinsics)
+    labels = scene.labels.ravel()[given.indices]
+    found = segment(given.points)
+    assert sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects) == [1, 2]
+    dropped = segment(given.points, SegmentOptions(hidden_min_points=100_000))
+    assert sorted(int(np.bincount(labels[rows]).argmax()) for rows in dropped.objects) == [1]

@@ -1,0 +1,94 @@
+"""A room's cloud (no camera at its origin) as well as a camera's view: the floor found by up
+wherever the origin lies, the objects found as in the camera's frame, and the way in decided
+from the cloud."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from itnet.model.scenes import Scene, world_from_camera
+from itnet.scene import from_depth
+from itnet.scene.room import looks_like_a_view, segment_scene
+from itnet.scene.segment import SegmentOptions, segment
+
+ROOM_FROM_WORLD = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # world y up -> room z up
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def in_a_room(scene: Scene, origin_on_floor: tuple[float, float]) -> np.ndarray:
+    """A test scene's camera-frame points moved into a z-up frame whose origin lies on the
+    floor at ``origin_on_floor`` (world x, z; the scenes' camera: 1.4 m up, pitched 15 deg)."""
+    points = from_depth(scene.depth, scene.intrinsics).points
+    camera = world_from_camera(1.4, 15.0, 0.0)
+    world = points @ camera[:3, :3].T + camera[:3, 3]
+    world -= [origin_on_floor[0], 0.0, origin_on_floor[1]]
+    return world @ ROOM_FROM_WORLD.T
+
+
+def owners(found, labels: np.ndarray) -> list[int]:
+    return sorted(int(np.bincount(labels[rows]).argmax()) for rows in found.objects)
+
+
+def test_a_room_s_cloud_with_its_origin_on_the_floor_has_its_floor_and_objects(two_boxes):
+    labels = two_boxes.labels.ravel()[from_depth(two_boxes.depth, two_boxes.intrinsics).indices]
+    for origin in ((0.0, 3.1), (-2.0, 1.0)):  # amid the objects; to one side, before them
+        points = in_a_room(two_boxes, origin)
+        found = segment_scene(points, SegmentOptions(), UP)
+        assert found.room and found.edges is None
+        assert found.floor is not None and abs(found.floor.offset) < 0.03
+        assert abs(found.floor.distance(found.viewpoint[None])[0] - 1.5) < 0.05  # the lookout
+        assert found.up @ UP > 0.99
+        assert owners(found, labels) == [1, 2]
+        # taken for a camera's view, the floor through the origin is no floor
+        assert segment(points, SegmentOptions(), UP).objects == []
+
+
+def test_a_camera_s_view_stays_one(two_boxes):
+    points = from_depth(two_boxes.depth, two_boxes.intrinsics).points
+    assert looks_like_a_view(points)
+    found = segment_scene(points, SegmentOptions(), np.array([0.0, -1.0, 0.0]))
+    assert not found.room and np.allclose(found.viewpoint, 0.0)
+    labels = two_boxes.labels.ravel()[from_depth(two_boxes.depth, two_boxes.intrinsics).indices]
+    assert owners(found, labels) == owners(segment(points), labels) == [1, 2]
+
+
+def test_asked_for_a_room_a_camera_s_view_is_looked_at_from_above_its_floor(two_boxes):
+    points = from_depth(two_boxes.depth, two_boxes.intrinsics).points
+    found = segment_scene(points, SegmentOptions(), np.array([0.0, -1.0, 0.0]), room=True)
+    assert found.room and found.floor is not None
+    assert abs(found.floor.offset - 1.4) < 0.05  # the plane in the cloud's own frame
+    labels = two_boxes.labels.ravel()[from_depth(two_boxes.depth, two_boxes.intrinsics).indices]
+    assert owners(found, labels) == [1, 2]
+
+
+def test_a_depth_image_is_a_camera_s_view(two_boxes):
+    points = from_depth(two_boxes.depth, two_boxes.intrinsics).points
+    with pytest.raises(ValueError, match="depth image"):
+        segment_scene(points, SegmentOptions(), np.array([0.0, -1.0, 0.0]), room=True, image=True)
+
+
+def test_a_view_lies_within_a_cone_and_a_room_all_round():
+    rng = np.random.default_rng(0)
+    ahead = rng.normal(size=(5000, 3)) * [0.6, 0.4, 0.1] + [0.0, 0.0, 3.0]
+    around = rng.normal(size=(5000, 3))
+    assert looks_like_a_view(ahead)
+    assert not looks_like_a_view(around)
+    assert not looks_like_a_view(np.zeros((10, 3)))
+
+
+def test_a_chair_in_a_room_s_cloud_is_named_and_posed_upright(chair_scene):
+    from itnet.scene import find_objects
+
+    points = in_a_room(chair_scene, (0.5, 2.0))
+    result = find_objects(points, expected_up=(0.0, 0.0, 1.0), budget_ms=1000)
+    assert result.room and result.as_dict()["room"] is True
+    assert len(result.objects) == 1 and result.objects[0].category is not None
+    pose = result.objects[0].pose
+    assert pose is not None
+    canonical_up = pose[:3, :3].T[:, 1]  # the canonical +y in the room's frame
+    assert canonical_up @ UP > 0.99
+    run = result.objects[0].run
+    assert run is not None and np.allclose(run["up"], UP, atol=0.02)
+    camera = find_objects(from_depth(chair_scene.depth, chair_scene.intrinsics), budget_ms=1000)
+    assert not camera.room and camera.as_dict()["room"] is False
