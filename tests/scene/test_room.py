@@ -92,3 +92,11 @@ def test_a_chair_in_a_room_s_cloud_is_named_and_posed_upright(chair_scene):
     assert run is not None and np.allclose(run["up"], UP, atol=0.02)
     camera = find_objects(from_depth(chair_scene.depth, chair_scene.intrinsics), budget_ms=1000)
     assert not camera.room and camera.as_dict()["room"] is False
+
+
+def test_a_depth_image_asked_to_be_a_room_s_is_refused_with_a_clear_error(chair_scene):
+    from itnet.scene import find_objects
+    from itnet.scene.camera import SceneInputError
+
+    with pytest.raises(SceneInputError, match="depth image is one camera's view"):
+        find_objects(chair_scene.depth, chair_scene.intrinsics, room=True)
