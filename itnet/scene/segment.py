@@ -33,7 +33,9 @@ stands on the floor, filtered by size.
    what is nearer shows no base). A standing cluster with at most ``sliver_share`` of the points
    of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
    cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m``, is a piece of
-   that object too.
+   that object too, unless it rises ``sliver_rise_m`` over it. Pieces that no object takes
+   stand as one where the floor under them is hidden behind something nearer and they are an
+   object's size (``_on_hidden_floor``: a headboard behind the ottoman at the bed's foot).
 6. Objects standing against each other: a cluster is cut by a vertical plane where the cut
    judge finds that it holds two objects (``itnet.scene.touching``; ``split_touching``).
 """
