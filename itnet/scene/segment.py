@@ -33,9 +33,9 @@ stands on the floor, filtered by size.
    what is nearer shows no base). A standing cluster with at most ``sliver_share`` of the points
    of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
    cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m``, is a piece of
-   that object too, unless it rises ``sliver_rise_m`` over it. Pieces that no object takes
-   stand as one where the floor under them is hidden behind something nearer and they are an
-   object's size (``_on_hidden_floor``: a headboard behind the ottoman at the bed's foot).
+   that object too, unless it rises ``sliver_rise_m`` over it. A group of pieces that no
+   object takes stands where the floor under it is hidden behind something nearer and it is an
+   object's size (``HiddenFloor``: a headboard behind the ottoman at the bed's foot).
 6. Objects standing against each other: a cluster is cut by a vertical plane where the cut
    judge finds that it holds two objects (``itnet.scene.touching``; ``split_touching``).
 """
@@ -111,7 +111,7 @@ class SegmentOptions:
     min_points: int = 12
     # pieces that stand on a floor the camera does not see cover at least this many voxels of
     # 3 cm (a tenth of a square metre: a headboard's or a cabinet's front, more than the pieces
-    # that a gap cuts off an object; ``_on_hidden_floor``) ...
+    # that a gap cuts off an object; ``HiddenFloor``) ...
     hidden_min_points: int = 100
     # ... and rise this far from their lowest point to their top (a flat piece, the top of a
     # table or a block seen past what stands before it, is no object of its own)
@@ -335,10 +335,13 @@ def attach_pieces(
     height sees the floor only from a few metres on): ``floor_from`` says how near, along the
     floor, the floor is seen (``nearest_floor``; default: from the points on the floor among
     ``points``). ``weights`` (N,): how many of the camera's points each point stands for.
-    Pieces that no object takes stand as one where the floor under them is hidden
-    (``_on_hidden_floor``) and ``stands`` (default: any) keeps them (an object's size)."""
+    Where ``stands`` is given (an object's size, for a camera's view), each group of the
+    pieces that no object takes stands as an object where ``stands`` keeps it and the floor
+    under it is hidden (``HiddenFloor``: a headboard and the mattress before it, behind the
+    ottoman at the bed's foot)."""
     if floor_from is None:  # the floor among the points
         floor_from = nearest_floor(points[np.abs(heights) <= options.floor_threshold_m], up)
+    hidden = None if stands is None else HiddenFloor(points, heights, up, options)
 
     def whole(g: NDArray) -> bool:
         top = float(np.percentile(heights[g], 98))
@@ -366,47 +369,54 @@ def attach_pieces(
             low.append(piece)  # a low object of its own on the floor (a small tub, a low table)
         else:
             strays.append(piece)
-    hidden = _on_hidden_floor(points, heights, strays, up, options)
-    kept = [g for g in hidden if stands is None or stands(g)]
+    kept = []
+    if hidden is not None and stands is not None:
+        kept = [g for g in _near_each_other(points, strays, options.attach_m)
+                if stands(g) and hidden.under(g)]  # fmt: skip
     return [np.sort(np.concatenate(parts)) for parts in joined] + low + kept
 
 
-def _on_hidden_floor(
-    points: NDArray, heights: NDArray, strays: list[NDArray[np.int64]], up: NDArray,
-    options: SegmentOptions,
-) -> list[NDArray[np.int64]]:  # fmt: skip
-    """Pieces no object took (indices into points (N, 3), heights (N,)) -> the objects among
-    them whose floor the camera (the origin) does not see: each group of pieces within
-    ``attach_m`` of each other (a headboard and the mattress before it) stands where its top is
-    an object's (``min_object_m``), it rises ``hidden_min_rise_m`` from its lowest point, and
-    the floor under most of its lowest points is hidden
-    behind something nearer (an ottoman before a bed), as a base below the view stands."""
-    if not strays:
-        return []
-    near = _Near(points, strays)
-    parts = _components(len(strays), np.array(
-        [(i, j) for i in range(len(strays)) for j, gap in enumerate(
-            near.gaps(strays[i], list(range(i + 1, len(strays))), options.attach_m), start=i + 1)
-         if gap <= options.attach_m] or np.zeros((0, 2)), dtype=np.int64).reshape(-1, 2))  # fmt: skip
-    ranges = np.linalg.norm(points, axis=1)
-    directions = cKDTree(points / np.maximum(ranges, 1e-9)[:, None])
-    out = []
-    for label in np.unique(parts):
-        group = np.concatenate([strays[k] for k in np.flatnonzero(parts == label)])
-        top = float(np.percentile(heights[group], 98))
-        if top < options.min_object_m or top - heights[group].min() < options.hidden_min_rise_m:
-            continue
-        lowest = group[np.argsort(heights[group])[: max(1, len(group) // 10)]]
-        below = points[lowest] - np.outer(heights[lowest], up)  # their footprints on the floor
+def _near_each_other(
+    points: NDArray, groups: list[NDArray[np.int64]], within: float
+) -> list[NDArray[np.int64]]:
+    """Clusters (indices into points (N, 3)) -> the unions of those that come ``within`` of
+    each other (chains too)."""
+    near = _Near(points, groups)
+    pairs = [(i, j) for i in range(len(groups))
+             for j, gap in enumerate(near.gaps(groups[i], list(range(i + 1, len(groups))), within),
+                                     start=i + 1)
+             if gap <= within]  # fmt: skip
+    label = _components(len(groups), np.array(pairs, dtype=np.int64).reshape(-1, 2))
+    return [np.sort(np.concatenate([groups[k] for k in np.flatnonzero(label == value)]))
+            for value in np.unique(label)]  # fmt: skip
+
+
+class HiddenFloor:
+    """Whether the camera (the origin) does not see the floor under a cluster: the floor under
+    most of its lowest points lies behind something nearer (a point within ``HIDDEN_RAY`` of the
+    ray to it, ``attach_m`` or more nearer), and the cluster is an object's height (its top over
+    ``min_object_m``, rising ``hidden_min_rise_m`` from its lowest point: a flat piece, the top
+    of a table or a block seen past what stands before it, is no object of its own)."""
+
+    def __init__(self, points: NDArray, heights: NDArray, up: NDArray, options: SegmentOptions):
+        self.points, self.heights, self.up, self.options = points, heights, up, options
+        self.ranges = np.linalg.norm(points, axis=1)
+        self._directions: cKDTree | None = None  # built on first use
+
+    def under(self, group: NDArray[np.int64]) -> bool:
+        heights, options = self.heights[group], self.options
+        top = float(np.percentile(heights, 98))
+        if top < options.min_object_m or top - float(heights.min()) < options.hidden_min_rise_m:
+            return False
+        if self._directions is None:
+            self._directions = cKDTree(self.points / np.maximum(self.ranges, 1e-9)[:, None])
+        lowest = group[np.argsort(heights)[: max(1, len(group) // 10)]]
+        below = self.points[lowest] - np.outer(self.heights[lowest], self.up)  # on the floor
         reach = np.linalg.norm(below, axis=1)
-        rays = directions.query_ball_point(below / reach[:, None], HIDDEN_RAY)
-        hidden = [
-            bool(np.any(ranges[nearer] < r - options.attach_m))
-            for r, nearer in zip(reach, rays, strict=True)
-        ]
-        if np.mean(hidden) > 0.5:
-            out.append(np.sort(group))
-    return out
+        rays = self._directions.query_ball_point(below / reach[:, None], HIDDEN_RAY)
+        hidden = [bool(np.any(self.ranges[nearer] < r - options.attach_m))
+                  for r, nearer in zip(reach, rays, strict=True)]  # fmt: skip
+        return bool(np.mean(hidden) > 0.5)
 
 
 def _width(points: NDArray, up: NDArray) -> float:
