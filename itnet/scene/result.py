@@ -54,12 +54,13 @@ class SceneObject:
     # its base lies below the view: seen from part of its height up (its box still reaches the
     # floor; itnet.scene.pipeline.base_out_of_view)
     base_out_of_view: bool = False
-    unknown: str | None = None  # 'not_ours', 'unsure' or 'too_large'
+    unknown: str | None = None  # 'not_ours', 'unsure', 'too_large' or 'budget' (not named)
 
     def as_dict(self, with_indices: bool = True) -> dict[str, Any]:
         """The JSON form: ``category`` (null: unknown), ``category_probability``, ``candidates``,
         ``unsure``, ``named_by``, ``base_out_of_view``, ``unknown`` (why it is unknown: 'not_ours',
-        'unsure' or 'too_large'; null where named), the run's fields (``T_canonical_from_input``, ``quat_wxyz``,
+        'unsure', 'too_large', or 'budget': the scene's budget left no time to name it; null
+        where named), the run's fields (``T_canonical_from_input``, ``quat_wxyz``,
         ``quat_xyzw``, ``translation``, ``iterations``, ``stopped_by``, ``model``, ...; null pose
         where none, with ``no_pose``), ``box``, ``points`` (how many) and ``indices``."""
         out: dict[str, Any] = {

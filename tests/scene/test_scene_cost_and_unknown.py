@@ -200,3 +200,19 @@ def test_a_scene_objects_runs_each_see_at_most_the_scenes_points(monkeypatch) ->
     for _, request in seen:
         assert request.points_per_run == posing.SCENE_RUN_POINTS and request.schedule is False
         assert request.up is not None and request.viewpoint is not None
+
+
+def test_objects_the_budget_has_no_time_left_to_name_come_back_boxed_and_unnamed(two_boxes):
+    """The scene's clock started long ago: the segmentation's objects come back at once, each
+    with its points and box, unnamed (``unknown: "budget"``, no pose), none dropped."""
+    warm_up()
+    result = find_objects(two_boxes.depth, two_boxes.intrinsics, budget_ms=100,
+                          started=time.perf_counter() - 10.0)  # fmt: skip
+    assert len(result.objects) == 2
+    for obj in result.objects:
+        answer = obj.as_dict()
+        assert obj.category is None and answer["unknown"] == "budget"
+        assert answer["no_pose"] == "budget" and obj.pose is None
+        assert len(obj.indices) > 100 and min(obj.box.size) > 0.2
+    fresh = find_objects(two_boxes.depth, two_boxes.intrinsics, budget_ms=1000)
+    assert all(o.unknown != "budget" for o in fresh.objects)
