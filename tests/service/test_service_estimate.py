@@ -116,6 +116,24 @@ def test_a_body_whose_decoding_spends_its_budget_is_a_422_that_names_the_binary_
     assert binary.status_code == 200 and binary.json()["iterations"] >= 1
 
 
+def test_the_json_rate_is_measured_as_an_idle_machine_decodes(monkeypatch: pytest.MonkeyPatch):
+    """The start-up's JSON rate counts the decoding's own work: a process descheduled for 50 ms
+    in each try (a loaded machine at start-up) measures the rate it would idle, so a body is
+    never refused as undecodable in its budget for a busy moment of the start."""
+    from itnet.service import decode as decoding
+
+    idle = decoding._json_ms_per_kb()
+    parse = decoding.decode_json
+
+    def descheduled(body, schema):  # type: ignore[no-untyped-def]
+        time.sleep(0.05)
+        return parse(body, schema)
+
+    monkeypatch.setattr(decoding, "decode_json", descheduled)
+    busy = decoding._json_ms_per_kb()
+    assert busy < 5 * idle + 0.05  # 50 ms over ~80 KiB would be 0.6 ms per KiB
+
+
 @pytest.mark.timing
 def test_a_long_budget_runs_steps_until_it_is_spent(
     slow_client: TestClient, make_cloud: CloudMaker
