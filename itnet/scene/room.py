@@ -5,9 +5,10 @@ A camera's view is segmented from the camera (``itnet.scene.segment``: the floor
 toward it, walls facing it, what the view hides). A room's cloud is segmented the same way from
 a lookout of its own: its floor is found by the up direction alone (``floor_by_up``: the
 largest plane within ``max_tilt_deg`` of up with nothing below it, its normal on up's side),
-then the cloud is looked at from ``LOOKOUT_M`` above the floor over its median point, as a
-camera there would see it (the viewpoint of the objects' naming and poses), with no view edges
-(no object's base lies below a view).
+then what lies below ``CEILING_CUT_M`` over it (no ceiling) is looked at from ``LOOKOUT_M``
+above the floor over its median point, as a camera there would see it (the viewpoint of the
+objects' naming and poses), with no view edges (no object's base lies below a view) and up to
+``ROOM_WALLS`` walls all round.
 
 Which of the two a cloud is (``segment_scene``): a depth image is a camera's view; a cloud is
 a room's where it is asked, or where it is not one camera's view (``looks_like_a_view``: its
@@ -18,6 +19,7 @@ floor.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +33,10 @@ VIEW_HALF_ANGLE_DEG = 75.0
 VIEW_OUTSIDE_SHARE = 0.01  # ... but for this share of the points (flying pixels, noise)
 MIN_CAMERA_HEIGHT_M = 0.2  # a camera at the origin stands at least this high over its floor
 LOOKOUT_M = 1.5  # a room's cloud is looked at from this high over its floor
+# what a room's cloud holds higher than this over its floor is none of the categories (a
+# wardrobe stands 2.0 m): its ceiling and what hangs from it are left out
+CEILING_CUT_M = 2.3
+ROOM_WALLS = 6  # the walls a room's cloud may hold all round it (a view sees at most three)
 
 
 def looks_like_a_view(points: NDArray) -> bool:
@@ -89,16 +95,19 @@ def segment_room(
     if floor is None:
         return Segmentation(None, prior, room=True)
     floor = refined_plane(floor, points, options.floor_threshold_m, rng) or floor
+    below = np.flatnonzero(floor.distance(points) < CEILING_CUT_M)  # no ceiling, no lamps on it
     centre = np.median(thinned, axis=0)
     lookout = centre - (floor.distance(centre[None])[0] - LOOKOUT_M) * floor.normal
-    seen = segment(points - lookout, options, floor.normal, seed, view=False)
+    walls_all_round = replace(options, max_walls=max(options.max_walls, ROOM_WALLS))
+    seen = segment(points[below] - lookout, walls_all_round, floor.normal, seed, view=False)
 
     def back(plane: Plane) -> Plane:  # n . (p - lookout) + d = 0, in the cloud's frame
         return Plane(plane.normal, plane.offset - float(plane.normal @ lookout))
 
     return Segmentation(
         None if seen.floor is None else back(seen.floor), seen.up,
-        [back(w) for w in seen.walls], seen.objects, None, lookout, True,
+        [back(w) for w in seen.walls], [below[rows] for rows in seen.objects], None, lookout,
+        True,
     )  # fmt: skip
 
 
@@ -117,7 +126,8 @@ def segment_scene(
     if room or (room is None and not looks_like_a_view(points)):
         return segment_room(points, options, expected_up, seed)
     found = segment(points, options, expected_up, seed)
-    if found.floor is None and room is None:  # a camera at the origin would stand below it?
+    if room is None and (found.floor is None or found.floor.offset < MIN_CAMERA_HEIGHT_M):
+        # a camera at the origin would stand on or below the floor up finds: a room's
         rooms = segment_room(points, options, expected_up, seed)
         if rooms.floor is not None and rooms.floor.offset < MIN_CAMERA_HEIGHT_M:
             return rooms
