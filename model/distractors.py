@@ -45,9 +45,7 @@ def distractor(kind: str, rng: np.random.Generator) -> tuple[Shape, float]:
     if kind not in makers:
         raise ValueError(f"unknown distractor {kind!r} (known: {', '.join(KINDS)})")
     points = makers[kind](rng)  # metres, standing on y = 0
-    centre = (points.min(0) + points.max(0)) / 2
-    radius = float(np.linalg.norm(points - centre, axis=1).max())
-    return Shape(f"{kind}", (points - centre) / radius), radius
+    return _unit_shape(kind, points - (points.min(0) + points.max(0)) / 2)
 
 
 def hung(kind: str, rng: np.random.Generator, length_m: float = 6.0) -> tuple[Shape, float]:
@@ -63,6 +61,12 @@ def hung(kind: str, rng: np.random.Generator, length_m: float = 6.0) -> tuple[Sh
         raise ValueError(f"unknown hung thing {kind!r} (known: {', '.join(HUNG_KINDS)})")
     points = _box_surface(np.array(sizes[kind]()), POINTS, rng)
     points[:, 1] -= points[:, 1].max() / 2  # about its box's centre
+    return _unit_shape(kind, points)
+
+
+def _unit_shape(kind: str, points: NDArray) -> tuple[Shape, float]:
+    """Points (M, 3) in metres about a thing's centre -> (its Shape of unit bounding radius,
+    metres per unit)."""
     radius = float(np.linalg.norm(points, axis=1).max())
     return Shape(kind, points / radius), radius
 

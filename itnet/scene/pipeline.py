@@ -237,7 +237,7 @@ def _answered(
 def _unnamed(found: Segmentation, points: NDArray, indices: NDArray[np.int64]) -> SceneObject:
     """A cluster (K, 3) the scene's budget left no time to name: unknown (``"budget"``), no
     pose, its box along up."""
-    box = object_box(points[:: max(1, len(points) // OBJECT_POINTS)], found.up, found.floor, None)
+    box = object_box(points, found.up, found.floor, None)
     return SceneObject(indices, None, 0.0, [], True, box, no_pose="budget", unknown="budget")
 
 

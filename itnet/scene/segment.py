@@ -341,7 +341,6 @@ def attach_pieces(
     ottoman at the bed's foot)."""
     if floor_from is None:  # the floor among the points
         floor_from = nearest_floor(points[np.abs(heights) <= options.floor_threshold_m], up)
-    hidden = None if stands is None else HiddenFloor(points, heights, up, options)
 
     def whole(g: NDArray) -> bool:
         top = float(np.percentile(heights[g], 98))
@@ -370,7 +369,8 @@ def attach_pieces(
         else:
             strays.append(piece)
     kept = []
-    if hidden is not None and stands is not None:
+    if stands is not None and strays:
+        hidden = HiddenFloor(points, heights, up, options)
         kept = [g for g in _near_each_other(points, strays, options.attach_m)
                 if stands(g) and hidden.under(g)]  # fmt: skip
     return [np.sort(np.concatenate(parts)) for parts in joined] + low + kept
@@ -444,7 +444,7 @@ def slivers_joined(
     reach = max(options.sliver_m, options.far_sliver_m)
     for i in sorted(range(len(groups)), key=lambda k: sizes[k]):
         larger = [j for j in range(len(groups)) if sizes[i] <= options.sliver_share * sizes[j]
-                  and not tops[i] > tops[j] + options.sliver_rise_m]  # fmt: skip
+                  and tops[i] <= tops[j] + options.sliver_rise_m]  # fmt: skip
         if not larger:
             continue
         gaps = []
@@ -546,10 +546,13 @@ def segment(
     hidden_least = least_voxels(options, cloud.voxel_m, options.hidden_min_points)
     objects = [g for g in groups if standing(work[g], heights[g], up, walls, options, least)]
     floor_seen = planar[np.abs(floor.distance(planar)) <= options.floor_threshold_m]
+
+    # pieces stand on a floor hidden from the camera only where a camera saw the cloud
+    def stands(g: NDArray[np.int64]) -> bool:
+        return standing(work[g], heights[g], up, walls, options, hidden_least)
+
     objects = attach_pieces(work, heights, objects, up, options, cloud.weights,
-                            nearest_floor(floor_seen, up),
-                            lambda g: view and standing(work[g], heights[g], up, walls, options,
-                                                        hidden_least))  # fmt: skip
+                            nearest_floor(floor_seen, up), stands if view else None)  # fmt: skip
     judge = load_cut_judge() if options.split_touching else None
     if judge is not None:
         objects = split_touching(work, objects, floor, judge)
