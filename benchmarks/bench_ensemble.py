@@ -72,6 +72,12 @@ def main() -> None:
         "finish the centre by the card's correction: the engine's default (where the card has "
         "one), always, never",
     )
+    add_switch(
+        parser,
+        "--strip",
+        "take away the floor and walls a cut-out kept: the engine's default (where up is given), "
+        "always, never",
+    )
     parser.add_argument(
         "--viewpoint",
         action="store_true",
@@ -162,6 +168,7 @@ def main() -> None:
         "points": args.points,
         "coarse": args.coarse,
         "full": args.full,
+        "strip": args.strip,
         **({"baseline": str(args.baseline)} if args.baseline else {}),
         **{
             s: measure(
@@ -185,6 +192,7 @@ def main() -> None:
                 args.points,
                 coarse,
                 args.full,
+                SWITCH[args.strip],
             )
             for s in args.scanners
         },

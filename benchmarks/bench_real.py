@@ -108,20 +108,28 @@ def score_frame(frame: dict[str, Any], result: Any, given: SceneInput, grow: flo
     return rows
 
 
-def crop_rows(frame: dict[str, Any], given: SceneInput, grow: float, classifier: Any) -> list[dict]:
-    """A row per box of our categories: its crop's answer (category, probability, unsure)."""
+def crop_rows(
+    frame: dict[str, Any], given: SceneInput, grow: float, classifier: Any, strip: bool | None
+) -> list[dict]:
+    """A row per box of our categories: its crop's answer (category, probability, unsure), the
+    crop's floor and walls taken away unless ``strip`` is false, as ``itnet classify`` does."""
+    from itnet.pose.cloud import Limits, cut_out
     from itnet.pose.recognition import classify
+    from itnet.pose.request import PoseRequest
 
     rows = []
+    request = PoseRequest(units="m", up=frame["up"], strip=strip)
     for box in frame["objects"]:
         if box["category"] is None:
             continue
         crop = given.points[inside(given.points, box, grow)]
-        answer = classify(classifier, crop, units="m", up=frame["up"])
+        kept, stripped = cut_out(crop, request, Limits())
+        answer = classify(classifier, kept, units="m", up=frame["up"])
         rows.append({
             "category": box["category"], "points": len(crop), "answered": answer.category,
             "probability": round(answer.probability, 3), "unsure": answer.unsure,
             "named": answer.category == box["category"],
+            "stripped": None if stripped is None else stripped.as_dict(),
         })  # fmt: skip
     return rows
 
@@ -131,6 +139,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--budget-ms", type=float, default=None, help="default: find_objects'")
     parser.add_argument("--grow", type=float, default=0.1, help="metres a box grows a side")
+    parser.add_argument("--no-strip", dest="strip", action="store_const", const=False,
+                        default=None, help="crops keep their floor and walls")  # fmt: skip
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per frame")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
@@ -157,7 +167,7 @@ def main(argv: list[str] | None = None) -> None:
             "segment_ms": round(result.segment_ms, 1),
             "posed": sum(o.pose is not None for o in result.objects),
             "objects": len(result.objects), "rows": rows,
-            "crops": crop_rows(frame, given, args.grow, catalog.classifier),
+            "crops": crop_rows(frame, given, args.grow, catalog.classifier, args.strip),
         })  # fmt: skip
         print(f"{frame['frame']}: {len(result.objects)} objects, {statistics.median(times):.0f} ms "
               f"median ({max(times):.0f} max) of {result.budget_ms:g}, segmentation "

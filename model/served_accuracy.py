@@ -59,12 +59,14 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
             points: int | None = None,
             coarse: tuple[int, int] | None = None,
             full: bool = False,
+            strip: bool | None = None,
             log: Callable[[str], None] = print) -> dict:  # fmt: skip
     from itnet.metrics import is_correct, paired_accuracy
     from itnet.model.categories import category
     from itnet.model.category_set import test_scans, validation_scans
     from itnet.model.evaluate import report
     from itnet.model.scanner import named_views
+    from itnet.pose.cloud import Limits, cut_out
     from itnet.pose.loop import AnytimeRun
     from itnet.pose.plan import plan
     from itnet.pose.request import PoseRequest
@@ -105,6 +107,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 verify=verify if k != 1 else None,
                 recheck=recheck if k == 1 else None,
                 points_per_run=points,
+                strip=strip,
             )
             planned = plan(model, request)
             if full:  # every run on all its points every step, whatever the card's plan says
@@ -113,7 +116,7 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 planned = replace(planned, halving=halving)
             if coarse is not None:  # the first coarse[0] steps on at most coarse[1] points
                 planned = replace(planned, coarse=coarse)
-            run = AnytimeRun(planned, cloud)
+            run = AnytimeRun(planned, cut_out(cloud, request, Limits())[0])  # as served
             last = run.run_to_end()
             result = run.result()
             verified.append(result.get("verified"))

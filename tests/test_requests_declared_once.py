@@ -34,7 +34,7 @@ SET: dict[type[RequestModel], dict] = {
     PoseRequest: {"budget_ms": 20.0, "max_iterations": 7, "model": "chair", "ensemble": 4,
                   "mirror": False, "verify": True, "recheck": False, "centre": False,
                   "viewpoint": [0.0, 0.0, 0.0], "up": [0.0, -1.0, 0.0], "runs": True,
-                  "units": "mm", "points_per_run": 128, "schedule": False},
+                  "units": "mm", "points_per_run": 128, "schedule": False, "strip": False},
     AlignRequest: {"model": "chair", "budget_ms": 80.0, "max_iterations": 5, "starts": 2,
                    "refine": False, "symmetry": "yaw180", "rivals": False, "candidates": 4,
                    "finalists": 2, "up_a": [0.0, -1.0, 0.0], "up_b": [0.0, 1.0, 0.0],

@@ -48,6 +48,12 @@ def classify(
         "the upright classifier where one is installed.",
         callback=xyz_option,
     ),
+    viewpoint: str | None = typer.Option(
+        None, help=PoseRequest.field_help("viewpoint"), callback=xyz_option
+    ),
+    strip: bool | None = typer.Option(
+        None, "--strip/--no-strip", help=PoseRequest.field_help("strip")
+    ),
     second_looks: int | None = typer.Option(
         None,
         min=1,
@@ -61,15 +67,18 @@ def classify(
     """Print each cloud's category and probabilities. Bad files are reported and skipped (exit 2)."""
     from itnet.cloud_io import CloudReadError, read_cloud
     from itnet.commands.in_process import get_classifier
+    from itnet.pose.cloud import Limits, cut_out
     from itnet.pose.errors import BadCloudError
     from itnet.pose.recognition import classify as recognise
 
     classifier = get_classifier(model_dir)
+    request = PoseRequest(up=up, viewpoint=viewpoint, strip=strip, units=units)  # type: ignore[arg-type]
     failed = False
     for path in files:
         try:
+            points, stripped = cut_out(read_cloud(path), request, Limits())
             result = recognise(
-                classifier, read_cloud(path), top=top, units=units, looks=looks, up=up,
+                classifier, points, top=top, units=units, looks=looks, up=up,
                 **({} if second_looks is None else {"second_looks": second_looks}),
             )  # fmt: skip
         except (CloudReadError, BadCloudError) as err:
@@ -78,7 +87,8 @@ def classify(
             failed = True
             continue
         if as_json:
-            typer.echo(json.dumps({"file": str(path), **result.as_dict()}))
+            taken = {} if stripped is None else {"stripped": stripped.as_dict()}
+            typer.echo(json.dumps({"file": str(path), **result.as_dict(), **taken}))
         else:
             others = ", ".join(f"{c.category} {c.probability:.3f}" for c in result.candidates[1:])
             unsure = " (unsure)" if result.unsure else ""

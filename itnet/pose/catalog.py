@@ -21,7 +21,7 @@ from pathlib import Path
 from numpy.typing import ArrayLike
 
 from itnet.pose.admission import Admission
-from itnet.pose.cloud import Limits
+from itnet.pose.cloud import Limits, cut_out
 from itnet.pose.errors import PoseError, UnknownModelError
 from itnet.pose.loop import AnytimeRun
 from itnet.pose.plan import PosePlan, plan
@@ -107,14 +107,16 @@ class Catalog:
         reserve_ms: float = 0.0,
         decode_ms: float | None = None,
     ) -> AnytimeRun:
-        """The request's run, ready to iterate (``started``: its clock, default now;
+        """The request's run on its cloud (a cut-out's floor and walls taken away where ``up``
+        is given: ``itnet.pose.cloud.cut_out``), ready to iterate (``started``: its clock, default now;
         ``reserve_ms``: kept back for handing the reply back; ``decode_ms``: how long decoding
         the request took, default all the time since ``started``). Raises PoseError
         subclasses."""
         started = time.perf_counter() if started is None else started
+        points, stripped = cut_out(points, request, self.limits)
         planned, recognition = self.plan(points, request, started)
         planned.model.relax_step_ms()  # a step time inflated by a past burst must not stick
-        return AnytimeRun(planned, points, started, reserve_ms, recognition, decode_ms)
+        return AnytimeRun(planned, points, started, reserve_ms, recognition, decode_ms, stripped)
 
     @contextmanager
     def serving(self, *runs: AnytimeRun) -> Iterator[None]:

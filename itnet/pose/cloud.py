@@ -1,4 +1,5 @@
-"""Checking what a request sends: the cloud (N, 3) and its directions, against stated limits.
+"""Checking what a request sends: the cloud (N, 3) and its directions, against stated limits;
+and the cloud a request poses, a cut-out's floor and walls taken away.
 
 Every check raises ``BadCloudError`` with a sentence that says what is wrong; nothing here
 depends on a model.
@@ -11,8 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.floor_and_walls import Stripped, strip_floor_and_walls
 from itnet.pose.errors import BadCloudError
+from itnet.pose.request import PoseRequest
 from itnet.preprocess import DegenerateCloudError, Normalization, estimate_normalization
+from itnet.size_prior import metres_per_unit
 from itnet.upright import unit_up
 
 # Larger coordinates overflow the normalisation's squares (1e200 ** 2 is inf in float64) and
@@ -79,3 +83,24 @@ def validate_up(up: ArrayLike) -> NDArray[np.float64]:
         return np.asarray(unit_up(np.asarray(up, dtype=np.float64).reshape(-1)), np.float64)
     except (TypeError, ValueError) as err:
         raise BadCloudError(str(err)) from None
+
+
+def cut_out(
+    points: ArrayLike, request: PoseRequest, limits: Limits
+) -> tuple[ArrayLike, Stripped | None]:
+    """The cloud a request poses and classifies -> (its points, what was taken away or None):
+    where ``up`` is given and ``strip`` is not false, the floor and walls a cut-out kept
+    (``itnet.floor_and_walls``), measured in metres where the request names the unit. Raises
+    BadCloudError for a bad cloud, ``up`` or ``viewpoint``, or ``strip`` without ``up``."""
+    if request.strip is False or (request.up is None and request.strip is None):
+        return points, None
+    if request.up is None:
+        raise BadCloudError(
+            "strip needs 'up', which way is up in the cloud ([x, y, z]; 'x,y,z' in a query): "
+            "a floor and its walls are found as level and upright planes"
+        )
+    cloud = validate_cloud(points, limits)
+    viewpoint = None if request.viewpoint is None else validate_viewpoint(request.viewpoint)
+    metres = None if request.units is None else metres_per_unit(request.units)
+    stripped = strip_floor_and_walls(cloud, validate_up(request.up), viewpoint, metres)
+    return cloud[stripped.keep], stripped

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.basin import canonical_points
+from itnet.floor_and_walls import Stripped
 from itnet.fusion import fuse_poses
 from itnet.geometry import invert_rigid, rotation_angle_deg
 from itnet.pose.cloud import normalization_of, validate_cloud
@@ -43,7 +44,8 @@ class AnytimeRun(Iterator[Estimate]):
     ``started``: the budget's clock (a ``time.perf_counter()`` value, e.g. when the request
     arrived, so that decoding and queueing count), default now. ``reserve_ms``: kept back from
     the budget for handing the reply back after the finish (never more than half of it).
-    ``recognition``: what ``model: "auto"`` recognised (its reply and first stream message)."""
+    ``recognition``: what ``model: "auto"`` recognised (its reply and first stream message).
+    ``stripped``: the floor and walls taken from the cloud sent (``points`` is what was left)."""
 
     def __init__(
         self,
@@ -53,6 +55,7 @@ class AnytimeRun(Iterator[Estimate]):
         reserve_ms: float = 0.0,
         recognition: object | None = None,
         decode_ms: float | None = None,
+        stripped: Stripped | None = None,
     ) -> None:
         self.started = time.perf_counter() if started is None else started
         # how long the request's own decoding took (default: all the time since it started)
@@ -60,6 +63,7 @@ class AnytimeRun(Iterator[Estimate]):
             (time.perf_counter() - self.started) * 1e3 if decode_ms is None else decode_ms
         )
         self.plan, self.model, self.recognition = plan, plan.model, recognition
+        self.stripped = stripped
         self.cloud = validate_cloud(points, plan.limits)
         self.reserve_ms = min(max(0.0, reserve_ms), plan.budget_ms / 2)
         # The whole cloud sets the centre and scale; each run sees its own seeded draw of at
@@ -318,6 +322,7 @@ class AnytimeRun(Iterator[Estimate]):
                 else {}
             ),
             **({"runs": self.poses().tolist()} if self.plan.request.runs else {}),
+            **({"stripped": self.stripped.as_dict()} if self.stripped is not None else {}),
             **recognised,
         }
 

@@ -110,6 +110,14 @@ class PoseRequest(RequestModel):
         description="also reply with each run's own final pose ('runs': T_canonical_from_input "
         "of every run, before fusion and finishing): the alternatives alignment weighs",
     )
+    strip: bool | None = Field(
+        default=None,
+        description="take away the floor under the object and the walls behind it that a "
+        "cut-out kept (an object cut out of a depth frame or a room by its box), before it is "
+        "classified and posed: level and upright planes at its edge that run on past the "
+        "object, seen from the 'viewpoint' (or the origin, where the cloud is one view from "
+        "it); needs 'up' (default: where 'up' is given); the reply says how many points went",
+    )
     units: Unit | None = Field(
         default=None,
         description="the cloud's unit, if known: with model 'auto' the cloud's size then counts "

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError
-from itnet.scene.planes import Plane
 from itnet.scene.posing import scene_category
 from itnet.scene.scene_classifier import SceneClassifier
 from itnet.scene.touching import CutJudge, cut_candidates

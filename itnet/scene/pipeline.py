@@ -32,13 +32,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.columns import column_max, column_mean, column_min
+from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics, SceneInputError
 from itnet.scene.category_recheck import rechecked
 from itnet.scene.centre_along_floor import CentreTable, centred_along_floor, load_table
 from itnet.scene.inputs import SceneInput, SceneLimits, from_array, from_file
 from itnet.scene.named_split import Namer, named_parts
-from itnet.scene.planes import Plane
 from itnet.scene.posing import (
     BadCloudError,
     ObjectPose,

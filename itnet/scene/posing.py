@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError, BudgetTooSmallError
 from itnet.pose.recognition import classify, pose_model_for
@@ -29,7 +30,6 @@ from itnet.pose.runtime import (
     default_model_dir,
 )
 from itnet.scene.height_prior import with_height
-from itnet.scene.planes import Plane
 from itnet.scene.scene_classifier import OTHER, SceneClassifier, cluster_features
 from itnet.scene.unknown import unknown_reason
 
@@ -235,7 +235,7 @@ def posed_as(
         request = PoseRequest(model=model.card.name, budget_ms=float(budget_ms),
                               up=[float(v) for v in up], viewpoint=[float(v) for v in viewpoint],
                               ensemble=ensemble, points_per_run=SCENE_RUN_POINTS,
-                              schedule=False)  # fmt: skip
+                              schedule=False, strip=False)  # fmt: skip
         try:
             run = catalog.start(points, request, started)
             break

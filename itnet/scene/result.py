@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.scene.planes import Plane
+from itnet.planes import Plane
 
 
 @dataclass(frozen=True)

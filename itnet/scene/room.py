@@ -24,7 +24,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.scene.planes import Plane, ransac_plane, refined_plane
+from itnet.planes import Plane, ransac_plane, refined_plane
 from itnet.scene.segment import Segmentation, SegmentOptions, plane_sample, segment
 
 # a depth camera's view: every point within this of the view's mean direction (a wide one,

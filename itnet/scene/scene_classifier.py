@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from itnet.graph_digest import graph_digest
+from itnet.planes import Plane
 from itnet.pose.runtime import LoadedClassifier
 from itnet.scene.feature_network import FeatureNetwork
-from itnet.scene.planes import Plane
 
 FILE = Path(__file__).with_name("scene_classifier.json")
 OTHER = "other"  # the class of things that are none of the categories

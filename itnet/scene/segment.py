@@ -53,7 +53,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from itnet.columns import column_max, column_min
-from itnet.scene.planes import Plane, floor_axes, ransac_plane, refined_plane
+from itnet.planes import Plane, floor_axes, ransac_plane, refined_plane
 from itnet.scene.touching import load_cut_judge, split_touching
 from itnet.scene.view_edges import ViewEdges
 

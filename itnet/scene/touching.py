@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.planes import Plane, floor_axes
 from itnet.scene.feature_network import FeatureNetwork
-from itnet.scene.planes import Plane, floor_axes
 
 FILE = Path(__file__).with_name("touching_cut.json")
 CLASSES = ("one", "two")  # the judge's classes: the cut crosses one object, or parts two

@@ -21,7 +21,7 @@ STATIC = Path(__file__).resolve().parents[2] / "service" / "static"
 SET = {"budget_ms": 20.0, "max_iterations": 7, "model": "chair", "ensemble": 4, "mirror": False,
        "verify": True, "recheck": False, "centre": False, "viewpoint": [0.0, 0.0, 0.0],
        "up": [0.0, -1.0, 0.0], "runs": True, "units": "mm", "points_per_run": 128,
-       "schedule": False}  # fmt: skip
+       "schedule": False, "strip": False}  # fmt: skip
 # The page draws the served pose; each run's own pose is for alignment's hypotheses.
 PAGE_LEAVES_OUT = {"runs"}
 

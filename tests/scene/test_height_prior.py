@@ -12,9 +12,9 @@ from scene_helpers import boxes_shape
 import itnet.scene.posing as posing
 from itnet.model.classify.size_prior import INCH_M
 from itnet.model.heights import measure
+from itnet.planes import Plane
 from itnet.scene.height_prior import HEIGHTS_M, height_log_likelihood, with_height
 from itnet.scene.pipeline import shipped_catalog
-from itnet.scene.planes import Plane
 
 
 def test_a_night_stands_height_favours_the_night_stand_and_a_dressers_the_dresser() -> None:

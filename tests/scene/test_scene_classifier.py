@@ -15,10 +15,10 @@ from itnet.cli import app
 from itnet.geometry import axis_angle_to_matrix
 from itnet.model import scene_classifier_fit
 from itnet.model.scenes import Scene
+from itnet.planes import Plane
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.pipeline import serving_scene_classifier, shipped_catalog
-from itnet.scene.planes import Plane
 from itnet.scene.posing import scene_category
 from itnet.scene.scene_classifier import (
     OTHER,

@@ -133,8 +133,8 @@ def test_the_recognition_parts_a_cluster_where_both_parts_are_objects(
     """Two boxes 3 cm apart along x make one cluster: of the cut judge's planes, the one through
     the gap leaves two parts that a category fits (here: any part narrower than 1 m), and the
     cluster is parted there; where no part fits, it stays whole."""
+    from itnet.planes import Plane
     from itnet.scene import named_split
-    from itnet.scene.planes import Plane
 
     rng = np.random.default_rng(3)
     left = rng.uniform([-0.83, -0.8, 3.0], [-0.03, 0.0, 3.5], size=(3000, 3))

@@ -3,8 +3,8 @@ import math
 import numpy as np
 from scene_helpers import boxes_shape, chair_shape, make_test_scene
 
+from itnet.planes import fit_plane, ransac_plane
 from itnet.scene import from_depth
-from itnet.scene.planes import fit_plane, ransac_plane
 from itnet.scene.segment import segment
 
 

@@ -14,10 +14,10 @@ from typer.testing import CliRunner
 from itnet.cli import app
 from itnet.model import touching_cut_fit
 from itnet.model.scenes import Scene
+from itnet.planes import Plane
 from itnet.scene import segment as segment_module
 from itnet.scene.feature_network import FeatureNetwork
 from itnet.scene.inputs import from_depth
-from itnet.scene.planes import Plane
 from itnet.scene.segment import SegmentOptions, segment
 from itnet.scene.touching import (
     CutJudge,

@@ -1,4 +1,4 @@
-"""Planes of a scene: the floor (which way is up) and the walls, by RANSAC.
+"""Planes of a scene or a cut-out: the floor (which way is up) and the walls, by RANSAC.
 
 Numpy (and scipy's KD-tree for neighbouring points). A plane is ``n·p + d = 0`` with ``n`` a
 unit normal; the floor's normal is oriented toward the camera (the camera stands above the

@@ -1,0 +1,248 @@
+"""The floor and walls a cut-out keeps, found and taken away before it is classified and posed.
+
+An object cut out of a depth frame or a room by its box (a user's, grown a little) keeps a strip
+of the floor it stands on and of the wall behind it; the networks were trained on the object
+alone, and take the strips for part of it. Given which way is up, both are planes of known
+direction at the cut-out's edge, and where they are found they go:
+
+* **The floor**: among the points within 0.25 m of the lowest (its 1st percentile of heights),
+  the plane within 15 degrees of level that holds most of them (RANSAC, ``itnet.planes``). It is
+  the floor where the sensor stands at least 0.1 m above it (from above, the only level surface
+  at an object's foot is the floor: its own underside shows from below only), at least 2% of
+  the points lie within 2.5 cm of it and at most 2% more than 5 cm below it. Everything less
+  than 2.5 cm above it goes.
+* **The walls**: up to two upright planes (normals within 10 degrees of level) at the cut-out's
+  far side: each holds at least 5% of what is left, at least 30% of what is left lies off it,
+  and at most 2% of that more than 5 cm behind it, seen from the sensor (an object's own face
+  has the rest of the object behind it). Everything less than 2.5 cm before it goes.
+* Nothing goes where less than a quarter of the cloud, or fewer than 32 points, would be left.
+
+Distances are in metres where the cloud's unit is known, otherwise in proportion to its size
+(an RMS radius of 0.4 m). The sensor is the ``viewpoint`` given, or the origin where the cloud is
+one view from it (``one_view_from``: a depth camera's cloud in its own frame); without either
+nothing is taken, since which side a plane is seen from decides both tests.
+Pure numpy (and scipy's KD-tree).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from itnet.planes import Plane, floor_axes, ransac_plane
+
+TOLERANCE_M = 0.025  # a point within this of a floor or wall is on it
+FLOOR_BAND_M = 0.25  # the floor is looked for this far above the lowest points
+SENSOR_ABOVE_M = 0.1  # the sensor stands at least this far above a floor
+FLOOR_TILT_DEG = 15.0
+WALL_TILT_DEG = 10.0
+FLOOR_SHARE = 0.02  # the least share of the points on a floor ...
+BELOW_SHARE = 0.02  # ... and the most below it (beyond twice the tolerance)
+WALL_SHARE = 0.05  # the least share of what is left on a wall ...
+OFF_WALL_SHARE = 0.3  # ... and off it ...
+BEHIND_SHARE = 0.02  # ... and the most of that behind it (beyond twice the tolerance)
+WALLS = 2
+WALL_TRIES = 4  # upright planes tried: an object's own face may hold more points than a wall
+LEFT_SHARE = 0.25  # nothing goes where less than this share of the cloud would be left
+MIN_LEFT = 32
+SIZE_M = 0.4  # the RMS radius taken for a cloud of unknown unit
+HIDDEN_SHARE = 0.05  # one view: at most this share hidden behind nearer points ...
+HIDDEN_CELLS = 6.0  # ... by more than this many cells' width (a surface seen at 10 degrees)
+VIEW_HALF_ANGLE_DEG = 80.0  # one view: every point within this of its mean direction
+
+
+@dataclass(frozen=True)
+class Stripped:
+    """What was taken away: ``keep`` (N,) bool, the points left; ``floor`` and ``walls``, how
+    many points each took; ``viewpoint`` (3,), the sensor the tests went by, or None."""
+
+    keep: NDArray[np.bool_]
+    floor: int
+    walls: int
+    viewpoint: NDArray[np.float64] | None
+
+    @property
+    def taken(self) -> int:
+        return self.floor + self.walls
+
+    def as_dict(self) -> dict:
+        return {"floor": self.floor, "walls": self.walls}
+
+
+def one_view_from(points: NDArray, viewpoint: ArrayLike) -> bool:
+    """Whether a cloud (N, 3) looks like one view from ``viewpoint`` (3,): every point within
+    80 degrees of the cloud's mean direction from it, and at most 5% of the points hidden
+    behind a nearer one in the same direction (a cell of twice the points' usual angular
+    spacing, hidden beyond six cells' width: a surface seen at 10 degrees is not). A fused scan, a whole shape or a cloud around
+    the point is not."""
+    rel = np.asarray(points, np.float64) - np.asarray(viewpoint, np.float64)
+    depth = np.linalg.norm(rel, axis=1)
+    if len(rel) < 3 or depth.min() <= 0:
+        return False
+    axis = (rel / depth[:, None]).mean(axis=0)
+    norm = float(np.linalg.norm(axis))
+    if norm < 1e-9:
+        return False
+    axis /= norm
+    ahead = rel @ axis
+    if np.min(ahead / depth) < math.cos(math.radians(VIEW_HALF_ANGLE_DEG)):
+        return False
+    first = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    first /= np.linalg.norm(first)
+    image = np.c_[rel @ first, rel @ np.cross(axis, first)] / ahead[:, None]  # (N, 2) tangents
+    sample = image[np.random.default_rng(0).permutation(len(image))[:2000]]
+    spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1]))
+    cell = 2.0 * max(spacing, 1e-9)
+    cells = np.floor(image / cell).astype(np.int64)
+    _, which = np.unique(cells, axis=0, return_inverse=True)
+    which = which.reshape(-1)
+    nearest = np.full(which.max() + 1, np.inf)
+    np.minimum.at(nearest, which, depth)
+    hidden = depth > nearest[which] + HIDDEN_CELLS * cell * depth
+    return float(hidden.mean()) <= HIDDEN_SHARE
+
+
+def strip_floor_and_walls(
+    points: ArrayLike,
+    up: ArrayLike,
+    viewpoint: ArrayLike | None = None,
+    metres_per_unit: float | None = None,
+    seed: int = 0,
+) -> Stripped:
+    """A cut-out (N, 3), its unit up (3,), the sensor (3,) if known, the cloud's unit in metres
+    if known -> what of it is floor and walls (see the module)."""
+    cloud = np.asarray(points, np.float64)
+    up_unit = np.asarray(up, np.float64) / np.linalg.norm(up)
+    sensor = _sensor(cloud, viewpoint)
+    keep = np.ones(len(cloud), bool)
+    if sensor is None or len(cloud) < MIN_LEFT:
+        return Stripped(keep, 0, 0, sensor)
+    metre = _units_per_metre(cloud, metres_per_unit)
+    tolerance = TOLERANCE_M * metre
+    rng = np.random.default_rng(seed)
+    floor = _floor(cloud, up_unit, sensor, metre, rng)
+    walls: list[tuple[NDArray[np.bool_], NDArray[np.float64]]] = []
+    taken = floor[0].copy() if floor is not None else np.zeros(len(cloud), bool)
+    looked = taken.copy()  # planes already tried: found walls, and faces that are none
+    for _ in range(WALL_TRIES):
+        wall = _wall(cloud, ~taken, ~looked, up_unit, sensor, tolerance, rng)
+        if wall is None:
+            break
+        on, gone, along = wall
+        looked |= on
+        if gone is not None:
+            walls.append((gone, along))
+            taken |= gone
+            if len(walls) == WALLS:
+                break
+    rest = cloud[~taken]  # the object: what lies on no floor or wall found
+    if floor is not None and any(
+        _reaches_past(cloud[floor[1]], rest, axis, tolerance, both_ends=True) for axis in floor[2]
+    ):
+        keep &= ~floor[0]
+    floor_taken = int((~keep).sum())
+    for gone, along in walls:
+        if _reaches_past(cloud[gone], rest, along, tolerance, both_ends=False):
+            keep &= ~gone
+    if keep.sum() < max(MIN_LEFT, LEFT_SHARE * len(cloud)):
+        return Stripped(np.ones(len(cloud), bool), 0, 0, sensor)
+    return Stripped(keep, floor_taken, int((~keep).sum()) - floor_taken, sensor)
+
+
+def _sensor(cloud: NDArray, viewpoint: ArrayLike | None) -> NDArray[np.float64] | None:
+    """The viewpoint given, else the origin where the cloud is one view from it, else None."""
+    if viewpoint is not None:
+        return np.asarray(viewpoint, np.float64)
+    origin = np.zeros(3)
+    return origin if one_view_from(cloud, origin) else None
+
+
+def _units_per_metre(cloud: NDArray, metres_per_unit: float | None) -> float:
+    if metres_per_unit is not None:
+        return 1.0 / metres_per_unit
+    rms = float(np.sqrt(((cloud - cloud.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    return rms / SIZE_M
+
+
+def _floor(
+    cloud: NDArray, up: NDArray, sensor: NDArray, metre: float, rng: np.random.Generator
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], tuple[NDArray, NDArray]] | None:
+    """A floor under the cloud (N, 3) -> (the points on and below it (N,), those on it (N,),
+    two directions along it (3,)), or None where there is none."""
+    tolerance = TOLERANCE_M * metre
+    height = cloud @ up
+    band = height <= np.percentile(height, 1) + FLOOR_BAND_M * metre
+    level = math.cos(math.radians(FLOOR_TILT_DEG))
+    found = ransac_plane(
+        cloud[band], rng, tolerance, lambda normals: np.abs(normals @ up) > level,
+        hypotheses=100, sample=1000, refine=4000,
+    )  # fmt: skip
+    if found is None:
+        return None
+    plane = _facing(found[0], up)
+    above = plane.distance(cloud)
+    on = np.abs(above) < tolerance
+    if (
+        plane.distance(sensor[None])[0] < SENSOR_ABOVE_M * metre
+        or on.sum() < max(10, FLOOR_SHARE * len(cloud))
+        or (above < -2 * tolerance).sum() > BELOW_SHARE * len(cloud)
+    ):
+        return None
+    return above < tolerance, on, floor_axes(plane.normal)
+
+
+def _wall(
+    cloud: NDArray,
+    left: NDArray[np.bool_],
+    untried: NDArray[np.bool_],
+    up: NDArray,
+    sensor: NDArray,
+    tolerance: float,
+    rng: np.random.Generator,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_] | None, NDArray[np.float64]] | None:
+    """The likeliest upright plane through the ``untried`` points (N,) of the cloud (N, 3) ->
+    (its points (N,), those of the points ``left`` (N,) on and behind it where it is a wall
+    behind them or else None, its level direction (3,)), or None where there is no plane."""
+    upright = math.sin(math.radians(WALL_TILT_DEG))
+    found = ransac_plane(
+        cloud[untried], rng, tolerance, lambda normals: np.abs(normals @ up) < upright,
+        hypotheses=100, sample=1000, refine=4000,
+    )  # fmt: skip
+    if found is None:
+        return None
+    plane = found[0]
+    along = np.cross(plane.normal, up)
+    side = float(plane.distance(sensor[None])[0])
+    before = plane.distance(cloud) * math.copysign(1.0, side)  # toward the sensor
+    on = left & (np.abs(before) < tolerance)
+    off = left & ~on
+    if (
+        abs(side) < tolerance
+        or on.sum() < WALL_SHARE * left.sum()
+        or off.sum() < OFF_WALL_SHARE * left.sum()
+        or (off & (before < -2 * tolerance)).sum() > BEHIND_SHARE * off.sum()
+    ):
+        return untried & (np.abs(before) < tolerance), None, along
+    return on, left & (before < tolerance), along
+
+
+def _reaches_past(
+    plane: NDArray, rest: NDArray, axis: NDArray, tolerance: float, both_ends: bool
+) -> bool:
+    """Whether a plane's points (K, 3) reach past the rest (M, 3) along ``axis`` (3,), by more
+    than twice the tolerance, at both its ends or at either: a floor or a wall runs on past
+    the object beside it, where the object's own seat, base or back ends with it."""
+    if len(plane) == 0 or len(rest) == 0:
+        return len(plane) > 0
+    on, off = np.percentile(plane @ axis, [1, 99]), np.percentile(rest @ axis, [1, 99])
+    past = (off[0] - on[0] > 2 * tolerance, on[1] - off[1] > 2 * tolerance)
+    return all(past) if both_ends else any(past)
+
+
+def _facing(plane: Plane, direction: NDArray) -> Plane:
+    """``plane`` with its normal on ``direction``'s side."""
+    return plane if plane.normal @ direction >= 0 else Plane(-plane.normal, -plane.offset)
