@@ -11,10 +11,14 @@ direction at the cut-out's edge, and where they are found they go:
   at an object's foot is the floor: its own underside shows from below only), at least 2% of
   the points lie within 2.5 cm of it and at most 2% more than 5 cm below it. Everything less
   than 2.5 cm above it goes.
-* **The walls**: up to two upright planes (normals within 10 degrees of level) at the cut-out's
-  far side: each holds at least 5% of what is left, at least 30% of what is left lies off it,
-  and at most 2% of that more than 5 cm behind it, seen from the sensor (an object's own face
-  has the rest of the object behind it). Everything less than 2.5 cm before it goes.
+* **The walls**: upright planes (normals within 10 degrees of level; up to four tried, two
+  kept, since an object's own front may hold more points than the wall) at the cut-out's far
+  side: each holds at least 5% of what is left, at least 30% of what is left lies off it, and
+  at most 2% of that more than 5 cm behind it, seen from the sensor (an object's own face has
+  the rest of the object behind it). Everything less than 2.5 cm before it goes.
+* Each only where it **runs on past the object** (what lies on no floor or wall found) by more
+  than 5 cm: the floor at both ends of one direction along it, a wall at either end of its
+  width. A chair's seat, a sofa's back or a cabinet's front ends with the object, and stays.
 * Nothing goes where less than a quarter of the cloud, or fewer than 32 points, would be left.
 
 Distances are in metres where the cloud's unit is known, otherwise in proportion to its size
@@ -33,7 +37,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from itnet.planes import Plane, floor_axes, ransac_plane
+from itnet.planes import floor_axes, ransac_plane
+from itnet.preprocess import DegenerateCloudError, estimate_normalization
 
 TOLERANCE_M = 0.025  # a point within this of a floor or wall is on it
 FLOOR_BAND_M = 0.25  # the floor is looked for this far above the lowest points
@@ -58,12 +63,11 @@ VIEW_HALF_ANGLE_DEG = 80.0  # one view: every point within this of its mean dire
 @dataclass(frozen=True)
 class Stripped:
     """What was taken away: ``keep`` (N,) bool, the points left; ``floor`` and ``walls``, how
-    many points each took; ``viewpoint`` (3,), the sensor the tests went by, or None."""
+    many points each took."""
 
     keep: NDArray[np.bool_]
     floor: int
     walls: int
-    viewpoint: NDArray[np.float64] | None
 
     @property
     def taken(self) -> int:
@@ -77,8 +81,8 @@ def one_view_from(points: NDArray, viewpoint: ArrayLike) -> bool:
     """Whether a cloud (N, 3) looks like one view from ``viewpoint`` (3,): every point within
     80 degrees of the cloud's mean direction from it, and at most 5% of the points hidden
     behind a nearer one in the same direction (a cell of twice the points' usual angular
-    spacing, hidden beyond six cells' width: a surface seen at 10 degrees is not). A fused scan, a whole shape or a cloud around
-    the point is not."""
+    spacing, hidden beyond six cells' width: a surface seen at 10 degrees is not). A fused
+    scan, a whole shape or a cloud around the point is not."""
     rel = np.asarray(points, np.float64) - np.asarray(viewpoint, np.float64)
     depth = np.linalg.norm(rel, axis=1)
     if len(rel) < 3 or depth.min() <= 0:
@@ -98,8 +102,8 @@ def one_view_from(points: NDArray, viewpoint: ArrayLike) -> bool:
     spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1]))
     cell = 2.0 * max(spacing, 1e-9)
     cells = np.floor(image / cell).astype(np.int64)
-    _, which = np.unique(cells, axis=0, return_inverse=True)
-    which = which.reshape(-1)
+    cells -= cells.min(axis=0)
+    _, which = np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1], return_inverse=True)
     nearest = np.full(which.max() + 1, np.inf)
     np.minimum.at(nearest, which, depth)
     hidden = depth > nearest[which] + HIDDEN_CELLS * cell * depth
@@ -120,8 +124,10 @@ def strip_floor_and_walls(
     sensor = _sensor(cloud, viewpoint)
     keep = np.ones(len(cloud), bool)
     if sensor is None or len(cloud) < MIN_LEFT:
-        return Stripped(keep, 0, 0, sensor)
+        return Stripped(keep, 0, 0)
     metre = _units_per_metre(cloud, metres_per_unit)
+    if metre is None:
+        return Stripped(keep, 0, 0)
     tolerance = TOLERANCE_M * metre
     rng = np.random.default_rng(seed)
     floor = _floor(cloud, up_unit, sensor, metre, rng)
@@ -149,8 +155,8 @@ def strip_floor_and_walls(
         if _reaches_past(cloud[gone], rest, along, tolerance, both_ends=False):
             keep &= ~gone
     if keep.sum() < max(MIN_LEFT, LEFT_SHARE * len(cloud)):
-        return Stripped(np.ones(len(cloud), bool), 0, 0, sensor)
-    return Stripped(keep, floor_taken, int((~keep).sum()) - floor_taken, sensor)
+        return Stripped(np.ones(len(cloud), bool), 0, 0)
+    return Stripped(keep, floor_taken, int((~keep).sum()) - floor_taken)
 
 
 def _sensor(cloud: NDArray, viewpoint: ArrayLike | None) -> NDArray[np.float64] | None:
@@ -161,11 +167,15 @@ def _sensor(cloud: NDArray, viewpoint: ArrayLike | None) -> NDArray[np.float64] 
     return origin if one_view_from(cloud, origin) else None
 
 
-def _units_per_metre(cloud: NDArray, metres_per_unit: float | None) -> float:
+def _units_per_metre(cloud: NDArray, metres_per_unit: float | None) -> float | None:
+    """The cloud's units in a metre: from its unit, else from its RMS radius (the networks'
+    normalisation, ``itnet.preprocess``) taken as ``SIZE_M``; None for a cloud with no extent."""
     if metres_per_unit is not None:
         return 1.0 / metres_per_unit
-    rms = float(np.sqrt(((cloud - cloud.mean(axis=0)) ** 2).sum(axis=1).mean()))
-    return rms / SIZE_M
+    try:
+        return estimate_normalization(cloud).scale / SIZE_M
+    except DegenerateCloudError:
+        return None
 
 
 def _floor(
@@ -183,7 +193,7 @@ def _floor(
     )  # fmt: skip
     if found is None:
         return None
-    plane = _facing(found[0], up)
+    plane = found[0].toward(up)
     above = plane.distance(cloud)
     on = np.abs(above) < tolerance
     if (
@@ -241,8 +251,3 @@ def _reaches_past(
     on, off = np.percentile(plane @ axis, [1, 99]), np.percentile(rest @ axis, [1, 99])
     past = (off[0] - on[0] > 2 * tolerance, on[1] - off[1] > 2 * tolerance)
     return all(past) if both_ends else any(past)
-
-
-def _facing(plane: Plane, direction: NDArray) -> Plane:
-    """``plane`` with its normal on ``direction``'s side."""
-    return plane if plane.normal @ direction >= 0 else Plane(-plane.normal, -plane.offset)

@@ -32,6 +32,10 @@ class Plane:
         """Points (N, 3) -> signed distances (N,) along the normal."""
         return np.asarray(points, dtype=np.float64) @ self.normal + self.offset
 
+    def toward(self, direction: NDArray) -> Plane:
+        """The same plane with its normal on ``direction``'s (3,) side."""
+        return self if self.normal @ direction >= 0 else Plane(-self.normal, -self.offset)
+
 
 def floor_axes(up: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A unit up (3,) -> two unit directions (3,) along the floor, normal to it and to each

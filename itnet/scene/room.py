@@ -70,9 +70,7 @@ def floor_by_up(
     )  # fmt: skip
     if found is None:
         return None
-    plane = found[0]
-    if plane.normal @ expected_up < 0:
-        plane = Plane(-plane.normal, -plane.offset)
+    plane = found[0].toward(expected_up)
     heights = plane.distance(points)
     threshold = options.floor_threshold_m
     if np.count_nonzero(heights < -threshold) > np.count_nonzero(heights > threshold):
