@@ -81,7 +81,8 @@ def find_objects(
 ) -> SceneResult:
     """A scene -> its SceneResult. ``scene``: a depth image (H, W) (with ``intrinsics``), a
     cloud (N, 3) in the camera's frame (metres), a file of either, or a SceneInput. ``catalog``:
-    the models (default: the shipped ones, loaded once per process). ``categories``: the ones the
+    the models (default: the shipped ones, loaded once per process, on the first call and before
+    its budget's clock starts). ``categories``: the ones the
     scene's objects may be (a bathroom's: toilet, bathtub; default: any the classifier knows).
     ``finishing``: the steps each posed object gets after its pose pipeline; ``centre_table``:
     the pose models' scene corrections (default: the shipped table). ``scene_classifier``: what
@@ -94,6 +95,7 @@ def find_objects(
     origin), None (decided from the cloud; a depth image is a camera's). Raises
     SceneInputError for a scene that cannot be used (a depth image asked to be a room's),
     ValueError for a budget that is not positive or an up that is no direction."""
+    catalog = catalog or shipped_catalog()  # once a process, before the request's clock
     started = time.perf_counter() if started is None else started
     if not budget_ms > 0:
         raise ValueError(f"budget_ms must be positive, got {budget_ms}")
@@ -107,7 +109,6 @@ def find_objects(
         given = from_file(Path(scene), intrinsics, depth_scale, limits)
     else:
         given = from_array(np.asarray(scene), intrinsics, depth_scale, limits)
-    catalog = catalog or shipped_catalog()
     if options.work_points is None:
         options = replace(options, work_points=working_points(budget_ms))
     try:

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from itnet.cli import app
 from itnet.model.scenes import Scene
-from itnet.scene import find_objects
+from itnet.scene import find_objects, pipeline
 from itnet.scene.depth_io import depth_to_png
 from itnet.service.app import create_app
 
@@ -94,6 +94,15 @@ def test_http_png_json_and_the_python_api_agree(client: TestClient, files: Path,
     assert reply.json()["objects"][0]["base_out_of_view"] is False  # seen down to the floor
     result = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=300)
     assert [o.category for o in result.objects] == [reply.json()["objects"][0]["category"]]
+
+
+def test_the_first_call_of_a_process_loads_the_models_before_its_budget_starts(
+    chair_scene: Scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(pipeline, "_SHIPPED", None)  # as in a fresh process: none loaded yet
+    result = find_objects(chair_scene.depth, chair_scene.intrinsics, budget_ms=300)
+    assert [o.category for o in result.objects] == ["chair"]
+    assert result.objects[0].pose is not None
 
 
 @pytest.mark.parametrize(
