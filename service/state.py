@@ -63,18 +63,25 @@ class ConcurrencyGate:
         lately served fewer in full."""
         return self.limit if self.delivery is None else min(self.limit, self.delivery.allowed())
 
-    def check(self) -> None:
-        """The 503 now if every slot is taken (a slot is taken with ``slot``)."""
+    def refusal(self) -> ServiceError | None:
+        """The 503 a request gets now, or None where a slot is free (taken with ``slot``)."""
         limit = self.current_limit()
-        if self.active >= limit:
-            said = "" if limit == self.limit else f", {limit} served in full now"
-            raise ServiceError(
-                503,
-                "overloaded",
-                f"the server is busy ({self.active} estimates running, the limit is "
-                f"{self.limit}{said}); retry in {self.retry_after_s} s",
-                headers={"Retry-After": str(self.retry_after_s)},
-            )
+        if self.active < limit:
+            return None
+        said = "" if limit == self.limit else f", {limit} served in full now"
+        return ServiceError(
+            503,
+            "overloaded",
+            f"the server is busy ({self.active} estimates running, the limit is "
+            f"{self.limit}{said}); retry in {self.retry_after_s} s",
+            headers={"Retry-After": str(self.retry_after_s)},
+        )
+
+    def check(self) -> None:
+        """Raise the 503 now if every slot is taken."""
+        refused = self.refusal()
+        if refused is not None:
+            raise refused
 
     @contextmanager
     def slot(self) -> Iterator[None]:

@@ -12,6 +12,9 @@
   ``header_timeout_s`` of the connection's (or the kept-alive request's) first byte, and fit in
   ``max_header_bytes`` (else 431). The deadline is fixed when the head begins: a byte every
   half-second does not renew it.
+* **The estimate gate's 503 before the app** (``service/guards/front_gate.py``): where every
+  estimate slot is taken, a pose or scene request is answered as soon as its head is in, without
+  the app's half-millisecond of Python per refusal.
 * **The request's first byte**: its ``time.perf_counter()`` goes into the scope (``ARRIVED``),
   so a request's budget and ``elapsed_ms`` count from when its first byte was read, not from when
   the app got round to it.
@@ -23,6 +26,7 @@ import asyncio
 import json
 import time
 import weakref
+from functools import partial
 from typing import Any
 
 import httptools
@@ -31,6 +35,7 @@ from uvicorn.server import ServerState
 
 from itnet.service.guards.byte_budget import ByteBudget
 from itnet.service.guards.connections import Admission, ConnectionTable, Phase
+from itnet.service.guards.front_gate import front_gate
 from itnet.service.metrics import ARRIVED
 from itnet.service.settings import ServerSettings
 
@@ -131,17 +136,19 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def on_headers_complete(self) -> None:
         self._stop_head()
         self.table.set_phase(self.transport, Phase.BUSY)
-        upgrade = self.parser.should_upgrade() and self._should_upgrade()
-        if upgrade or not self.table.in_lane(self.transport) or self._is_probe():
+        if self.parser.should_upgrade() and self._should_upgrade():
             super().on_headers_complete()  # an upgrade in the lane is refused at the handover
             return
-        # The probe lane serves probes only: run the cycle with the JSON 503 as the app.
-        app = self.app
-        self.app = self._overloaded  # type: ignore[assignment]
-        try:
+        if self.table.in_lane(self.transport) and not self._is_probe():
+            self._answer_with(self._overloaded)  # the probe lane serves probes only
+            return
+        gate = front_gate(self.server_state, self.app)
+        method, path = self.parser.get_method(), httptools.parse_url(self.url).path
+        refused = None if gate is None else gate.refusal(method.decode(), path.decode())
+        if gate is None or refused is None:
             super().on_headers_complete()
-        finally:
-            self.app = app
+            return
+        self._answer_with(partial(gate.reply, refused))
 
     def handle_websocket_upgrade(self) -> None:
         if self.table.in_lane(self.transport):
@@ -154,6 +161,15 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         if not self.transport.is_closing():
             busy = self.cycle is not None and not self.cycle.response_complete  # pipelined
             self.table.set_phase(self.transport, Phase.BUSY if busy else Phase.IDLE)
+
+    def _answer_with(self, app: Any) -> None:
+        """Run this request's cycle with ``app`` instead of the service's (its body unread)."""
+        service = self.app
+        self.app = app
+        try:
+            super().on_headers_complete()
+        finally:
+            self.app = service
 
     def _is_probe(self) -> bool:
         method = self.parser.get_method()

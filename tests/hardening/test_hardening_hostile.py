@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -270,6 +271,76 @@ def test_a_request_refused_by_the_gate_is_answered_before_its_body(
         sock.close()
     assert reply.startswith(b"HTTP/1.1 503"), reply[:200]
     assert b"retry-after" in reply.lower() and seconds < LIMITS.body_timeout_s / 2, seconds
+
+
+def read_reply(sock: socket.socket) -> tuple[bytes, dict[str, str], bytes]:
+    """One HTTP/1.1 reply with a Content-Length: its status line, headers and body."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        data += sock.recv(4096)
+    head_bytes, body = data.split(b"\r\n\r\n", 1)
+    status, *lines = head_bytes.decode().split("\r\n")
+    headers = {k.lower(): v.strip() for k, v in (line.split(":", 1) for line in lines)}
+    while len(body) < int(headers["content-length"]):
+        body += sock.recv(4096)
+    return status.encode(), headers, body
+
+
+def test_the_gate_refuses_in_the_protocol_and_keeps_the_connection(
+    slow_server: LiveServer, points: list, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every estimate slot taken: the protocol answers the estimate as the app would (503, the
+    JSON body, Retry-After, the same metrics) without running the app, and the connection, its
+    body dropped unread, serves the next request."""
+    from contextlib import ExitStack
+
+    from itnet.service.guards.front_gate import FrontGate
+
+    answered_by_protocol: list[str] = []
+    reply = FrontGate.reply
+
+    async def counted(self: FrontGate, refused: Any, scope: Any, receive: Any, send: Any) -> None:
+        answered_by_protocol.append(scope["path"])
+        await reply(self, refused, scope, receive, send)
+
+    monkeypatch.setattr(FrontGate, "reply", counted)
+    metrics = slow_server.state.metrics.registry
+    before = metrics.get_sample_value(
+        "itnet_requests_total", {"endpoint": "/v1/estimate", "status": "503"}) or 0.0  # fmt: skip
+    body = json.dumps({"points": points, "budget_ms": 60}).encode()
+    with ExitStack() as slots, socket.create_connection(slow_server.host_port, timeout=5) as sock:
+        for _ in range(LIMITS.max_concurrent_requests):
+            slots.enter_context(slow_server.state.gate.slot())
+        sock.sendall(head(length=len(body)) + body)
+        status, headers, refused = read_reply(sock)
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        health, _, _ = read_reply(sock)
+    assert status.startswith(b"HTTP/1.1 503") and headers["retry-after"] == "1", headers
+    assert json.loads(refused)["kind"] == "overloaded", refused
+    assert "connection" not in headers and health.startswith(b"HTTP/1.1 200"), health
+    assert answered_by_protocol == ["/v1/estimate"]
+    assert metrics.get_sample_value(
+        "itnet_requests_total", {"endpoint": "/v1/estimate", "status": "503"}) == before + 1  # fmt: skip
+    assert metrics.get_sample_value("itnet_errors_total", {"kind": "overloaded"}) >= 1
+
+
+def test_the_protocol_gates_the_routes_that_ask_the_gate(slow_server: LiveServer) -> None:
+    """The paths the protocol refuses early are the POST routes that the app's own check refuses
+    while every slot is taken (a client that bypasses the protocol)."""
+    from contextlib import ExitStack
+
+    from fastapi.testclient import TestClient
+
+    from itnet.service.guards.front_gate import GATED_PATHS
+
+    client = TestClient(slow_server.app)
+    posts = [path for path, ops in client.get("/openapi.json").json()["paths"].items()
+             if "post" in ops]  # fmt: skip
+    with ExitStack() as slots:
+        for _ in range(LIMITS.max_concurrent_requests):
+            slots.enter_context(slow_server.state.gate.slot())
+        gated = {path for path in posts if client.post(path, content=b"").status_code == 503}
+    assert "/v1/estimate" in posts and gated == GATED_PATHS
 
 
 def test_slow_uploads_hold_no_estimate_slot(slow_server: LiveServer, points: list) -> None:

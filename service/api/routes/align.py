@@ -22,7 +22,7 @@ from pydantic import Field, ValidationError
 from itnet.alignment.request import AlignRequest
 from itnet.pose.cloud import validate_cloud
 from itnet.pose.errors import BadCloudError, PoseError
-from itnet.service.api.deps import ArrivedDep, BodyDep, StateDep
+from itnet.service.api.deps import ArrivedDep, BodyDep, GateOpenDep, StateDep
 from itnet.service.errors import ServiceError, describe_errors, malformed_json
 from itnet.service.schemas import ErrorResponse, Point
 from itnet.service.state import ServiceState
@@ -63,12 +63,14 @@ class AlignBody(AlignRequest):
         }
     },
 )
-async def align(body: BodyDep, state: StateDep, arrived: ArrivedDep) -> dict[str, Any]:
+async def align(
+    _gate: GateOpenDep, body: BodyDep, state: StateDep, arrived: ArrivedDep
+) -> dict[str, Any]:
     """The reply is ``itnet-align --json``'s object: ``T_b_from_a`` (4x4, row-major, B's units),
     the chosen ``hypothesis`` and its ``probability``, the ``runner_up``, ``refined``, the
     hypotheses judged and both canonical poses, plus ``model`` and ``symmetry``. The budget
     counts from the request's arrival."""
-    with state.gate.slot():
+    with state.gate.slot():  # (``_gate`` refused the request before its body if none was free)
         return await anyio.to_thread.run_sync(_align, state, body, arrived)
 
 
