@@ -18,6 +18,10 @@ each in its own camera frame, with the true T_b_from_a and each scan's true up.
 * ``paper``: two independent viewpoints from any direction by the IT-Net paper's rule (the
   nearest point of each pixel, no noise): the views on which the networks are surest, so the
   composed poses are a strong prior that a rival must not displace.
+
+``sensor`` puts every generator's scans through one camera's model instead (``kinect_v2``,
+``realsense_d435``, ...: ``model.sensor.SENSORS``), the object at its category's real size:
+the same view rules as a depth camera would see them.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from itnet.model.scanner import (
     named_views,
     scan_shape,
     sensed,
+    sensor_views,
     zbuffer_scan,
 )
 from itnet.model.shapes import Shape, load_shape
@@ -117,27 +122,34 @@ def _turned_views(shape: Shape, rng: np.random.Generator, config: ScanConfig,
     raise ValueError(f"no pair of views saw enough of {shape.name}")
 
 
-def generator_config(generator: str, category: str) -> ScanConfig:
-    """The scanner's settings of a generator's scans."""
+def generator_config(generator: str, category: str, sensor: str | None = None) -> ScanConfig:
+    """The scanner's settings of a generator's scans; ``sensor`` (``model.sensor.SENSORS``):
+    every scan by that camera instead, the object at its category's real size (``camera``
+    and ``overlap`` have their own camera: a Kinect v2 and a D435)."""
     if generator == "any_view":
-        return ScanConfig()
-    if generator == "camera":
-        return named_views("base_hidden+kinect_v2", category)
-    if generator == "overlap":
-        return replace(named_views("occluded+realsense_d435", category), distance=(2.0, 3.5))
-    if generator == "paper":
-        return named_views("paper", category)
-    raise ValueError(f"unknown pair generator {generator!r} (known: {', '.join(GENERATORS)})")
+        config = ScanConfig()
+    elif generator == "camera":
+        config = named_views("base_hidden+kinect_v2", category)
+    elif generator == "overlap":
+        config = replace(named_views("occluded+realsense_d435", category), distance=(2.0, 3.5))
+    elif generator == "paper":
+        config = named_views("paper", category)
+    else:
+        raise ValueError(f"unknown pair generator {generator!r} (known: {', '.join(GENERATORS)})")
+    if sensor is None:
+        return config
+    return replace(config, **sensor_views(sensor, categories.real_radius_m(category)))
 
 
 def make_pairs(generator: str, files: list[Path], count: int, seed: int,
-               category: str = "chair") -> list[Pair]:  # fmt: skip
+               category: str = "chair", sensor: str | None = None) -> list[Pair]:  # fmt: skip
     """``count`` pairs of ``generator`` cycling over the shape ``files`` (ModelNet frame, turned
-    into ``category``'s canonical frame); seeded."""
+    into ``category``'s canonical frame), by ``sensor`` where given (``generator_config``);
+    seeded."""
     known = categories.category(category)
     shapes = [load_shape(p, "modelnet", known.quarter_turns) for p in files]
     rng = np.random.default_rng(seed)
-    config = generator_config(generator, category)
+    config = generator_config(generator, category, sensor)
     turns = np.tile(np.eye(4), (len(symmetry_group(known.symmetry)), 1, 1))
     turns[:, :3, :3] = symmetry_group(known.symmetry)
     pairs = []

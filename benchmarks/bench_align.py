@@ -5,6 +5,7 @@ partial scans from three pair generators.
     .venv/bin/python -m benchmarks.bench_align --pairs 100 --split test --out docs  # measured once
     .venv/bin/python -m benchmarks.bench_align --model table --generators camera
     .venv/bin/python -m benchmarks.bench_align --pairs 100 --up 2 --only "itnet-align --up"
+    .venv/bin/python -m benchmarks.bench_align --pairs 100 --sensor kinect_v2 --generators any_view paper
 
 Pairs (``benchmarks.align_pairs``): two partial scans of the same held-out object (the model's
 category from ModelNet10: the validation shapes its training left out, or the test split), from
@@ -12,7 +13,8 @@ each generator of ``--generators``: ``any_view`` (two viewpoints from any direct
 ``camera`` (a Kinect v2 above the floor, real sizes, each scan from its own distance) and
 ``overlap`` (a RealSense D435, the second view turned 15-180 degrees about up: overlap from
 nearly all to almost none) and ``paper`` (two viewpoints from any direction by the IT-Net
-paper's rule, no noise). Seeded, so every method sees the same pairs. Metric (SPEC.md):
+paper's rule, no noise); ``--sensor CAMERA`` puts every generator's scans through that
+camera's model instead, the object at its real size. Seeded, so every method sees the same pairs. Metric (SPEC.md):
 rotation error and the distance between where the estimate and the truth put A's centroid,
 over the object radius, the least over the category's symmetric equivalents; success at
 (10 deg, 0.1). "composed poses" is inv(T_canonical_from_b) · T_canonical_from_a of the two
@@ -45,6 +47,7 @@ from itnet.alignment.estimators import in_process_estimator
 from itnet.alignment.pipeline import POSE_SHARE, align_clouds
 from itnet.alignment.request import DEFAULT_BUDGET_MS, AlignRequest
 from itnet.metrics import is_correct
+from itnet.model.sensor import SENSORS
 from itnet.pose.catalog import Catalog
 from itnet.pose.runtime import LoadedModel
 from itnet.upright import tilted
@@ -196,6 +199,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "align",
                         help="where the report goes; docs for the README's")  # fmt: skip
     parser.add_argument("--note", action="append", default=[], help="a line for the report")
+    parser.add_argument("--sensor", default=None, choices=sorted(SENSORS),
+                        help="every generator's scans by this camera's model, at real size "
+                        "(default: each generator's own)")  # fmt: skip
     parser.add_argument("--up", type=float, default=None, metavar="ERROR_DEG",
                         help="add itnet-align given each scan's up, tilted by ERROR_DEG")  # fmt: skip
     parser.add_argument(
@@ -216,7 +222,8 @@ def main() -> None:
     category = model.card.category or "chair"
     shapes = split_shapes(args.data, category, args.split)
     pairs = [pair for k, generator in enumerate(args.generators)
-             for pair in make_pairs(generator, shapes, args.pairs, args.seed + k, category)]  # fmt: skip
+             for pair in make_pairs(generator, shapes, args.pairs, args.seed + k, category,
+                                    args.sensor)]  # fmt: skip
     if args.points is not None:
         resampled(pairs, args.points, args.seed + 2)
     given_ups(pairs, 2.0 if args.up is None else args.up, args.seed + 1)
@@ -234,6 +241,7 @@ def main() -> None:
     meta = {
         "pairs": len(pairs),
         "generators": args.generators,
+        "sensor": args.sensor,
         "category": category,
         "seed": args.seed,
         "split": args.split,

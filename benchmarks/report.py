@@ -142,7 +142,12 @@ def write_report(results: dict, meta: dict, stem: Path) -> None:
         f"- Pairs: {meta['pairs']} pairs of partial scans of the same object, ModelNet10 "
         f"{meta['split']} shapes of the category (`{meta['data']}`), seed {meta['seed']} "
         f"(`benchmarks.align_pairs`); median {meta['points'][0]} / {meta['points'][1]} points "
-        "in A / B.",
+        "in A / B"
+        + (
+            f"; every scan by the `{meta['sensor']}` camera's model, the object at its real size."
+            if meta.get("sensor")
+            else "."
+        ),
         "- Success: rotation error < 10° and A's centroid within 0.1 object radii of where the "
         "true T_b_from_a puts it, the best of the category's symmetric equivalents "
         "(`itnet.metrics.alignment_errors`).",

@@ -102,3 +102,20 @@ def test_the_pair_generators_make_pairs_their_truth_aligns():
             assert 0.0 <= overlap_of(pair) <= 1.0
     with pytest.raises(ValueError, match="unknown pair generator"):
         make_pairs("lidar", files, 1, 0, "table")
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="ModelNet10 clouds not here")
+def test_a_generator_by_a_named_camera_makes_its_views_by_that_camera():
+    """``sensor``: the same views by a depth camera (noise, flying pixels) at real size; the
+    truth still aligns them. An unknown camera is refused."""
+    from benchmarks.align_pairs import generator_config, make_pairs, split_shapes
+
+    files = split_shapes(DATA, "chair", "validation")[:2]
+    assert generator_config("paper", "chair", "kinect_v2").sensor == "kinect_v2"
+    assert generator_config("paper", "chair").sensor != "kinect_v2"
+    clean = make_pairs("paper", files, 2, seed=3, category="chair")
+    sensed = make_pairs("paper", files, 2, seed=3, category="chair", sensor="kinect_v2")
+    for a, b in zip(clean, sensed, strict=True):
+        assert b.right(b.truth) and not np.array_equal(a.a, b.a)
+    with pytest.raises(ValueError, match="unknown sensor"):
+        make_pairs("paper", files, 1, 0, "chair", sensor="lidar")
