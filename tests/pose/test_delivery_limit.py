@@ -4,10 +4,12 @@ refuses beyond it before reading a body."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
-from itnet.pose.admission import DECREASE, Admission, DeliveryLimit
+from itnet.pose.admission import DECREASE, DELIVERED_SHARE, Admission, DeliveryLimit
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import OverloadedError
 from itnet.pose.request import PoseRequest
@@ -25,7 +27,10 @@ def test_starved_runs_cut_the_limit_once_a_moment_and_full_ones_raise_it_again()
     for k in range(40):  # a long overload: down to one run at a time, never below
         limit.record(0, 10, window_s=0.05, now=2.0 + k)
     assert limit.allowed() == 1 and limit.value == 1.0
-    limit.record(8, 10, window_s=0.05, now=50.0)  # 80% of its idle iterations: served in full
+    served = math.ceil(DELIVERED_SHARE * 10)
+    limit.record(served - 1, 10, window_s=0.05, now=49.0)  # short of its idle iterations: cut
+    assert limit.value == 1.0
+    limit.record(served, 10, window_s=0.05, now=50.0)  # enough of them: served in full
     assert limit.value == pytest.approx(2.0)
     for _ in range(200):
         limit.record(10, 10, window_s=0.05)
