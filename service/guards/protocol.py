@@ -14,7 +14,7 @@
   half-second does not renew it.
 * **The estimate gate's 503 before the app** (``service/guards/front_gate.py``): where every
   estimate slot is taken, a pose, alignment or scene request is answered as soon as its head is in,
-  without the app's half-millisecond of Python per refusal.
+  without the app's Python: 0.15-0.18 ms of the server's CPU a refusal instead of 0.26-0.35.
 * **The request's first byte**: its ``time.perf_counter()`` goes into the scope (``ARRIVED``),
   so a request's budget and ``elapsed_ms`` count from when its first byte was read, not from when
   the app got round to it.
