@@ -16,22 +16,18 @@ from __future__ import annotations
 
 import os
 import platform
-import socket
 import subprocess
 import sys
-import threading
 import time
 from contextlib import ExitStack
 from typing import Annotated
 
 import typer
-import uvicorn
 
 from itnet.pose.runtime import default_model_dir, load_models
 from itnet.service.app import create_app
 from itnet.service.guards import protocol
-from itnet.service.guards.protocol import GuardedHttpToolsProtocol
-from itnet.service.server import uvicorn_options
+from itnet.service.server import serving_in_thread
 from itnet.service.settings import Settings
 
 CLIENT = """
@@ -48,30 +44,18 @@ with httpx.Client(base_url=sys.argv[1]) as client:
 def refusal_ms(settings: Settings, refusals: int, by_protocol: bool) -> tuple[float, float]:
     """(the server's CPU ms, the client's wall ms) per refused request."""
     app = create_app(settings, load_models(settings.model_dir, threads=1))
-    GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", **uvicorn_options(settings)))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     front = protocol.front_gate
     if not by_protocol:
         protocol.front_gate = lambda *_: None
-    thread.start()
     try:
-        while not server.started:
-            time.sleep(0.01)
-        url = f"http://127.0.0.1:{sock.getsockname()[1]}"
-        gate = app.state.service.gate
-        with ExitStack() as slots:
+        with serving_in_thread(app, settings) as (url, _), ExitStack() as slots:
+            gate = app.state.service.gate
             for _ in range(gate.limit):
                 slots.enter_context(gate.slot())
             cpu, wall = time.process_time(), time.perf_counter()
             subprocess.run([sys.executable, "-c", CLIENT, url, str(refusals)], check=True)
             cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     finally:
-        server.should_exit = True
-        thread.join(timeout=10)
-        sock.close()
         protocol.front_gate = front
     return cpu / refusals * 1e3, wall / refusals * 1e3
 

@@ -11,10 +11,14 @@ import logging
 import os
 import shutil
 import signal
+import socket
 import tempfile
 import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
 
@@ -24,7 +28,10 @@ from itnet.service.app import create_app
 from itnet.service.guards.protocol import GuardedHttpToolsProtocol
 from itnet.service.guards.ws_protocol import GuardedWebSocketProtocol
 from itnet.service.metrics import MULTIPROCESS_DIR_ENV, multiprocess_dir
-from itnet.service.settings import Settings
+from itnet.service.settings import ServerSettings, Settings
+
+if TYPE_CHECKING:
+    import uvicorn
 
 FACTORY = "itnet.service.server:app_from_env"
 log = logging.getLogger("itnet.service")
@@ -35,6 +42,37 @@ def app_from_env() -> FastAPI:
     settings = Settings()
     GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
     return create_app(settings)
+
+
+@contextmanager
+def serving_in_thread(
+    app: FastAPI, settings: Settings, start_s: float = 10.0
+) -> Iterator[tuple[str, uvicorn.Server]]:
+    """``app`` served by uvicorn with ``settings``' limits on a free loopback port, in a thread
+    of this process (tests, benchmarks) -> (its URL, the server); stopped, and the protocol's
+    limits set back to the defaults, on exit. RuntimeError where it does not start within
+    ``start_s``."""
+    import uvicorn
+
+    GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    config = uvicorn.Config(app, log_level="warning", **uvicorn_options(settings))
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + start_s
+        while not server.started:
+            if not thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("the server did not start")
+            time.sleep(0.01)
+        yield f"http://127.0.0.1:{sock.getsockname()[1]}", server
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
+        sock.close()
+        GuardedHttpToolsProtocol.configure(ServerSettings())
 
 
 def uvicorn_options(settings: Settings) -> dict[str, Any]:

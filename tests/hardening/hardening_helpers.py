@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import socket
 import struct
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -21,8 +20,7 @@ from numpy.typing import NDArray
 from itnet.model_card import METADATA_KEY
 from itnet.pose.runtime import LoadedModel
 from itnet.service.app import create_app
-from itnet.service.guards.protocol import GuardedHttpToolsProtocol
-from itnet.service.server import uvicorn_options
+from itnet.service.server import serving_in_thread
 from itnet.service.settings import LimitSettings, ServerSettings, Settings
 from itnet.service.state import ServiceState
 
@@ -74,25 +72,8 @@ class LiveServer:
 def live_server(settings: Settings, models: dict[str, LoadedModel]) -> Iterator[LiveServer]:
     """uvicorn serving ``create_app(settings, models)`` on a loopback socket in a thread."""
     app = create_app(settings, models)
-    GuardedHttpToolsProtocol.configure(settings.server, settings.limits.retry_after_s)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    config = uvicorn.Config(app, log_level="warning", **uvicorn_options(settings))
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 10
-        while not server.started:
-            assert thread.is_alive() and time.monotonic() < deadline, "server did not start"
-            time.sleep(0.01)
-        yield LiveServer(f"http://127.0.0.1:{port}", app, server)
-    finally:
-        server.should_exit = True
-        thread.join(timeout=10)
-        sock.close()
-        GuardedHttpToolsProtocol.configure(ServerSettings())
+    with serving_in_thread(app, settings) as (url, server):
+        yield LiveServer(url, app, server)
 
 
 def cloud(n: int = 300, seed: int = 0) -> NDArray[np.float32]:
