@@ -6,6 +6,7 @@ WebSocket the same error is a ``{"type": "error"}`` message followed by a close 
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -43,6 +44,14 @@ class ServiceError(Exception):
 
     def body(self) -> dict[str, str]:
         return {"detail": self.detail, "kind": self.kind}
+
+    def encoded(self) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+        """The reply as a protocol writes it without the app: the JSON body and its headers
+        (content type and length, then this error's own, their names in lower case)."""
+        body = json.dumps(self.body()).encode()
+        headers = [(b"content-type", b"application/json"),
+                   (b"content-length", str(len(body)).encode())]  # fmt: skip
+        return body, headers + [(k.lower().encode(), v.encode()) for k, v in self.headers.items()]
 
 
 def malformed_json(message: str) -> ServiceError:

@@ -14,7 +14,6 @@ client, another server), the route's own check (``service/api/deps.py``, ``gate_
 
 from __future__ import annotations
 
-import json
 import time
 import weakref
 from typing import Any
@@ -55,10 +54,7 @@ class FrontGate:
 
     async def reply(self, refused: ServiceError, scope: Any, receive: Any, send: Any) -> None:
         """An ASGI app that answers ``refused`` and counts it as the app's handlers would."""
-        body = json.dumps(refused.body()).encode()
-        headers = [(b"content-type", b"application/json"),
-                   (b"content-length", str(len(body)).encode())]  # fmt: skip
-        headers += [(k.lower().encode(), v.encode()) for k, v in refused.headers.items()]
+        body, headers = refused.encoded()
         await send({"type": "http.response.start", "status": refused.status, "headers": headers})
         await send({"type": "http.response.body", "body": body})
         self.metrics.observe_error(refused.kind)

@@ -23,7 +23,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import time
 import weakref
 from functools import partial
@@ -33,6 +32,7 @@ import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from uvicorn.server import ServerState
 
+from itnet.service.errors import ServiceError
 from itnet.service.guards.byte_budget import ByteBudget
 from itnet.service.guards.connections import Admission, ConnectionTable, Phase
 from itnet.service.guards.front_gate import front_gate
@@ -69,11 +69,8 @@ class Limits:
 
 def overloaded_body(retry_after_s: int, detail: str) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     """The JSON 503 (``kind: overloaded``) with ``Retry-After`` and ``connection: close``."""
-    body = json.dumps({"detail": detail, "kind": "overloaded"}).encode()
-    headers = [(b"content-type", b"application/json"),
-               (b"content-length", str(len(body)).encode()),
-               (b"retry-after", str(retry_after_s).encode()), (b"connection", b"close")]  # fmt: skip
-    return body, headers
+    headers = {"Retry-After": str(retry_after_s), "connection": "close"}
+    return ServiceError(503, "overloaded", detail, headers).encoded()
 
 
 def raw_reply(transport: asyncio.BaseTransport, status: bytes, body: bytes,
@@ -216,9 +213,8 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def _refuse_head(self) -> None:
         self._stop_head()
         limit = Limits.server.max_header_bytes
-        body = json.dumps(
-            {"detail": f"request line and headers exceed {limit} bytes", "kind": "too_large"}
-        ).encode()
-        headers = [(b"content-type", b"application/json"),
-                   (b"content-length", str(len(body)).encode()), (b"connection", b"close")]  # fmt: skip
+        body, headers = ServiceError(
+            431, "too_large", f"request line and headers exceed {limit} bytes",
+            {"connection": "close"},
+        ).encoded()  # fmt: skip
         raw_reply(self.transport, b"431 Request Header Fields Too Large", body, headers)
