@@ -56,3 +56,8 @@ class CentreFitOptions(BaseModel):
         "gravity sensor's error); with --write it becomes the card's centre_correction_up, and "
         "its viewpoint variant centre_correction_up_viewpoint (requests that give both)",
     )
+    keep_viewpoint: bool = Field(
+        True,
+        description="with --write, write the viewpoint variant too; --no-keep-viewpoint "
+        "measures it but leaves the card's as it is (its measurement is marked not kept)",
+    )

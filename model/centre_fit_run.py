@@ -161,8 +161,9 @@ def describe_fit(
     """The card's evaluation line of the fit: the correction, with up the card's plain one, the
     viewpoint correction, and with up the card's viewpoint one, each without and with."""
     runs = "one run" if options.ensemble == 1 else f"{options.ensemble} runs fused"
+    not_kept = "" if options.keep_viewpoint else " (measured, not kept)"
     if options.up is None:
-        viewpoint = "the viewpoint correction (requests that give the sensor's position)"
+        viewpoint = f"the viewpoint correction{not_kept} (requests that give the sensor's position)"
         return f"{fitting.describe(results, runs=runs)}. " + fitting.describe(
             viewpoint_results, viewpoint, runs
         )
@@ -172,8 +173,8 @@ def describe_fit(
         (plain_results, "the plain correction (fitted on runs not held)"),
         (
             viewpoint_results,
-            "the viewpoint correction fitted held upright (requests that give up and the "
-            "sensor's position)",
+            f"the viewpoint correction fitted held upright{not_kept} (requests that give up "
+            "and the sensor's position)",
         ),
         (served_viewpoint, "the viewpoint correction fitted on runs not held"),
     ]
@@ -184,11 +185,12 @@ def write_corrections(
     model: Path, loaded: LoadedModel, done: CentreFitReport, options: CentreFitOptions
 ) -> Path:
     """Write the corrections and their evaluation into the card of ``model`` (at
-    ``options.out``, else in place); with up, the upright ones, the others left as they are."""
-    if options.up is not None:
-        names = ("centre_correction_up", "centre_correction_up_viewpoint", "centre_up_evaluation")
-    else:
-        names = ("centre_correction", "centre_correction_viewpoint", "centre_evaluation")
-    values = (done.correction.to_dict(), done.viewpoint_correction.to_dict(), done.evaluation)
-    card = loaded.card.model_copy(update=dict(zip(names, values)))
+    ``options.out``, else in place); with up, the upright ones, the others left as they are;
+    without ``options.keep_viewpoint``, the card's viewpoint variant left as it is too."""
+    up = "_up" if options.up is not None else ""
+    update = {f"centre_correction{up}": done.correction.to_dict(),
+              f"centre{up}_evaluation": done.evaluation}  # fmt: skip
+    if options.keep_viewpoint:
+        update[f"centre_correction{up}_viewpoint"] = done.viewpoint_correction.to_dict()
+    card = loaded.card.model_copy(update=update)
     return save_with_card(onnx.load(str(model)), card, options.out or model)

@@ -123,3 +123,29 @@ def test_kinds_names_the_views_fitted_and_measured_a_camera_included(setup) -> N
                         ("occluded+lidar", "unknown sensor 'lidar'")):  # fmt: skip
         refused = _fit(root, data, "--kinds", wrong)
         assert refused.exit_code == 2 and says in refused.output, refused.output
+
+
+def test_no_keep_viewpoint_writes_the_correction_alone(setup) -> None:  # type: ignore[no-untyped-def]
+    """--no-keep-viewpoint: the viewpoint variant is measured (and its line in the card's
+    evaluation says it was not kept) but the card's own viewpoint correction stays as it was."""
+    root, data = setup
+    plain, upright, again = root / "plain_vp.onnx", root / "up_only.onnx", root / "again.onnx"
+    assert _fit(root, data, "--max-rotation", "181", "--write", "--out", str(plain)).exit_code == 0
+    done = _fit(root, data, "--max-rotation", "181", "--write", "--out", str(upright), "--up", "2",
+                "--no-keep-viewpoint")  # fmt: skip
+    assert done.exit_code == 0, done.output
+    fitted = load_model(upright, threads=1)
+    assert fitted.centre_up is not None and fitted.centre_up_viewpoint is None
+    assert "the viewpoint correction fitted held upright (measured, not kept)" in (
+        fitted.card.centre_up_evaluation
+    )
+    # without up: the plain correction is refitted (other scans), the viewpoint one left as it is
+    args = ["centre-fit", str(plain), "--data", str(data), "--views", "1", "--val-views", "2",
+            "--cache", str(root / "cache"), "--max-rotation", "181", "--write", "--out",
+            str(again), "--no-keep-viewpoint", "--seed", "7"]  # fmt: skip
+    assert runner.invoke(app, args).exit_code == 0
+    before, after = load_model(plain, threads=1), load_model(again, threads=1)
+    assert after.card.centre_correction_viewpoint == before.card.centre_correction_viewpoint
+    assert before.card.centre_correction_viewpoint is not None
+    assert after.card.centre_correction != before.card.centre_correction
+    assert "(measured, not kept)" in after.card.centre_evaluation
