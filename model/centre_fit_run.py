@@ -187,10 +187,13 @@ def write_corrections(
     """Write the corrections and their evaluation into the card of ``model`` (at
     ``options.out``, else in place); with up, the upright ones, the others left as they are;
     without ``options.keep_viewpoint``, the card's viewpoint variant left as it is too."""
-    up = "_up" if options.up is not None else ""
-    update = {f"centre_correction{up}": done.correction.to_dict(),
-              f"centre{up}_evaluation": done.evaluation}  # fmt: skip
+    if options.up is not None:
+        names = ("centre_correction_up", "centre_correction_up_viewpoint", "centre_up_evaluation")
+    else:
+        names = ("centre_correction", "centre_correction_viewpoint", "centre_evaluation")
+    correction, viewpoint, evaluation = names
+    update = {correction: done.correction.to_dict(), evaluation: done.evaluation}
     if options.keep_viewpoint:
-        update[f"centre_correction{up}_viewpoint"] = done.viewpoint_correction.to_dict()
+        update[viewpoint] = done.viewpoint_correction.to_dict()
     card = loaded.card.model_copy(update=update)
     return save_with_card(onnx.load(str(model)), card, options.out or model)
