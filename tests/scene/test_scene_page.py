@@ -58,8 +58,10 @@ def test_the_example_scene_runs_as_the_page_opens_it(
     live_server: Server, browser_page: Any
 ) -> None:
     """The scene tab opens on the shipped example scene, its intrinsics typed and the scene's
-    budget (the API's default) in the field: Run finds its three objects; a dropped file takes its place,
-    and choosing the example again brings it back."""
+    budget (the API's default) in the field: Run finds its three objects, each named right or,
+    where a busy machine's budget ran out first, unnamed for the budget; a dropped file takes its
+    place, choosing the example again brings it back, and a budget that holds them all names all
+    three."""
     examples = Path(__file__).resolve().parents[2] / "itnet" / "examples"
     truth = json.loads((examples / "scene_truth.json").read_text())
     camera = json.loads((examples / "scene_camera.json").read_text())
@@ -74,10 +76,11 @@ def test_the_example_scene_runs_as_the_page_opens_it(
     page.wait_for_function(DONE, timeout=30_000)
     assert page.evaluate("document.body.dataset.run") == "done", page.text_content("#status")
     shown = json.loads(page.text_content("#result"))
-    assert sorted(o["category"] for o in shown["objects"]) == sorted(
-        o["category"] for o in truth["objects"]
-    )
-    assert page.locator("#scene-objects li").count() == 3
+    expected = sorted(o["category"] for o in truth["objects"])
+    assert len(shown["objects"]) == 3 and page.locator("#scene-objects li").count() == 3
+    named = [o["category"] for o in shown["objects"] if o["category"] is not None]
+    assert all(o["unknown"] == "budget" for o in shown["objects"] if o["category"] is None)
+    assert set(named) <= set(expected) and len(set(named)) == len(named)
     assert shown["budget_ms"] == DEFAULT_BUDGET_MS
     # the pose tab keeps its own budget
     page.click("button.tab[data-tab='pose']")
@@ -88,6 +91,13 @@ def test_the_example_scene_runs_as_the_page_opens_it(
     page.select_option("#example-scene", "scene")
     assert page.evaluate("document.querySelector('#file-scene').files.length") == 0
     assert "tab=scene" in page.url and "scene=scene" in page.url and "budget_ms" not in page.url
+    page.fill("#budget", "5000")
+    page.evaluate("document.body.dataset.run = ''")
+    page.click("#run")
+    page.wait_for_function(DONE, timeout=30_000)
+    shown = json.loads(page.text_content("#result"))
+    assert sorted(o["category"] for o in shown["objects"]) == expected
+    assert shown["budget_ms"] == 5000
 
 
 def test_the_up_field_finds_a_steep_cameras_floor(
