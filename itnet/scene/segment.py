@@ -32,7 +32,8 @@ stands on the floor, filtered by size.
    sees stands all the same (a level camera at head height sees the floor from a few metres on:
    what is nearer shows no base). A standing cluster with at most ``sliver_share`` of the points
    of an object within ``sliver_m`` of it (a side panel or a leg that a gap of a few centimetres
-   cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m``, is a piece of
+   cut off), or with at most ``far_sliver_share`` of them within ``far_sliver_m`` unless it is
+   an object beside that one (``_beside``: wide, its footprint mostly outside), is a piece of
    that object too, unless it rises ``sliver_rise_m`` over it. A group of pieces that no
    object takes stands where the floor under it is hidden behind something nearer and it is an
    object's size (``HiddenFloor``: a headboard behind the ottoman at the bed's foot).
@@ -52,7 +53,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from itnet.columns import column_max, column_min
+from itnet.columns import column_max, column_min, percentiles
 from itnet.planes import Plane, floor_axes, ransac_plane, refined_plane
 from itnet.scene.touching import load_cut_judge, split_touching
 from itnet.scene.view_edges import ViewEdges
@@ -106,6 +107,10 @@ class SegmentOptions:
     # ... and whose top rises at most this above that object's (a piece a gap cuts off an object
     # does not stand over it; the mirror of a dresser beside a bed does)
     sliver_rise_m: float = 0.15
+    # beyond sliver_m, a cluster as wide as low_object_m with less than this share of its
+    # footprint within the object's (grown by far_sliver_m) stands beside it: a panel or a part
+    # stands at its object's edge, a dresser beside a bed beside it
+    far_sliver_within: float = 0.5
     # a cluster covers at least this much surface: this many of the working cloud's voxels
     # of 3 cm (more of smaller voxels, fewer of larger: ``least_voxels``)
     min_points: int = 12
@@ -193,8 +198,8 @@ def find_walls(
         if inliers.sum() < options.wall_min_share * len(points):
             break
         along = np.cross(plane.normal, up)
-        span = np.percentile(left[inliers] @ along, [2, 98])
-        top = np.percentile(floor.distance(left[inliers]), 98)
+        span = percentiles(left[inliers] @ along, [2, 98])
+        top = percentiles(floor.distance(left[inliers]), [98])[0]
         small = span[1] - span[0] < options.wall_min_width_m and top < options.wall_min_top_m
         if small and (
             edges is None or "top" not in edges.reached(left[inliers], options.wall_view_top_deg)
@@ -315,11 +320,11 @@ def standing(
         return False
     if any(np.median(np.abs(w.distance(points))) < options.wall_piece_m for w in walls):
         return False
-    top = float(np.percentile(heights, 98))
+    top = float(percentiles(heights, [98])[0])
     if top < options.min_height_m or top - float(heights.min()) > options.max_size_m:
         return False
     flat = points - np.outer(points @ up, up)
-    lo, hi = np.percentile(flat, [1, 99], axis=0)
+    lo, hi = percentiles(flat, [1, 99])
     return float(np.linalg.norm(hi - lo)) <= options.max_size_m * math.sqrt(2)
 
 
@@ -343,7 +348,7 @@ def attach_pieces(
         floor_from = nearest_floor(points[np.abs(heights) <= options.floor_threshold_m], up)
 
     def whole(g: NDArray) -> bool:
-        top = float(np.percentile(heights[g], 98))
+        top = float(percentiles(heights[g], [98])[0])
         if top < options.min_object_m:
             return False
         if heights[g].min() <= options.max_base_m:
@@ -353,7 +358,8 @@ def attach_pieces(
             floor_from
         )
 
-    based = slivers_joined(points, [g for g in groups if whole(g)], options, weights, heights)
+    based = slivers_joined(points, [g for g in groups if whole(g)], options, weights, heights,
+                           up)  # fmt: skip
     near = _Near(points, based)
     joined = [[g] for g in based]
     low, strays = [], []
@@ -405,7 +411,7 @@ class HiddenFloor:
 
     def under(self, group: NDArray[np.int64]) -> bool:
         heights, options = self.heights[group], self.options
-        top = float(np.percentile(heights, 98))
+        top = float(percentiles(heights, [98])[0])
         if top < options.min_object_m or top - float(heights.min()) < options.hidden_min_rise_m:
             return False
         if self._directions is None:
@@ -422,24 +428,27 @@ class HiddenFloor:
 def _width(points: NDArray, up: NDArray) -> float:
     """A cluster's (K, 3) widest extent along the floor, metres (1st to 99th percentile)."""
     flat = _footprint(points, up)
-    lo, hi = np.percentile(flat, [1, 99], axis=0)
+    lo, hi = percentiles(flat, [1, 99])
     return float(np.linalg.norm(hi - lo))
 
 
 def slivers_joined(
     points: NDArray, groups: list[NDArray[np.int64]], options: SegmentOptions,
-    weights: NDArray | None = None, heights: NDArray | None = None,
+    weights: NDArray | None = None, heights: NDArray | None = None, up: NDArray | None = None,
 ) -> list[NDArray[np.int64]]:  # fmt: skip
     """Standing clusters (indices into points (N, 3)) -> the same, each small one that lies
     within ``sliver_m`` of a cluster with at least 1 / ``sliver_share`` times its points, or
-    within ``far_sliver_m`` of one with at least 1 / ``far_sliver_share`` times, joined to the
+    within ``far_sliver_m`` of one with at least 1 / ``far_sliver_share`` times where (given
+    ``up`` (3,)) it is no object standing beside that one (``_beside``), joined to the
     nearest such (smallest first, so a chain of pieces ends in its object), where its top rises
     at most ``sliver_rise_m`` over that one's (``heights`` (N,) over the floor; default: no
     such limit). ``weights`` (N,): how many of the camera's points each point stands for (a
     voxel's), else one each."""
     parts: list[list[NDArray[np.int64]] | None] = [[g] for g in groups]
     sizes = [len(g) if weights is None else float(weights[g].sum()) for g in groups]
-    tops = [math.inf if heights is None else float(np.percentile(heights[g], 98)) for g in groups]
+    tops = [
+        math.inf if heights is None else float(percentiles(heights[g], [98])[0]) for g in groups
+    ]
     apart = _Near(points, groups)
     reach = max(options.sliver_m, options.far_sliver_m)
     for i in sorted(range(len(groups)), key=lambda k: sizes[k]):
@@ -450,8 +459,11 @@ def slivers_joined(
         gaps = []
         for j, gap in zip(larger, apart.gaps(groups[i], larger, reach), strict=True):
             near = gap <= options.sliver_m or (
-                gap <= options.far_sliver_m and sizes[i] <= options.far_sliver_share * sizes[j]
-            )
+                gap <= options.far_sliver_m
+                and sizes[i] <= options.far_sliver_share * sizes[j]
+                and (up is None or not _beside(points[groups[i]], points[groups[j]], up,
+                                               options))
+            )  # fmt: skip
             gaps.append(gap if near else np.inf)
         nearest = int(np.argmin(gaps))
         if np.isfinite(gaps[nearest]):
@@ -492,6 +504,28 @@ def _gap(points: NDArray, piece: NDArray[np.int64], tree: cKDTree) -> float:
     about 200 of its points."""
     sample = points[piece[:: max(1, len(piece) // 200)]]
     return float(tree.query(sample, k=1)[0].min())
+
+
+def _beside(piece: NDArray, owner: NDArray, up: NDArray, options: SegmentOptions) -> bool:
+    """Whether a cluster (K, 3) is an object standing beside another (M, 3) rather than a piece
+    of it: as wide as ``low_object_m`` along the floor, with less than ``far_sliver_within`` of
+    its footprint within the other's grown by ``far_sliver_m``."""
+    return (
+        _width(piece, up) >= options.low_object_m
+        and _within(piece, owner, up, options.far_sliver_m) < options.far_sliver_within
+    )
+
+
+def _within(piece: NDArray, owner: NDArray, up: NDArray, grow: float) -> float:
+    """The share of a cluster's (K, 3) footprint that lies within another's (M, 3), the
+    rectangle along that one's own axes on the floor (1st to 99th percentile) grown by
+    ``grow`` a side."""
+    flat = _footprint(owner, up)
+    centre = flat.mean(axis=0)
+    axes = np.linalg.svd(flat - centre, full_matrices=False)[2]  # (2, 2): its axes, as rows
+    lo, hi = percentiles((flat - centre) @ axes.T, [1, 99])
+    mine = (_footprint(piece, up) - centre) @ axes.T
+    return float(np.mean(np.all((mine >= lo - grow) & (mine <= hi + grow), axis=1)))
 
 
 def _footprint(points: NDArray, up: NDArray) -> NDArray[np.float64]:
@@ -586,7 +620,7 @@ def nearest_floor(floor_points: NDArray, up: NDArray) -> float:
     """How near the camera (the origin), along the floor, the floor is seen: the 1st
     percentile of its points' (F, 3) distances; infinite where none is seen."""
     reach = np.linalg.norm(_footprint(floor_points, up), axis=1)
-    return float(np.percentile(reach, 1)) if len(reach) else math.inf
+    return float(percentiles(reach, [1])[0]) if len(reach) else math.inf
 
 
 # The objects' working cloud's size per ms of a scene's budget, within bounds. Segmenting a real

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.columns import percentiles
 from itnet.planes import Plane, floor_axes
 from itnet.scene.feature_network import FeatureNetwork
 
@@ -106,8 +107,8 @@ def cut_candidates(
     sight /= max(float(np.linalg.norm(sight)), 1e-9)
     centred = flat - flat.mean(0)
     axes = np.linalg.svd(centred, full_matrices=False)[2]
-    ends = np.percentile(centred @ axes.T, [2, 98], axis=0)  # (2, 2): along its two axes
-    whole = [np.log(float(np.percentile(heights, 98)) + 0.02), *np.log(ends[1] - ends[0] + 0.02)]
+    ends = percentiles(centred @ axes.T, [2, 98])  # (2, 2): along its two axes
+    whole = [np.log(float(percentiles(heights, [98])[0]) + 0.02), *np.log(ends[1] - ends[0] + 0.02)]
     cuts = []
     for rank, j in enumerate(chosen):
         i, offset = int(where[j]), offsets[j]
@@ -141,7 +142,7 @@ def cut_features(
     across = flat @ np.array([-direction[1], direction[0]])
     out = [np.log(score + 1e-4), np.log(in_strip + 1e-4), np.log(empty + 0.005), side,
            np.log(count)]  # fmt: skip
-    ends = [np.percentile(np.stack([heights[m], along[m], across[m]]), [2, 98], axis=1)
+    ends = [percentiles(np.stack([heights[m], along[m], across[m]]), [2, 98], axis=1)
             for m in parts]  # (2, 3) each: 2nd and 98th percentiles  # fmt: skip
     out += [np.log(e[1, 0] + 0.02) for e in ends]  # tops
     out += [np.log(e[0, 0] + 0.02) for e in ends]  # bases

@@ -140,6 +140,40 @@ def test_a_thin_panel_farther_off_joins_only_when_small_enough():
         assert len(apart) == 2 and min(map(len, apart)) < 0.2 * max(map(len, apart))
 
 
+def _block(
+    x: tuple[float, float], y: tuple[float, float], z: tuple[float, float], step: float = 0.03
+) -> np.ndarray:
+    """The points (N, 3) of a block's outside on a grid of ``step`` (y up)."""
+    axes = [np.arange(lo, hi + 1e-9, step) for lo, hi in (x, y, z)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    lo, hi = np.array([x[0], y[0], z[0]]), np.array([x[1], y[1], z[1]])
+    return grid[np.any((grid - lo < step / 2) | (hi - grid < step / 2), axis=1)]
+
+
+def test_a_piece_farther_off_joins_only_from_within_its_objects_footprint():
+    """15 cm off a large object and with a tenth of its points: a panel along its edge joins
+    it, a chest 1 m wide standing beside it does not (a dresser beside a bed is an object of its
+    own). Without the footprint rule (``far_sliver_within=0``) the chest joins it too."""
+    from itnet.scene.segment import SegmentOptions, slivers_joined
+
+    bed = _block((-1.0, 1.0), (0.0, 0.6), (0.0, 2.0), 0.02)
+    panel = _block((1.15, 1.17), (0.0, 0.55), (0.1, 1.9))
+    chest = _block((1.15, 2.15), (0.0, 0.6), (0.5, 0.95))
+    points = np.concatenate([bed, panel, chest])
+    bounds = np.cumsum([0, len(bed), len(panel), len(chest)])
+    groups = [np.arange(bounds[k], bounds[k + 1]) for k in range(3)]
+    assert max(len(panel), len(chest)) < 0.2 * len(bed)
+    up = np.array([0.0, 1.0, 0.0])
+
+    def owners(options: SegmentOptions) -> list[list[int]]:
+        joined = slivers_joined(points, groups, options, heights=points[:, 1], up=up)
+        return sorted(sorted({int(np.searchsorted(bounds, i, "right")) - 1 for i in g})
+                      for g in joined)  # fmt: skip
+
+    assert owners(SegmentOptions()) == [[0, 1], [2]]
+    assert owners(SegmentOptions(far_sliver_within=0.0)) == [[0, 1, 2]]
+
+
 def test_a_small_object_beside_a_large_one_stays_its_own():
     """A small box 0.12 m beside a large one (a fifth of its points) is not a piece of it."""
     big = boxes_shape([((0, 0, 0), (1.0, 0.8, 0.6))], points=3000)
