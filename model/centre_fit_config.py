@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
 class CentreFitOptions(BaseModel):
@@ -56,6 +56,14 @@ class CentreFitOptions(BaseModel):
         "gravity sensor's error); with --write it becomes the card's centre_correction_up, and "
         "its viewpoint variant centre_correction_up_viewpoint (requests that give both)",
     )
+
+    @field_validator("out")
+    @classmethod
+    def _an_onnx_file(cls, out: Path | None) -> Path | None:
+        if out is not None and out.suffix != ".onnx":
+            raise ValueError(f"the model is written as ONNX: give a .onnx path, not {out}")
+        return out
+
     keep_viewpoint: bool = Field(
         True,
         description="with --write, write the viewpoint variant too; --no-keep-viewpoint "

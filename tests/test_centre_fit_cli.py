@@ -149,3 +149,12 @@ def test_no_keep_viewpoint_writes_the_correction_alone(setup) -> None:  # type: 
     assert before.card.centre_correction_viewpoint is not None
     assert after.card.centre_correction != before.card.centre_correction
     assert "(measured, not kept)" in after.card.centre_evaluation
+
+
+def test_out_must_name_an_onnx_file(setup) -> None:  # type: ignore[no-untyped-def]
+    """A --out that is no .onnx path is refused before anything is posed, naming the option."""
+    root, data = setup
+    done = _fit(root, data, "--write", "--out", str(root / "fit.json"))
+    assert done.exit_code == 2
+    assert "--out" in done.output and ".onnx" in done.output
+    assert not (root / "fit.json").exists()
