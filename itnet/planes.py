@@ -40,9 +40,17 @@ class Plane:
 def floor_axes(up: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A unit up (3,) -> two unit directions (3,) along the floor, normal to it and to each
     other."""
-    across = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+    across = _cross(up, (1.0, 0.0, 0.0) if abs(up[0]) < 0.9 else (0.0, 0.0, 1.0))
     across /= np.linalg.norm(across)
-    return across, np.cross(up, across)
+    return across, _cross(up, across)
+
+
+def _cross(a: NDArray, b: NDArray | tuple[float, float, float]) -> NDArray[np.float64]:
+    """``np.cross`` of two 3-vectors, the same numbers, without its general machinery (a
+    scene's segmentation takes a few hundred: 15 us each against 2)."""
+    a0, a1, a2 = (float(v) for v in a)
+    b0, b1, b2 = (float(v) for v in b)
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def fit_plane(points: NDArray) -> Plane:

@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 from numpy.typing import NDArray
@@ -420,9 +421,15 @@ class HiddenFloor:
         below = self.points[lowest] - np.outer(self.heights[lowest], self.up)  # on the floor
         reach = np.linalg.norm(below, axis=1)
         rays = self._directions.query_ball_point(below / reach[:, None], HIDDEN_RAY)
-        hidden = [bool(np.any(self.ranges[nearer] < r - options.attach_m))
-                  for r, nearer in zip(reach, rays, strict=True)]  # fmt: skip
-        return bool(np.mean(hidden) > 0.5)
+        # the nearest point along each ray, all rays at once (a ray with none: infinitely far)
+        counts = np.fromiter(map(len, rays), dtype=np.intp, count=len(rays))
+        hits = np.fromiter(chain.from_iterable(rays), dtype=np.intp, count=int(counts.sum()))
+        nearest = np.full(len(rays), np.inf)
+        if len(hits):
+            starts = np.cumsum(counts) - counts
+            seen = counts > 0
+            nearest[seen] = np.minimum.reduceat(self.ranges[hits], starts[seen])
+        return bool(np.mean(nearest < reach - options.attach_m) > 0.5)
 
 
 def _width(points: NDArray, up: NDArray) -> float:
@@ -480,17 +487,21 @@ class _Near:
 
     def __init__(self, points: NDArray, groups: list[NDArray[np.int64]]) -> None:
         self.points, self.groups = points, groups
-        self.boxes = [(column_min(points[g]), column_max(points[g])) for g in groups]
+        self.lows = np.array([column_min(points[g]) for g in groups]).reshape(-1, 3)
+        self.highs = np.array([column_max(points[g]) for g in groups]).reshape(-1, 3)
         self.trees: dict[int, cKDTree] = {}
 
     def gaps(self, piece: NDArray[np.int64], near: list[int], beyond: float) -> list[float]:
         """How near ``piece`` comes to each cluster of ``near`` (their places in the groups);
-        infinite where their boxes lie farther than ``beyond`` apart."""
+        infinite where their boxes lie farther than ``beyond`` apart (the boxes of all at once:
+        a frame's pieces are many, most of a voxel or two)."""
         lo, hi = column_min(self.points[piece]), column_max(self.points[piece])
+        which = np.asarray(near, dtype=np.intp)
+        apart = np.maximum(0.0, np.maximum(self.lows[which] - hi, lo - self.highs[which]))
+        far = np.sqrt(np.einsum("ij,ij->i", apart, apart)) > beyond
         out = []
-        for j in near:
-            apart = np.maximum(0.0, np.maximum(self.boxes[j][0] - hi, lo - self.boxes[j][1]))
-            if float(np.linalg.norm(apart)) > beyond:
+        for j, skip in zip(near, far.tolist(), strict=True):
+            if skip:
                 out.append(math.inf)
                 continue
             if j not in self.trees:
