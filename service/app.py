@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from itnet import __version__
+from itnet.alignment.warm_up import warm_up as warm_up_alignment
 from itnet.pose.runtime import LoadedModel
 from itnet.scene.warm_up import warm_up as warm_up_scenes
 from itnet.service.api.routes import align, estimate, examples, page, scene, stream, system
@@ -52,6 +53,11 @@ def create_app(
                 await anyio.to_thread.run_sync(warm_up_scenes, state.catalog)
             except Exception as err:  # a warm-up that fails must not stop the service
                 log.warning("the scene path's warm-up failed (the first scene pays): %s", err)
+        if settings.warm_up and state.ready:
+            try:  # ... and the first POST /v1/align (imports, open3d, the first ICP)
+                await anyio.to_thread.run_sync(warm_up_alignment, state.catalog)
+            except Exception as err:
+                log.warning("the alignment's warm-up failed (the first alignment pays): %s", err)
         # Every admitted estimate gets a worker thread at once: no hidden queue behind the gate.
         limiter = anyio.to_thread.current_default_thread_limiter()
         limiter.total_tokens = max(
