@@ -27,16 +27,19 @@ def test_the_made_up_view_is_a_floor_with_one_object_on_it() -> None:
     assert 0.7 < plain.box.size[1] < 0.9  # a plain box: named or unknown, never dropped
 
 
+@pytest.mark.parametrize("step", ["warm_up_scenes", "warm_up_alignment"])
 @pytest.mark.parametrize("warm", [True, False])
-def test_the_service_warms_the_scene_path_at_start_up(monkeypatch, warm: bool) -> None:
+def test_the_service_warms_the_scene_path_and_the_alignment_at_start_up(
+    monkeypatch, warm: bool, step: str
+) -> None:
     import itnet.service.app as app_module
 
     calls = []
-    monkeypatch.setattr(app_module, "warm_up_scenes", lambda catalog: calls.append(catalog))
+    monkeypatch.setattr(app_module, step, lambda catalog: calls.append(catalog))
     with TestClient(create_app(Settings(warm_up=warm))) as client:
         assert client.get("/readyz").status_code == 200
     assert len(calls) == (1 if warm else 0)
-    if warm:
+    if warm and step == "warm_up_scenes":
         assert calls[0].classifier is not None
 
 
@@ -84,14 +87,3 @@ def test_the_alignment_warm_up_aligns_its_made_up_pair() -> None:
     warm_up(Catalog.load())
     assert "itnet.alignment.pipeline" in sys.modules
     assert ("open3d" in sys.modules) == refine_wanted(None)
-
-
-@pytest.mark.parametrize("warm", [True, False])
-def test_the_service_warms_the_alignment_at_start_up(monkeypatch, warm: bool) -> None:
-    import itnet.service.app as app_module
-
-    calls = []
-    monkeypatch.setattr(app_module, "warm_up_alignment", lambda catalog: calls.append(catalog))
-    with TestClient(create_app(Settings(warm_up=warm))) as client:
-        assert client.get("/readyz").status_code == 200
-    assert len(calls) == (1 if warm else 0)
