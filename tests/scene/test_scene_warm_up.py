@@ -1,5 +1,5 @@
 """The scene path's warm-up: its made-up view is a scene with one object on a floor, and the CLI
-and the service run it before their first scene."""
+and the service run it before their first scene (the service warms its alignment up too)."""
 
 from __future__ import annotations
 
@@ -66,24 +66,3 @@ def test_the_cli_warms_up_before_its_first_file(monkeypatch, tmp_path) -> None:
     np.save(cloud, np.zeros((0, 3)))
     CliRunner().invoke(app, ["scene", str(cloud)])
     assert len(calls) == 1
-
-
-def test_the_alignment_warm_up_aligns_its_made_up_pair() -> None:
-    """The made-up pair is a box and the same box turned 30 degrees and moved; warming up aligns
-    it with the default model (the modules, open3d where installed, and the calibration
-    loaded: the first alignment a caller sends does not pay for them)."""
-    import sys
-
-    from itnet.alignment.refine import refine_wanted
-    from itnet.alignment.warm_up import TURN_DEG, made_up_pair, warm_up
-    from itnet.geometry import rotation_error_deg
-    from itnet.pose.catalog import Catalog
-
-    a, b = made_up_pair()
-    assert a.shape == b.shape == (512, 3)
-    assert np.allclose(np.linalg.norm(b - b.mean(0), axis=1), np.linalg.norm(a - a.mean(0), axis=1))
-    centred = np.linalg.lstsq(a - a.mean(0), b - b.mean(0), rcond=None)[0].T
-    assert abs(rotation_error_deg(centred, np.eye(3)) - TURN_DEG) < 1e-6
-    warm_up(Catalog.load())
-    assert "itnet.alignment.pipeline" in sys.modules
-    assert ("open3d" in sys.modules) == refine_wanted(None)
