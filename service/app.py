@@ -55,7 +55,7 @@ def create_app(
                 log.warning("the scene path's warm-up failed (the first scene pays): %s", err)
         if settings.warm_up and state.ready:
             try:  # ... and the first POST /v1/align (imports, open3d, the first ICP)
-                await anyio.to_thread.run_sync(warm_up_alignment, state.catalog)
+                await anyio.to_thread.run_sync(warm_up_alignment)
             except Exception as err:
                 log.warning("the alignment's warm-up failed (the first alignment pays): %s", err)
         # Every admitted estimate gets a worker thread at once: no hidden queue behind the gate.

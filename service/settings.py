@@ -165,8 +165,8 @@ class Settings(BaseSettings):
     )
     warm_up: bool = Field(
         default=True,
-        description="run a few steps per model at start-up, one alignment, and the scene path "
-        "once where a classifier is loaded",
+        description="run a few steps per model at start-up, load what a first alignment needs, "
+        "and run the scene path once where a classifier is loaded",
     )
     gc_freeze: bool = Field(
         default=True,

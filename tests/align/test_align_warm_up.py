@@ -1,27 +1,27 @@
-"""The alignment's warm-up (``itnet.alignment.warm_up``): its made-up pair, aligned once before
-a server's first alignment."""
+"""The alignment's warm-up (``itnet.alignment.warm_up``): what a first alignment loads, loaded
+on a made-up pair before a server's first alignment, with no network step."""
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+import pytest
+
+from itnet.alignment.refine import refine_wanted
+from itnet.alignment.warm_up import TURN_DEG, made_up_pair, warm_up
+from itnet.geometry import apply_rigid, rotation_error_deg
 
 
-def test_the_alignment_warm_up_aligns_its_made_up_pair() -> None:
-    """The made-up pair is a box and the same box turned 30 degrees and moved; warming up aligns
-    it with the default model (the modules, open3d where installed, and the calibration
-    loaded: the first alignment a caller sends does not pay for them)."""
-    import sys
-
-    from itnet.alignment.refine import refine_wanted
-    from itnet.alignment.warm_up import TURN_DEG, made_up_pair, warm_up
-    from itnet.geometry import rotation_error_deg
-    from itnet.pose.catalog import Catalog
-
-    a, b = made_up_pair()
+def test_the_made_up_pair_is_a_box_and_its_turned_copy() -> None:
+    a, b, b_from_a = made_up_pair()
     assert a.shape == b.shape == (512, 3)
-    assert np.allclose(np.linalg.norm(b - b.mean(0), axis=1), np.linalg.norm(a - a.mean(0), axis=1))
-    centred = np.linalg.lstsq(a - a.mean(0), b - b.mean(0), rcond=None)[0].T
-    assert abs(rotation_error_deg(centred, np.eye(3)) - TURN_DEG) < 1e-6
-    warm_up(Catalog.load())
+    assert np.allclose(apply_rigid(b_from_a, a), b)
+    assert abs(rotation_error_deg(b_from_a[:3, :3], np.eye(3)) - TURN_DEG) < 1e-9
+    assert np.ptp(a, axis=0) == pytest.approx([0.6, 0.8, 0.4], abs=0.01)
+
+
+def test_warming_up_loads_the_alignment_and_refines_where_open3d_is() -> None:
+    ran_icp = warm_up()
     assert "itnet.alignment.pipeline" in sys.modules
-    assert ("open3d" in sys.modules) == refine_wanted(None)
+    assert ran_icp == refine_wanted(None)

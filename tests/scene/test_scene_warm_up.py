@@ -35,12 +35,12 @@ def test_the_service_warms_the_scene_path_and_the_alignment_at_start_up(
     import itnet.service.app as app_module
 
     calls = []
-    monkeypatch.setattr(app_module, step, lambda catalog: calls.append(catalog))
+    monkeypatch.setattr(app_module, step, lambda *catalog: calls.append(catalog))
     with TestClient(create_app(Settings(warm_up=warm))) as client:
         assert client.get("/readyz").status_code == 200
     assert len(calls) == (1 if warm else 0)
     if warm and step == "warm_up_scenes":
-        assert calls[0].classifier is not None
+        assert calls[0][0].classifier is not None
 
 
 def test_a_failed_warm_up_leaves_the_service_serving(monkeypatch) -> None:
