@@ -56,6 +56,11 @@ class CentreFitOptions(BaseModel):
         "gravity sensor's error); with --write it becomes the card's centre_correction_up, and "
         "its viewpoint variant centre_correction_up_viewpoint (requests that give both)",
     )
+    keep_viewpoint: bool = Field(
+        True,
+        description="with --write, write the viewpoint variant too; --no-keep-viewpoint "
+        "measures it but leaves the card's as it is (its measurement is marked not kept)",
+    )
 
     @field_validator("out")
     @classmethod
@@ -63,9 +68,3 @@ class CentreFitOptions(BaseModel):
         if out is not None and out.suffix != ".onnx":
             raise ValueError(f"the model is written as ONNX: give a .onnx path, not {out}")
         return out
-
-    keep_viewpoint: bool = Field(
-        True,
-        description="with --write, write the viewpoint variant too; --no-keep-viewpoint "
-        "measures it but leaves the card's as it is (its measurement is marked not kept)",
-    )
