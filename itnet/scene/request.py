@@ -21,10 +21,11 @@ from pydantic import ConfigDict, Field, field_validator
 from itnet.request_fields import RequestModel, Xyz, parse_xyz
 from itnet.scene.segment import CAMERA_UP, SegmentOptions
 
-# A usual frame (up to six objects, 640 x 480) segments in about 60-80 ms on 2 cores and each
-# object's naming and pose take 20-30 ms: at 250 ms every object of such frames is posed
-# (docs/scenes.md, "Cost at each resolution").
-DEFAULT_BUDGET_MS = 250.0
+# A real depth camera's frame (a Kinect v2's 730 x 530, a cluttered bedroom) segments in 120-190
+# ms on 2 cores and each object's naming and pose take 30-60 ms: at 500 ms every object of a
+# frame of six is posed, as at about the pose path's own default each (docs/scenes.md, "Cost at
+# each resolution"). A scene whose objects are posed early replies early.
+DEFAULT_BUDGET_MS = 500.0
 MAX_BUDGET_MS = 60_000.0
 
 

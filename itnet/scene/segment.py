@@ -634,11 +634,12 @@ def nearest_floor(floor_points: NDArray, up: NDArray) -> float:
     return float(percentiles(reach, [1])[0]) if len(reach) else math.inf
 
 
-# The objects' working cloud's size per ms of a scene's budget, within bounds. Segmenting a real
-# room costs about 3-4 ms per thousand object voxels on 2 cores (docs/scenes.md, "Cost"). The
-# cloud stops growing at 10,500 voxels (a budget of 140 ms): what the fitted steps (the touching
-# cut, the scene classifier) were fitted on, and what a larger budget buys goes to posing the
-# objects, whose cost grows with their number, not to segmenting them finer.
+# The objects' working cloud's size per ms of a scene's budget, within bounds. The cloud stops
+# growing at 10,500 voxels (a budget of 140 ms; a real Kinect v2 bedroom's objects fill about
+# 9,800 voxels of 4 cm, segmented in 110-150 ms on 2 cores, docs/scenes.md, "Cost"): what the
+# fitted steps (the touching cut, the scene classifier) were fitted on, and what a larger budget
+# buys goes to posing the objects, whose cost grows with their number, not to segmenting them
+# finer.
 WORK_POINTS_PER_MS = 75
 # the floor under a point is hidden where a nearer point lies within this (the chord of about
 # 1.5 degrees) of the ray to it
@@ -646,7 +647,7 @@ HIDDEN_RAY = 0.026
 WORK_POINTS_RANGE = (4_000, 10_500)
 
 
-def working_points(budget_ms: float = 250.0) -> int:
+def working_points(budget_ms: float) -> int:
     """How many voxels the objects of a scene of ``budget_ms`` are found in
     (``WORK_POINTS_PER_MS``)."""
     low, high = WORK_POINTS_RANGE
@@ -654,8 +655,9 @@ def working_points(budget_ms: float = 250.0) -> int:
 
 
 def working_points_of(options: SegmentOptions) -> int:
-    """``options.work_points``, or the default budget's where it is None."""
-    return working_points() if options.work_points is None else options.work_points
+    """``options.work_points``, or where it is None the most (what every budget from 140 ms
+    gets, the default's among them)."""
+    return WORK_POINTS_RANGE[1] if options.work_points is None else options.work_points
 
 
 @dataclass(frozen=True)

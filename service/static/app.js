@@ -57,7 +57,7 @@ function saveUrl(extra = {}) {
 
 // Each tab's budget until the user sets one: a scene's objects share one budget, an alignment's
 // two clouds and its choice another (the API's defaults).
-const TAB_BUDGET_MS = { pose: 50, align: 100, scene: 250 };
+const TAB_BUDGET_MS = { pose: 50, align: 100, scene: 500 };
 
 function setTab(tab) {
   document.body.dataset.tab = tab;
