@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError
-from itnet.scene.posing import scene_category
+from itnet.scene.posing import scene_category, top_height
 from itnet.scene.scene_classifier import SceneClassifier
 from itnet.scene.touching import CutJudge, cut_candidates
 from itnet.scene.unknown import unknown_reason
@@ -56,7 +56,9 @@ class Namer:
         except BadCloudError:
             return None
         assert seen.category is not None
-        if unknown_reason(seen.category, seen.probability, sample, self.floor.normal, seen.other):
+        top = top_height(sample, self.floor)
+        if unknown_reason(seen.category, seen.probability, sample, self.floor.normal, seen.other,
+                          top):  # fmt: skip
             return None
         return seen.probability
 

@@ -116,7 +116,8 @@ def pose_object(
     named = seen.category
     assert named is not None  # scene_category names one
     if unknown:
-        seen.unknown = unknown_reason(named, seen.probability, points, up, seen.other)
+        top = None if floor is None else top_height(points, floor)
+        seen.unknown = unknown_reason(named, seen.probability, points, up, seen.other, top)
         if seen.unknown is not None:
             seen.category, seen.no_pose = None, "unknown"
             return seen

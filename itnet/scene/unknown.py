@@ -14,7 +14,10 @@ it is answered as unknown (``category: null``, no pose) where
   direction, from the 2nd to the 98th percentile of its points) exceeds ``TOO_LARGE`` times
   the category's largest real radius (``itnet.model.categories.REAL_RADIUS_M``). A partial
   view of one object is never larger than the object, so the margin is for noise and for a
-  strip of floor or wall the cluster keeps.
+  strip of floor or wall the cluster keeps. Or, on a floor, its top stands higher than
+  ``TOO_TALL_M``: no category that stands on a floor is that tall (the tallest, a bed's
+  headboard or a dresser with what stands on it, reach about 1.6 m), so such a cluster is
+  something else (a wardrobe, a curtain, a door) or holds one.
 
 Pure numpy.
 """
@@ -31,6 +34,7 @@ from itnet.model.categories import REAL_RADIUS_M
 # docs/scenes.md, "Unknown objects")
 UNKNOWN_BELOW = 0.5
 TOO_LARGE = 1.3  # times the category's largest real radius
+TOO_TALL_M = 2.0  # a top higher above the floor than this: none of the categories
 
 
 def cluster_radius(points: NDArray, up: NDArray) -> float:
@@ -48,20 +52,25 @@ def cluster_radius(points: NDArray, up: NDArray) -> float:
 
 
 def unknown_reason(
-    category: str, probability: float, points: NDArray, up: NDArray, other: float = 0.0
-) -> str | None:
+    category: str, probability: float, points: NDArray, up: NDArray, other: float = 0.0,
+    top_m: float | None = None,
+) -> str | None:  # fmt: skip
     """Why a cluster (K, 3) in metres named ``category`` with ``probability`` (among the
     categories), and none of them with ``other`` (the scene classifier's ``OTHER``, as a share
-    of all its classes), is unknown ('not_ours', 'unsure', 'too_large'), or None where the
-    category stands (a category without real sizes, a user's, is never too large)."""
+    of all its classes), its top ``top_m`` above the floor where it stands on one, is unknown
+    ('not_ours', 'unsure', 'too_large'), or None where the category stands (a category without
+    real sizes, a user's, is never too large)."""
     if other > probability * (1.0 - other):  # OTHER is likelier than the category named
         return "not_ours"
     if probability < UNKNOWN_BELOW:
         return "unsure"
     sizes = REAL_RADIUS_M.get(category)
-    if sizes is not None and cluster_radius(points, up) > TOO_LARGE * sizes[1]:
+    if sizes is None:
+        return None
+    too_tall = top_m is not None and top_m > TOO_TALL_M
+    if too_tall or cluster_radius(points, up) > TOO_LARGE * sizes[1]:
         return "too_large"
     return None
 
 
-__all__ = ["TOO_LARGE", "UNKNOWN_BELOW", "cluster_radius", "unknown_reason"]
+__all__ = ["TOO_LARGE", "TOO_TALL_M", "UNKNOWN_BELOW", "cluster_radius", "unknown_reason"]

@@ -14,7 +14,7 @@ from itnet.pose.request import PoseRequest
 from itnet.scene import SceneFinishing, find_objects
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, VoxelCloud, segment, working_points
-from itnet.scene.unknown import TOO_LARGE, cluster_radius, unknown_reason
+from itnet.scene.unknown import TOO_LARGE, TOO_TALL_M, cluster_radius, unknown_reason
 from itnet.scene.warm_up import warm_up
 
 
@@ -61,6 +61,22 @@ def test_a_cluster_too_large_for_its_category_is_unknown() -> None:
     assert unknown_reason("chair", 0.9, seat, up) is None
     assert unknown_reason("chair", 0.35, seat, up) == "unsure"
     assert unknown_reason("my_cabinet", 0.9, block, up) is None  # no real sizes: never too large
+
+
+def test_a_cluster_taller_than_any_category_is_unknown_where_its_top_is_known() -> None:
+    """A curtain-like panel 0.6 m across whose top stands 2.8 m over the floor: its radius alone
+    passes for a sofa, its height does not; with no floor (no height given) it stands; a
+    dresser with a mirror on it (1.6 m) stands."""
+    rng = np.random.default_rng(1)
+    up = np.array([0.0, -1.0, 0.0])
+    panel = rng.uniform([-0.3, -2.8, 3.0], [0.3, -1.3, 3.05], size=(3000, 3))
+    assert cluster_radius(panel, up) < TOO_LARGE * 1.45
+    assert unknown_reason("sofa", 0.9, panel, up) is None
+    assert unknown_reason("sofa", 0.9, panel, up, top_m=2.8) == "too_large"
+    assert unknown_reason("sofa", 0.9, panel, up, top_m=TOO_TALL_M - 0.1) is None
+    dresser = rng.uniform([-0.6, -1.6, 3.0], [0.6, 0.0, 3.5], size=(3000, 3))
+    assert unknown_reason("dresser", 0.9, dresser, up, top_m=1.6) is None
+    assert unknown_reason("my_cabinet", 0.9, panel, up, top_m=2.8) is None  # no real sizes
 
 
 def test_a_block_too_large_for_any_category_is_answered_unknown_not_dropped() -> None:
