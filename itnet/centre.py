@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.columns import percentiles
 from itnet.geometry import apply_rigid
 
 FEATURES = "quantiles-extremes-grid4-v1"
@@ -46,7 +47,7 @@ def centre_features(moved: NDArray, toward: NDArray | None = None) -> NDArray[np
     p = np.asarray(moved, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0:
         raise ValueError(f"expected a non-empty (N, 3) cloud, got shape {p.shape}")
-    quantiles = np.percentile(p, QUANTILES, axis=0).ravel()
+    quantiles = percentiles(p, list(QUANTILES), axis=0).ravel()
     cell = np.floor((p + GRID_HALF_WIDTH) / (2 * GRID_HALF_WIDTH / GRID)).astype(np.int64)
     cell = np.clip(cell, 0, GRID - 1)
     flat = (cell[:, 0] * GRID + cell[:, 1]) * GRID + cell[:, 2]

@@ -60,19 +60,21 @@ def held_upright(poses: ArrayLike, up: ArrayLike) -> FloatArray:
 
 
 def _onto_up(a: FloatArray) -> FloatArray:
-    """``rotation_onto(a, UP)`` for unit directions ``a`` (...x3), in closed form (Rodrigues:
-    I + K + K² / (1 + a·y), K the cross-product matrix of a x y): what every step of a run held
-    upright pays, a tenth of the general path's time. Where ``a`` is (nearly) -y, the general
-    path's half turn."""
+    """``rotation_onto(a, UP)`` for directions ``a`` (...x3, unit to rounding: a network's
+    rotation applied to up), in closed form (Rodrigues on a normalised: I + K + K² / (1 + a·y),
+    K the cross-product matrix of a x y): what every step of a run held upright pays, a fifth of
+    the general path's time. Where ``a`` points more than about 84° away from +y (1 + a·y is
+    small, and so the closed form's precision), the general path."""
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
     x, y, z = a[..., 0], a[..., 1], a[..., 2]
     zero = np.zeros_like(x)
     k = np.stack([np.stack([zero, -x, zero], -1), np.stack([x, zero, z], -1),
                   np.stack([zero, -z, zero], -1)], -2)  # fmt: skip
-    flipped = y <= -1.0 + 1e-9
-    scale = 1.0 / np.where(flipped, 1.0, 1.0 + y)
+    far = y < 0.1
+    scale = 1.0 / np.where(far, 1.0, 1.0 + y)
     out = np.eye(3) + k + (k @ k) * scale[..., None, None]
-    if np.any(flipped):
-        out[flipped] = rotation_onto(a[flipped], UP)
+    if np.any(far):
+        out[far] = rotation_onto(a[far], UP)
     return out
 
 

@@ -59,6 +59,25 @@ def test_held_upright_takes_up_onto_y_and_keeps_the_centre(rng) -> None:
     np.testing.assert_allclose(held_upright(held, up), held, atol=1e-9)  # already upright
 
 
+def test_held_upright_stays_rigid_for_float32_rotations_in_any_direction(rng) -> None:
+    """A network's rotations are orthonormal only to float32 rounding, and a run may leave up
+    anywhere, next to upside down too: the turn that stands it up is still a rotation, the
+    general one within rounding, and takes up onto +y."""
+    up = unit_up([0.2, -1.0, 0.1])
+    poses = np.tile(np.eye(4), (400, 1, 1))
+    poses[:, :3, :3] = random_rotation(rng, 400).astype(np.float32)
+    lift = rotation_onto(up, -UP)  # the rotation that puts up exactly onto -y, with neighbours
+    poses[:4, :3, :3] = np.stack([np.eye(3), rotation_onto(UP, [1e-4, 1.0, 0.0])] * 2) @ lift
+    held = held_upright(poses, up)
+    rotations = held[:, :3, :3]
+    np.testing.assert_allclose(rotations @ np.swapaxes(rotations, 1, 2),
+                               np.tile(np.eye(3), (400, 1, 1)), atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(rotations @ up, np.tile(UP, (400, 1)), atol=1e-6)
+    lifted = poses[:, :3, :3].astype(np.float64) @ up
+    general = rotation_onto(lifted / np.linalg.norm(lifted, axis=1, keepdims=True), UP)
+    np.testing.assert_allclose(rotations, general @ poses[:, :3, :3], atol=1e-12)
+
+
 def test_upright_starts_stand_the_cloud_up_at_turns_about_y(rng) -> None:
     up = unit_up([0.3, -1.0, 0.2])
     starts = upright_starts(up, 4)

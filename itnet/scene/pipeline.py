@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.columns import column_max, column_mean, column_min
+from itnet.columns import column_max, column_mean, column_min, percentiles
 from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.scene.camera import Intrinsics, SceneInputError
@@ -310,7 +310,7 @@ def base_out_of_view(
     if floor is None:
         return False
     heights = floor.distance(points)
-    low, top = np.percentile(heights, [2, 98])
+    low, top = percentiles(heights, [2, 98])
     if low < finishing.base_low_share * top:
         return False
     return edges is not None and "bottom" in edges.reached(points, finishing.view_edge_deg)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.columns import percentiles
 from itnet.planes import Plane
 from itnet.pose.catalog import Catalog
 from itnet.pose.errors import BadCloudError, BudgetTooSmallError
@@ -200,7 +201,7 @@ def classifier_probabilities(
 def top_height(points: NDArray, floor: Plane) -> float:
     """How high an object's top stands above ``floor``: the 98th percentile of its points' (K,
     3) heights (against noise), in the points' unit."""
-    return float(np.percentile(floor.distance(points), 98))
+    return float(percentiles(floor.distance(points), [98])[0])
 
 
 def posed_as(

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from itnet.columns import percentiles
 from itnet.graph_digest import graph_digest
 from itnet.planes import Plane
 from itnet.pose.runtime import LoadedClassifier
@@ -57,7 +58,7 @@ def cluster_features(
     p = np.asarray(points, dtype=np.float64)
     up = floor.normal
     heights = floor.distance(p)
-    top = max(float(np.percentile(heights, 98)), 0.05)
+    top = max(float(percentiles(heights, [98])[0]), 0.05)
     level = np.clip(heights / top, 0.0, 0.999)
     shares = np.bincount((level * HEIGHT_BINS).astype(int), minlength=HEIGHT_BINS) / len(p)
     toward = np.asarray(viewpoint, dtype=np.float64) - p.mean(0)
@@ -90,7 +91,7 @@ def cluster_features(
 def _spread(values: NDArray, percent: float) -> float:
     """How far ``values`` (K,) reach between their ``percent``-th and (100 - percent)-th
     percentiles."""
-    lo, hi = np.percentile(values, [percent, 100 - percent])
+    lo, hi = percentiles(values, [percent, 100 - percent])
     return float(hi - lo)
 
 

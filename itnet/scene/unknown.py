@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from itnet.columns import column_mean
+from itnet.columns import column_mean, percentiles
 from itnet.model.categories import REAL_RADIUS_M
 
 # a category named with less probability than this is unknown (chosen on validation scenes:
@@ -46,8 +46,8 @@ def cluster_radius(points: NDArray, up: NDArray) -> float:
     flat = flat - column_mean(flat)
     _, _, vt = np.linalg.svd(flat[:: max(1, len(flat) // 2000)], full_matrices=False)
     axes = np.stack([vt[0], np.cross(up, vt[0])])
-    spans = [np.subtract(*np.percentile(flat @ a, [98, 2])) for a in axes]
-    spans.append(float(np.subtract(*np.percentile(heights, [98, 2]))))
+    spans = [np.subtract(*percentiles(flat @ a, [98, 2])) for a in axes]
+    spans.append(float(np.subtract(*percentiles(heights, [98, 2]))))
     return 0.5 * float(np.linalg.norm(spans))
 
 

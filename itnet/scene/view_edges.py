@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from itnet.columns import percentiles
+
 EDGES = ("top", "bottom", "left", "right")
 REACH_PERCENT = 1.0  # a part reaches an edge where this share of its points (%) lies near it
 # The edges are measured on every k-th point, at most this many: a depth image's points come
@@ -57,8 +59,8 @@ class ViewEdges:
         if not len(below):
             return ()
         within = math.radians(within_deg)
-        lo_b, hi_b = np.percentile(below, [REACH_PERCENT, 100 - REACH_PERCENT])
-        lo_a, hi_a = np.percentile(across, [REACH_PERCENT, 100 - REACH_PERCENT])
+        lo_b, hi_b = percentiles(below, [REACH_PERCENT, 100 - REACH_PERCENT])
+        lo_a, hi_a = percentiles(across, [REACH_PERCENT, 100 - REACH_PERCENT])
         reached = {
             "top": lo_b <= self.top + within,
             "bottom": hi_b >= self.bottom - within,
