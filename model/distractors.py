@@ -59,7 +59,7 @@ def hung(kind: str, rng: np.random.Generator, length_m: float = 6.0) -> tuple[Sh
     }
     if kind not in sizes:
         raise ValueError(f"unknown hung thing {kind!r} (known: {', '.join(HUNG_KINDS)})")
-    points = _box_surface(np.array(sizes[kind]()), POINTS, rng)
+    points = box_surface(np.array(sizes[kind]()), POINTS, rng)
     points[:, 1] -= points[:, 1].max() / 2  # about its box's centre
     return _unit_shape(kind, points)
 
@@ -71,7 +71,7 @@ def _unit_shape(kind: str, points: NDArray) -> tuple[Shape, float]:
     return Shape(kind, points / radius), radius
 
 
-def _box_surface(size: NDArray, count: int, rng: np.random.Generator) -> NDArray[np.float64]:
+def box_surface(size: NDArray, count: int, rng: np.random.Generator) -> NDArray[np.float64]:
     """Points on a box's faces (``size`` (3,), standing on y = 0, centred in x and z), each face
     in proportion to its area."""
     w, h, d = size
@@ -99,7 +99,7 @@ def _cylinder_surface(
 def _ottoman(rng: np.random.Generator) -> NDArray[np.float64]:
     width = rng.uniform(0.4, 1.2)
     size = np.array([width, rng.uniform(0.35, 0.5), width * rng.uniform(0.5, 1.0)])
-    return _box_surface(size, POINTS, rng)
+    return box_surface(size, POINTS, rng)
 
 
 def _bin(rng: np.random.Generator) -> NDArray[np.float64]:
@@ -134,4 +134,4 @@ def _plant(rng: np.random.Generator) -> NDArray[np.float64]:
 
 def _cabinet(rng: np.random.Generator) -> NDArray[np.float64]:
     size = np.array([rng.uniform(0.3, 0.6), rng.uniform(1.2, 2.0), rng.uniform(0.3, 0.6)])
-    return _box_surface(size, POINTS, rng)
+    return box_surface(size, POINTS, rng)

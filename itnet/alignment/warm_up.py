@@ -18,20 +18,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from itnet.geometry import apply_rigid, axis_angle_to_matrix
+from itnet.model.distractors import box_surface
 
 POINTS = 512
 TURN_DEG = 30.0  # B is A turned this far about the vertical, and moved
 
 
-def made_up_pair(seed: int = 0) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray]:
-    """Two clouds (POINTS, 3) of a box's surface, 0.6 x 0.8 x 0.4 m, and T_b_from_a (4, 4): B is
-    A turned ``TURN_DEG`` about y and moved 0.5 m along x."""
-    rng = np.random.default_rng(seed)
-    half = np.array([0.3, 0.4, 0.2])
-    points = rng.uniform(-1.0, 1.0, size=(POINTS, 3))
-    face = rng.integers(3, size=POINTS)
-    points[np.arange(POINTS), face] = np.sign(points[np.arange(POINTS), face])
-    a = points * half
+def made_up_pair(seed: int = 0) -> tuple[NDArray, NDArray, NDArray]:
+    """Two clouds (POINTS, 3) of a box's surface, 0.6 x 0.8 x 0.4 m, standing on y = 0, and
+    T_b_from_a (4, 4): B is A turned ``TURN_DEG`` about y and moved 0.5 m along x."""
+    a = box_surface(np.array([0.6, 0.8, 0.4]), POINTS, np.random.default_rng(seed))
     move = np.eye(4)
     move[:3, :3] = axis_angle_to_matrix([0.0, 1.0, 0.0], math.radians(TURN_DEG))
     move[:3, 3] = [0.5, 0.0, 0.0]
