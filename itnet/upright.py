@@ -63,8 +63,8 @@ def _onto_up(a: FloatArray) -> FloatArray:
     """``rotation_onto(a, UP)`` for directions ``a`` (...x3, unit to rounding: a network's
     rotation applied to up), in closed form (Rodrigues on a normalised: I + K + K² / (1 + a·y),
     K the cross-product matrix of a x y): what every step of a run held upright pays, a fifth of
-    the general path's time. Where ``a`` points more than about 84° away from +y (1 + a·y is
-    small, and so the closed form's precision), the general path."""
+    the general path's time. Where ``a`` points more than about 84° away from +y, the general
+    path: toward -y, 1 + a·y goes to 0 and the closed form's precision with it."""
     a = a / np.linalg.norm(a, axis=-1, keepdims=True)
     x, y, z = a[..., 0], a[..., 1], a[..., 2]
     zero = np.zeros_like(x)
