@@ -3,6 +3,8 @@ layer (zero weights, chosen biases)."""
 
 from __future__ import annotations
 
+import functools
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +12,8 @@ import numpy as np
 
 CLASSES = ["chair", "table", "sofa"]
 TINY = {"point_channels": (8, 16, 32), "head_channels": (16, 8)}
+# the exported name of the last layer's bias (``Classifier.classifier.out.bias``)
+FIXED_BIAS = "heads.0.dense_b.2"
 
 
 def tiny_classifier(transformer: str = "itnet", iterations: int = 1, classes: int = 3, **kw: Any):  # type: ignore[no-untyped-def]
@@ -50,21 +54,45 @@ def fixed_answer_classifier(logits: list[float]):  # type: ignore[no-untyped-def
     return net.eval()
 
 
+@functools.cache
+def _fixed_graph(classes: int) -> bytes:
+    """The ONNX graph of ``fixed_answer_classifier`` with ``classes`` outputs and zero logits,
+    exported once: every fixed answer is this graph with its last bias set."""
+    from itnet.export.classifier_export import export_classifier
+    from itnet.model_card import ClassifierCard
+
+    card = ClassifierCard(classes=[f"c{k}" for k in range(classes)], points=128, accuracy=0.9)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = export_classifier(
+            fixed_answer_classifier([0.0] * classes), card, Path(tmp) / "c.onnx"
+        )
+        return path.read_bytes()
+
+
 def export_fixed(
     folder: Path,
     logits: list[float],
     threshold: float = 0.5,
     size_prior: Any = None,
     upright: bool = False,
+    classes: list[str] | None = None,
+    points: int = 128,
 ) -> Path:
-    """classifier.onnx (``upright``: classifier_upright.onnx, its card upright) in ``folder``."""
-    from itnet.export.classifier_export import export_classifier
+    """classifier.onnx (``upright``: classifier_upright.onnx, its card upright) in ``folder``:
+    softmax(``logits``) over ``classes`` (default ``CLASSES``) whatever the cloud."""
+    import onnx
+    from onnx import numpy_helper
+
+    from itnet.export.onnx_export import save_with_card
     from itnet.model_card import ClassifierCard
 
-    card = ClassifierCard(classes=CLASSES, points=128, threshold=threshold, accuracy=0.9,
-                          size_prior=size_prior, upright=upright)  # fmt: skip
+    card = ClassifierCard(classes=classes or CLASSES, points=points, threshold=threshold,
+                          accuracy=0.9, size_prior=size_prior, upright=upright)  # fmt: skip
+    graph = onnx.load_model_from_string(_fixed_graph(len(card.classes)))
+    (bias,) = [i for i in graph.graph.initializer if i.name == FIXED_BIAS]
+    bias.CopyFrom(numpy_helper.from_array(np.asarray(logits, np.float32), FIXED_BIAS))
     name = "classifier_upright.onnx" if upright else "classifier.onnx"
-    return export_classifier(fixed_answer_classifier(logits), card, folder / name)
+    return save_with_card(graph, card, folder / name)
 
 
 # synthetic classes in the ModelNet layout: a flat plate, a long rod, a ball

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from cls_helpers import export_fixed, fixed_answer_classifier
+from cls_helpers import export_fixed
 
 from itnet.model.classify.configs import SizePriorFitConfig
 from itnet.model.classify.size_prior_fit import fit_classifier_size_prior
@@ -18,13 +18,8 @@ from itnet.pose.runtime import LoadedClassifier, load_any
 def test_the_prior_is_fitted_measured_and_written_into_the_card(
     three_classes: Path, tmp_path: Path
 ) -> None:
-    from itnet.export.classifier_export import export_classifier
-    from itnet.model_card import ClassifierCard
-
     classes = ["ball", "plate", "rod"]  # equal logits: only the size can tell them apart
-    path = tmp_path / "classifier.onnx"
-    export_classifier(fixed_answer_classifier([0.0, 0.0, 0.0]),
-                      ClassifierCard(classes=classes, points=64), path)  # fmt: skip
+    path = export_fixed(tmp_path, [0.0, 0.0, 0.0], classes=classes, points=64)
     config = SizePriorFitConfig(classifier=path, data=three_classes, split="test",
                                 cache=tmp_path / "cache", rules="occluded")  # fmt: skip
     dry = fit_classifier_size_prior(config)

@@ -86,15 +86,7 @@ def test_an_upright_classifier_alone_twice_or_with_other_classes_is_refused(
     with pytest.raises(ModelLoadError, match="more than one upright classifier"):
         load_all(tmp_path, warm_up=False)
     (tmp_path / "second_upright.onnx").unlink()
-    from cls_helpers import fixed_answer_classifier
-
-    from itnet.export.classifier_export import export_classifier
-    from itnet.model_card import ClassifierCard
-
-    other = ClassifierCard(classes=["mug", "cup", "bowl"], points=128, upright=True)
-    export_classifier(
-        fixed_answer_classifier([1.0, 0, 0]), other, tmp_path / "classifier_upright.onnx"
-    )
+    export_fixed(tmp_path, [1.0, 0.0, 0.0], upright=True, classes=["mug", "cup", "bowl"])
     with pytest.raises(ModelLoadError, match="are not the other's"):
         load_all(tmp_path, warm_up=False)
 

@@ -14,9 +14,10 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def local_ray() -> Iterator[None]:
-    """One local Ray instance per test module, the 2 CPUs of this machine, shut down after."""
+    """One local Ray instance for every scale test, the 2 CPUs of this machine, shut down after
+    the last (starting one takes seconds)."""
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
