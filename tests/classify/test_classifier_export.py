@@ -201,3 +201,34 @@ def test_shipped_classifier_weights_are_the_shipped_classifier() -> None:
     np.testing.assert_allclose(got, expected, atol=2e-3)
     assert (got.argmax(1) == expected.argmax(1)).all()
     assert graph.card.classes[int(got[-1].argmax())] == "chair"
+
+
+def test_shipped_upright_classifier_weights_are_the_shipped_upright_classifier() -> None:
+    """lab/weights/classifier_upright.pt (what a later fine-tune of the upright classifier starts
+    from) gives the shipped upright graph's probabilities on levelled clouds: noise, a box's side
+    and an example scan stood up, to the float16 storage of the shipped file."""
+    from itnet.cloud_io import read_cloud
+    from itnet.model.classify.train import load_classifier
+    from itnet.pose.runtime import LoadedClassifier, default_model_dir, load_any
+    from itnet.preprocess import cap_points, estimate_normalization
+    from itnet.service.api.routes.examples import examples_dir
+
+    weights = Path(__file__).resolve().parents[2] / "lab" / "weights"  # not shipped
+    net, state = load_classifier(weights / "classifier_upright.pt")
+    graph = load_any(default_model_dir() / "classifier_upright.onnx", warm_up=False)
+    assert isinstance(graph, LoadedClassifier) and graph.card.upright and "optimizer" not in state
+    assert state["classes"] == graph.card.classes and state["config"]["upright"] is not None
+    rng = np.random.default_rng(1)
+    chair = read_cloud(examples_dir() / "chair_a.ply")
+    clouds = [rng.normal(size=(300, 3)), rng.uniform(-1, 1, (300, 3)) * [0.4, 0.5, 0.05], chair]
+    x = np.stack(
+        [cap_points(estimate_normalization(c).apply(c), graph.card.points, rng) for c in clouds]
+    ).astype(np.float32)
+    with torch.no_grad():
+        expected = torch.softmax(net(torch.from_numpy(x))[0], -1).numpy()
+    got = graph.probabilities(x)
+    np.testing.assert_allclose(got, expected, atol=2e-3)
+    assert (got.argmax(1) == expected.argmax(1)).all()
+    other = load_any(default_model_dir() / "classifier.onnx", warm_up=False)
+    assert isinstance(other, LoadedClassifier)
+    assert np.abs(other.probabilities(x) - got).max() > 0.05  # not any classifier's answers
