@@ -47,7 +47,7 @@ def fixed_answer_classifier(logits: list[float]):  # type: ignore[no-untyped-def
     """A classifier whose probabilities are softmax(logits) whatever the cloud."""
     import torch
 
-    net = tiny_classifier()
+    net = tiny_classifier(classes=len(logits))
     with torch.no_grad():
         net.classifier.out.weight.zero_()
         net.classifier.out.bias.copy_(torch.tensor(logits))
