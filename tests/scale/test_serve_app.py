@@ -120,10 +120,14 @@ def test_both_replicas_answer_within_the_budget(url: str, points: list) -> None:
     assert {r.status_code for r in replies} <= {200, 503}
     refused = [r for r in replies if r.status_code == 503]
     assert all(r.json()["kind"] == "overloaded" and "retry-after" in r.headers for r in refused)
+    # Ray's router spreads the requests: each replica answers several (a reply of each kind
+    # names the replica that sent it), and each gives poses.
+    answered = [r.headers[REPLICA] for r in replies]
+    assert len(set(answered)) == 2 and min(map(answered.count, set(answered))) >= 4, answered
     replies = [r for r in replies if r.status_code == 200]
     assert len(replies) >= 10 and all(r.json()["iterations"] >= 1 for r in replies)
     served = [r.headers[REPLICA] for r in replies]
-    assert len(set(served)) == 2 and min(map(served.count, set(served))) >= 2
+    assert len(set(served)) == 2, (served, [r.headers[REPLICA] for r in refused])
     elapsed = np.array([r.json()["elapsed_ms"] for r in replies])
     assert np.percentile(elapsed, 90) <= budget_ms + margin_ms, np.sort(elapsed)[-10:]
     assert elapsed.max() <= budget_ms + 4 * margin_ms, np.sort(elapsed)[-10:]
