@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 from itnet.cli import app
 
 
+@pytest.mark.timing  # replies counted in a 0.3 s window, four clients at once
 def test_bench_prints_a_row_per_model_and_shape_and_the_loop_overhead(tiny_model_dir) -> None:
     result = CliRunner().invoke(
         app, ["bench", "--model-dir", str(tiny_model_dir), "--repeats", "3", "--clients", "1,4",
