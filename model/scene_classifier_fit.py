@@ -21,6 +21,7 @@ The file names the classifier's graphs by their SHA-256, so it serves only them.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -53,12 +54,14 @@ from itnet.scene.scene_classifier import (
 )
 from itnet.scene.segment import segment
 
+PROGRESS_EVERY = 500  # scenes between two progress lines
 PRECISION = 0.95  # the threshold: the lowest at which this share of the answers above it is right
 
 
 def scene_samples(
     shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False,
     distractors: int = 0, sensors: tuple[str | None, ...] = (None,), no_one_object: bool = False,
+    name: str = "scenes",
 ) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
     """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
     view; ``distractors``: up to this many things of no category among the objects;
@@ -66,10 +69,15 @@ def scene_samples(
     structured-light noise; ``make_scene``); ``no_one_object``: a cluster half of whose points
     belong to no one object or thing (a piece of wall, two objects joined) counts as ``OTHER``)
     -> the features (S, F) of every cluster the segmentation found and matched to a scene
-    object or thing, and those objects' categories (``OTHER`` for a thing) (S,)."""
+    object or thing, and those objects' categories (``OTHER`` for a thing) (S,). A line on
+    stderr every ``PROGRESS_EVERY`` scenes, ``name`` first."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
-    for _ in range(scenes):
+    started = time.perf_counter()
+    for k in range(scenes):
+        if k and k % PROGRESS_EVERY == 0:
+            print(f"{name}: {k} of {scenes} scenes, {len(labels)} clusters, "
+                  f"{time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
         sensor = sensors[int(rng.integers(len(sensors)))] if len(sensors) > 1 else sensors[0]
         scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off,
                            distractors=distractors, sensor=sensor)  # fmt: skip
@@ -200,17 +208,18 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
         mixed = config.no_one_object
         x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog,
                                distractors=config.distractors, sensors=config.cameras(),
-                               no_one_object=mixed)  # fmt: skip
+                               no_one_object=mixed, name="held-out scenes")  # fmt: skip
         x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog,
                                distractors=config.distractors, sensors=config.cameras(),
-                               no_one_object=mixed)  # fmt: skip
+                               no_one_object=mixed, name="training scenes")  # fmt: skip
         x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True,
-                               no_one_object=mixed)  # fmt: skip
+                               no_one_object=mixed, name="cut-off scenes")  # fmt: skip
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
         shapes = split_shapes(config.data, "validation", config.cache)
-        return scene_samples(shapes, config.threshold_scenes, config.threshold_seed, catalog)
+        return scene_samples(shapes, config.threshold_scenes, config.threshold_seed, catalog,
+                             name="validation scenes")  # fmt: skip
 
     features, labels = cached(config.samples, fitting_samples)
     classes = tuple(sorted(set(labels)))
