@@ -64,7 +64,8 @@ ROOM_UP = (0.0, 0.0, 1.0)  # make_room's frame
 
 
 def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
-    """One row per scene object and per unmatched returned object: matched, right, errors."""
+    """One row per scene object (``object``: its index in the scene, from 1) and per unmatched
+    returned object: matched, right, errors."""
     count = len(scene.objects)
     sizes = np.bincount(scene.labels.ravel(), minlength=count + len(scene.others) + 1)
     pairs = matched_objects(
@@ -82,7 +83,7 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
         taken_obj.add(i)
         taken_truth.add(k)
         truth, obj = scene.objects[k - 1], result.objects[i]
-        row = {"kind": "object", "category": truth.category, "found": True,
+        row = {"kind": "object", "object": k, "category": truth.category, "found": True,
                "predicted": obj.category, "probability": obj.probability,
                "unknown": obj.unknown, "visible": bool(sizes[k] >= min_pixels)}  # fmt: skip
         if obj.pose is not None and obj.category == truth.category:
@@ -97,7 +98,7 @@ def match(result: SceneResult, scene: Scene, min_pixels: int) -> list[dict]:
         rows.append(row)
     for k in range(1, len(scene.objects) + 1):
         if k not in taken_truth:
-            rows.append({"kind": "object", "category": scene.objects[k - 1].category,
+            rows.append({"kind": "object", "object": k, "category": scene.objects[k - 1].category,
                          "found": False, "right": False, "visible": bool(sizes[k] >= min_pixels)})  # fmt: skip
     rows += [{"kind": "false" if result.objects[i].category is not None else "unknown",
               "predicted": result.objects[i].category,
@@ -264,7 +265,7 @@ def main(argv: list[str] | None = None) -> None:
             start = time.perf_counter()
             result = find_objects(from_png(png, scene.intrinsics), started=start, **budget)
         times.append((time.perf_counter() - start) * 1e3)
-        rows += match(result, scene, args.min_pixels)
+        rows += [{"scene": s, **row} for row in match(result, scene, args.min_pixels)]
         returned += len(result.objects)
         if not args.no_large and not args.room_views:
             big = large_scene(shapes, seed, s, **kind)
@@ -272,7 +273,7 @@ def main(argv: list[str] | None = None) -> None:
             start = time.perf_counter()
             result = find_objects(from_png(png, big.intrinsics), started=start, **budget)
             times_large.append((time.perf_counter() - start) * 1e3)
-            rows_large += match(result, big, 4 * args.min_pixels)
+            rows_large += [{"scene": s, **row} for row in match(result, big, 4 * args.min_pixels)]
             returned_large += len(result.objects)
     report = {
         "split": args.split, "scenes": args.scenes, "seed": seed, "touching": args.touching,

@@ -44,6 +44,9 @@ def test_a_level_camera_s_scenes_of_the_categories_drawn(data: Path, tmp_path: P
     objects = [row for row in report["rows"] if row["kind"] == "object"]
     assert 3 <= len(objects) <= 6
     assert {row["category"] for row in objects} <= {"chair", "toilet"}
+    assert {(row["scene"], row["object"]) for row in objects} <= {
+        (s, k) for s in range(3) for k in (1, 2)
+    }  # what pairs two runs' objects (benchmarks.compare_scenes)
     size = report["320x240"]
     assert size["found"]["of"] == sum(row["visible"] for row in objects)
     assert 0 <= size["right"]["count"] <= size["found"]["count"] <= size["found"]["of"]
@@ -93,3 +96,27 @@ def test_categories_without_scenes_are_refused(data: Path, tmp_path: Path) -> No
     with pytest.raises(SystemExit):
         bench_scene.main(["--split", "validation", "--scenes", "1", "--data", str(data),
                           "--scene-classifier", str(tmp_path / "none.json")])  # fmt: skip
+
+
+def test_two_runs_compare_object_by_object() -> None:
+    """Rows name their scene and object, so two runs on the same scenes pair up; other scenes
+    are refused."""
+    from benchmarks.compare_scenes import compare
+
+    def obj(scene: int, k: int, right: bool, found: bool = True, named: str | None = "chair"):
+        return {"kind": "object", "scene": scene, "object": k, "category": "chair",
+                "visible": True, "found": found, "right": right, "predicted": named}  # fmt: skip
+
+    first = [obj(0, 1, True), obj(0, 2, False), obj(1, 1, False, False, None),
+             {"kind": "false", "scene": 1, "predicted": "table"}]  # fmt: skip
+    second = [obj(0, 2, True), obj(0, 1, True), obj(1, 1, False, True, "sofa"),
+              {"kind": "unknown", "scene": 1, "predicted": None},
+              {"kind": "distractor", "scene": 0, "predicted": "bed"}]  # fmt: skip
+    c = compare(first, second)
+    assert c["objects"] == 3
+    assert c["right"]["first"] == 33.3 and c["right"]["second"] == 66.7
+    assert c["right"]["gain"] == 33.3 and c["right"]["gain_stderr"] == 33.3
+    assert c["found"]["gain"] == 33.3 and c["named"]["gain"] == 0.0
+    assert c["false"] == [1, 1] and c["unknown"] == [0, 1]
+    with pytest.raises(ValueError, match="same scenes"):
+        compare(first, second[:2])
