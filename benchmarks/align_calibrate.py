@@ -40,13 +40,16 @@ SURE = (0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
 
 def collect(catalog: Catalog, category: str, generator: str, pairs: int, seed: int,
             data: Path, budget_ms: float, ensemble: int | None = None,
-            candidates: int = 6, finalists: int = 3, refine: bool = True) -> list[dict]:  # fmt: skip
+            candidates: int = 6, finalists: int = 3, refine: bool = True,
+            schedule: bool | None = None) -> list[dict]:  # fmt: skip
     """Every pair's judged candidates: evidence, right or not, composed or rival (``refine``:
-    each refined by ICP, as ``itnet-align`` judges them with open3d; else as without it)."""
+    each refined by ICP, as ``itnet-align`` judges them with open3d; else as without it;
+    ``schedule``: the poses on the card's schedule, as the alignment's request asks)."""
     model = catalog.model(category)
     card = model.card
     estimate = in_process_estimator(
-        catalog, PoseRequest(model=category, budget_ms=budget_ms, ensemble=ensemble)
+        catalog,
+        PoseRequest(model=category, budget_ms=budget_ms, ensemble=ensemble, schedule=schedule),
     )
     options = AlignOptions(symmetry=rival_turns(card.category, card.symmetry),
                            refine=refine, sure=2.0, candidates=candidates,
@@ -101,6 +104,9 @@ def main() -> None:
         default=None,
         help="runs fused into each cloud's pose (default: the alignment's)",
     )
+    parser.add_argument("--schedule", choices=("on", "off"), default=None,
+                        help="each pose on its card's schedule or on every step (default: as "
+                        "itnet-align asks)")  # fmt: skip
     parser.add_argument("--candidates", type=int, default=6, help="rivals judged a pair")
     parser.add_argument("--finalists", type=int, default=3, help="rivals ICP finishes")
     parser.add_argument("--records", type=Path, default=ROOT / "runs/align_calibration.json",
@@ -123,7 +129,7 @@ def main() -> None:
             start = time.perf_counter()
             got = collect(catalog, category, generator, args.pairs, args.seed, args.data,
                           args.budget_ms, args.ensemble, args.candidates, args.finalists,
-                          refine)  # fmt: skip
+                          refine, None if args.schedule is None else args.schedule == "on")  # fmt: skip
             records += got
             right = np.mean([r["right"][0] for r in got])
             print(f"{category:8s} {_group(got[0]):20s} {len(got)} pairs, composed right "
