@@ -121,12 +121,18 @@ def centre_errors(pose: np.ndarray, truth: SceneObjectTruth) -> dict[str, float]
             "centre_z": float(z), "centre_far": float(error @ ray / np.linalg.norm(ray))}  # fmt: skip
 
 
+def false_answers(rows: list[dict]) -> int:
+    """Named answers that match no object, and things of no category named."""
+    return sum(r["kind"] == "false" or (r["kind"] == "distractor" and r["predicted"] is not None)
+               for r in rows)  # fmt: skip
+
+
 def summary(rows: list[dict], returned: int) -> dict:
     """Percentages with binomial standard errors."""
     objects = [r for r in rows if r["kind"] == "object" and r["visible"]]
     distractors = [r for r in rows if r["kind"] == "distractor"]
     named_distractors = sum(r["predicted"] is not None for r in distractors)
-    false = sum(r["kind"] == "false" for r in rows) + named_distractors
+    false = false_answers(rows)
     unknown = sum(r["kind"] == "unknown" for r in rows)
     unknown_found = sum(r["found"] and r.get("predicted") is None for r in objects)
 

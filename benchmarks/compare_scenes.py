@@ -20,17 +20,14 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.bench_scene import false_answers
+from itnet.metrics import paired_accuracy
+
 SIZES = {"rows": "320x240", "rows_640x480": "640x480"}
 
 
 def _objects(rows: list[dict]) -> dict[tuple[int, int], dict]:
     return {(r["scene"], r["object"]): r for r in rows if r["kind"] == "object" and r["visible"]}
-
-
-def false_answers(rows: list[dict]) -> int:
-    """Named answers that match no object, and things of no category named."""
-    return sum(r["kind"] == "false" or (r["kind"] == "distractor" and r["predicted"] is not None)
-               for r in rows)  # fmt: skip
 
 
 def compare(first: list[dict], second: list[dict]) -> dict[str, Any]:
@@ -49,11 +46,9 @@ def compare(first: list[dict], second: list[dict]) -> dict[str, Any]:
     }
     for name, of in measures.items():
         x = np.array([of(a[k]) for k in keys], dtype=float)
-        y = np.array([of(b[k]) for k in keys], dtype=float)
-        d = y - x
-        stderr = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
-        out[name] = {"first": round(100 * float(x.mean()), 1), "second": round(100 * float(y.mean()), 1),
-                     "gain": round(100 * float(d.mean()), 1), "gain_stderr": round(100 * stderr, 1)}  # fmt: skip
+        paired = paired_accuracy([of(b[k]) for k in keys], x)
+        out[name] = {"first": round(100 * float(x.mean()), 1), "second": paired["accuracy"],
+                     "gain": paired["gain"], "gain_stderr": paired["gain_stderr"]}  # fmt: skip
     out["false"] = [false_answers(first), false_answers(second)]
     out["unknown"] = [sum(r["kind"] == "unknown" for r in rows) for rows in (first, second)]
     return out
