@@ -2,12 +2,15 @@
 
 Development scenes (``itnet.model.scenes``, desks among them) of the pose models' training
 shapes, half of them with their objects standing against each other (``touching``), are
-rendered at 320x240 and segmented as served but without cuts. Each cluster's candidate cuts
+rendered at 320x240 and segmented as served but without cuts; as many again are seen by a depth
+camera's sensor model (``sensor``, default the Kinect v2), with things of no category among the
+objects and the wall right behind them, since a real camera's noise, holes and flying pixels
+change what a cut's strip holds. Each cluster's candidate cuts
 (``cut_candidates``) are samples: ``two`` where the cluster holds two or more objects (each at
 least 15% of its points) and the cut leaves at least 90% of each side's points to one object,
 else ``one``. A network of one hidden layer is fitted to them (``fit_network``). Its threshold
 is the lowest at which at most 0.5% of the clusters of ordinary validation scenes (every object
-apart from the others) would be cut::
+apart from the others; the usual ones and the camera's) would be cut::
 
     itnet fit touching-cut                  # writes the shipped file
 
@@ -19,6 +22,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,16 +40,17 @@ MAX_CUT_SHARE = 0.005  # of ordinary validation clusters: the threshold's rule
 
 
 def cut_samples(
-    shapes: dict, scenes: int, seed: int, touching: bool
+    shapes: dict, scenes: int, seed: int, touching: bool, **kind: Any
 ) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
-    """``scenes`` scenes of ``shapes`` -> every candidate cut's features (S, F) of every cluster
-    the segmentation found, and its label: ``CLUSTER:LABEL`` (the cluster's running number in
-    these samples, and ``one`` or ``two``)."""
+    """``scenes`` scenes of ``shapes`` (``make_scene``'s ``kind`` beside ``touching``: a
+    sensor, distractors, ...) -> every candidate cut's features (S, F) of every cluster the
+    segmentation found, and its label: ``CLUSTER:LABEL`` (the cluster's running number in these
+    samples, and ``one`` or ``two``)."""
     rng = np.random.default_rng(seed)
     features, labels = [], []
     cluster = 0
     for _ in range(scenes):
-        scene = make_scene(shapes, rng, touching=touching, categories=WITH_DESKS)
+        scene = make_scene(shapes, rng, touching=touching, **{"categories": WITH_DESKS, **kind})
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points, SegmentOptions(split_touching=False))
         if found.floor is None:
@@ -62,6 +67,27 @@ def cut_samples(
                 labels.append(f"{cluster}:{'two' if two else 'one'}")
             cluster += 1
     return np.array(features), labels
+
+
+def sensor_kind(sensor: str) -> dict[str, Any]:
+    """The scenes a camera's fitting samples come from: seen by ``sensor``, with things of no
+    category among the objects and the wall right behind the farthest, as a real room is."""
+    return {"sensor": sensor, "distractors": 2, "against_wall": True}
+
+
+def fitting_kinds(sensor: str | None) -> list[tuple[bool, dict[str, Any]]]:
+    """The kinds of scenes the judge is fitted on, in order (each ``seed`` + its place): objects
+    touching and apart, and the same seen by ``sensor`` where given."""
+    kinds: list[tuple[bool, dict[str, Any]]] = [(True, {}), (False, {})]
+    if sensor is not None:
+        kinds += [(True, sensor_kind(sensor)), (False, sensor_kind(sensor))]
+    return kinds
+
+
+def joined(parts: list[tuple[NDArray[np.float64], list[str]]]) -> tuple[NDArray, list[str]]:
+    """Several ``cut_samples`` -> one, each part's clusters numbered apart (``P.CLUSTER:LABEL``)."""
+    features = np.concatenate([x for x, _ in parts])
+    return features, [f"{p}.{label}" for p, (_, labels) in enumerate(parts) for label in labels]
 
 
 def cut_threshold(judge: CutJudge, features: NDArray, labels: list[str]) -> tuple[float, int]:
@@ -92,6 +118,12 @@ class TouchingCutFit(FeatureFitConfig):
         default=300, ge=1, description="ordinary validation scenes the threshold is chosen on"
     )
     threshold_seed: int = Field(default=32, description="their seed")
+    sensor: str | None = Field(
+        default="kinect_v2",
+        description="as many scenes again of each kind seen by this camera (with things of no "
+        "category and a wall behind), for the fit and the threshold; none: only the usual "
+        "scenes' structured-light noise",
+    )
     out: Path = Field(default=FILE, description="the file written (default: the shipped one)")
 
 
@@ -102,13 +134,14 @@ def fit_cut_judge(config: TouchingCutFit) -> CutJudge:
 
     def fitting_samples() -> tuple[NDArray[np.float64], list[str]]:
         shapes = split_shapes(config.data, FIT_SPLIT, config.cache)
-        x1, y1 = cut_samples(shapes, config.scenes, config.seed, touching=True)
-        x2, y2 = cut_samples(shapes, config.scenes, config.seed + 1, touching=False)
-        return np.concatenate([x1, x2]), y1 + y2
+        return joined([cut_samples(shapes, config.scenes, config.seed + k, touching, **kind)
+                       for k, (touching, kind) in enumerate(fitting_kinds(config.sensor))])  # fmt: skip
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
         shapes = split_shapes(config.data, "validation", config.cache)
-        return cut_samples(shapes, config.threshold_scenes, config.threshold_seed, touching=False)
+        kinds = [{}] if config.sensor is None else [{}, sensor_kind(config.sensor)]
+        return joined([cut_samples(shapes, config.threshold_scenes, config.threshold_seed + k,
+                                   touching=False, **kind) for k, kind in enumerate(kinds)])  # fmt: skip
 
     features, labels = cached(config.samples, fitting_samples)
     kinds = [label.split(":")[1] for label in labels]
@@ -119,13 +152,15 @@ def fit_cut_judge(config: TouchingCutFit) -> CutJudge:
     x, y = cached(config.threshold_samples, threshold_samples)
     threshold, clusters = cut_threshold(judge, x, y)
     fit = {
-        "scenes": {FIT_SPLIT: [config.scenes, config.seed, "touching"],
-                   f"{FIT_SPLIT} apart": [config.scenes, config.seed + 1]},
+        "scenes": [{"split": FIT_SPLIT, "scenes": config.scenes, "seed": config.seed + k,
+                    "touching": touching, **kind}
+                   for k, (touching, kind) in enumerate(fitting_kinds(config.sensor))],
         "cuts": {c: kinds.count(c) for c in CLASSES},
         "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
                     "epochs": config.epochs},
         "threshold": {"most_cut": MAX_CUT_SHARE, "validation_scenes": config.threshold_scenes,
-                      "seed": config.threshold_seed, "clusters": clusters},
+                      "seed": config.threshold_seed, "sensor": config.sensor,
+                      "clusters": clusters},
         "command": "itnet fit touching-cut",
     }  # fmt: skip
     fitted = replace(judge, threshold=threshold, fit=fit)

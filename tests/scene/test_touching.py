@@ -136,6 +136,24 @@ def test_the_threshold_cuts_at_most_its_share_of_one_object_clusters() -> None:
     assert (best >= threshold).sum() <= 2 < (best >= threshold - 1e-3).sum()
 
 
+def test_samples_of_several_kinds_of_scenes_keep_their_clusters_apart() -> None:
+    """Each kind's clusters are numbered from 0: joined, cluster 0 of the usual scenes and
+    cluster 0 of the camera's are two clusters for the threshold; the fit's kinds are the usual
+    scenes touching and apart, then the same by the camera, with things and a wall."""
+    usual = (np.zeros((3, 2)), ["0:one", "0:one", "1:two"])
+    camera = (np.ones((2, 2)), ["0:one", "1:one"])
+    features, labels = touching_cut_fit.joined([usual, camera])
+    assert features.shape == (5, 2) and labels[3] == "1.0:one"
+    judge = CutJudge(FeatureNetwork(np.zeros(2), np.ones(2), np.array([[1.0], [0.0]]),
+                                    np.zeros(1), np.array([[-4.0, 4.0]]), np.zeros(2)), 1.0, {})  # fmt: skip
+    assert touching_cut_fit.cut_threshold(judge, features, labels)[1] == 3  # 0.0, 1.0, 1.1
+    assert touching_cut_fit.fitting_kinds(None) == [(True, {}), (False, {})]
+    by_camera = touching_cut_fit.fitting_kinds("kinect_v2")[2:]
+    assert [t for t, _ in by_camera] == [True, False]
+    assert all(k["sensor"] == "kinect_v2" and k["distractors"] and k["against_wall"]
+               for _, k in by_camera)  # fmt: skip
+
+
 def test_the_fit_learns_which_cuts_part_two_objects(tmp_path: Path) -> None:
     rng = np.random.default_rng(3)
     two = rng.random(1200) < 0.3
