@@ -26,10 +26,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from itnet.model.feature_network_fit import FeatureFitConfig, cached, fit_network, write_fitted
 from itnet.model.scenes import FIT_SPLIT, WITH_DESKS, make_scene, split_shapes
+from itnet.model.sensor import SENSORS
 from itnet.scene.inputs import from_depth
 from itnet.scene.segment import SegmentOptions, segment
 from itnet.scene.touching import CLASSES, FILE, CutJudge, cut_candidates
@@ -125,6 +126,15 @@ class TouchingCutFit(FeatureFitConfig):
         "scenes' structured-light noise",
     )
     out: Path = Field(default=FILE, description="the file written (default: the shipped one)")
+
+    @field_validator("sensor")
+    @classmethod
+    def _known_sensor(cls, value: str | None) -> str | None:
+        if value is None or value == "none":
+            return None
+        if value not in SENSORS:
+            raise ValueError(f"unknown camera {value!r} (known: {', '.join(SENSORS)}, none)")
+        return value
 
 
 def fit_cut_judge(config: TouchingCutFit) -> CutJudge:

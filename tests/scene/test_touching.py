@@ -152,6 +152,10 @@ def test_samples_of_several_kinds_of_scenes_keep_their_clusters_apart() -> None:
     assert [t for t, _ in by_camera] == [True, False]
     assert all(k["sensor"] == "kinect_v2" and k["distractors"] and k["against_wall"]
                for _, k in by_camera)  # fmt: skip
+    assert touching_cut_fit.TouchingCutFit().sensor == "kinect_v2"
+    assert touching_cut_fit.TouchingCutFit(sensor="none").sensor is None
+    with pytest.raises(ValueError, match="unknown camera"):
+        touching_cut_fit.TouchingCutFit(sensor="kinect_v9")
 
 
 def test_the_fit_learns_which_cuts_part_two_objects(tmp_path: Path) -> None:
