@@ -149,9 +149,9 @@ def fit_cut_judge(config: TouchingCutFit) -> CutJudge:
 
     def threshold_samples() -> tuple[NDArray[np.float64], list[str]]:
         shapes = split_shapes(config.data, "validation", config.cache)
-        kinds = [{}] if config.sensor is None else [{}, sensor_kind(config.sensor)]
+        apart = [kind for touching, kind in fitting_kinds(config.sensor) if not touching]
         return joined([cut_samples(shapes, config.threshold_scenes, config.threshold_seed + k,
-                                   touching=False, **kind) for k, kind in enumerate(kinds)])  # fmt: skip
+                                   touching=False, **kind) for k, kind in enumerate(apart)])  # fmt: skip
 
     features, labels = cached(config.samples, fitting_samples)
     kinds = [label.split(":")[1] for label in labels]

@@ -79,7 +79,7 @@ def named_right(views: list[View], model_dir: Path | None, pose: bool) -> NDArra
     within 10 degrees (its category's symmetric turns alike) and 0.1 of its radius."""
     from itnet.scene.posing import scene_catalog
 
-    catalog = scene_catalog(model_dir) if model_dir is not None else scene_catalog()
+    catalog = scene_catalog(model_dir)
     assert catalog.classifier is not None
     right = []
     for _, name, cloud, up, truth, radius in views:
