@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from itnet.basin import canonical_points
 from itnet.geometry import axis_angle_to_matrix, random_rotation, viewing_axis_turns
@@ -52,7 +52,11 @@ class VerifierConfig(BaseModel):
     category: str = "chair"
     pose_model: Path = Field(description="the exported pose model whose runs it learns from")
     views: int = Field(8, ge=1, description="scans of each training shape, per view rule")
-    scanners: list[str] = ["paper", "occluded", "surface"]
+    scanners: list[str] = Field(
+        ["paper", "occluded", "surface"],
+        description="view rules: RULE, RULE+SENSOR (by a depth camera, at the category's real "
+        "sizes) or RULE+SENSOR+crop (cut out of a room)",
+    )
     ensemble: int = Field(8, ge=1, description="runs per scan, from turned starts")
     points: int = Field(256, ge=16, description="points of a run the verifier sees")
     steps: int = Field(4000, ge=1)
@@ -72,6 +76,15 @@ class VerifierConfig(BaseModel):
     threads: int = 2
     data: Path = Path("../shared/data/modelnet10")
     cache: Path = Path("cache")
+
+    @field_validator("scanners")
+    @classmethod
+    def _known_views(cls, scanners: list[str]) -> list[str]:
+        from itnet.model.scanner import view_name_parts
+
+        for name in scanners:
+            view_name_parts(name)  # ValueError: an unknown rule or camera
+        return scanners
 
 
 @dataclass
@@ -139,7 +152,7 @@ def training_runs(
     that shape them)."""
     from itnet.model.categories import category
     from itnet.model.category_set import training_scans
-    from itnet.model.scanner import VIEW_RULES, scan_config
+    from itnet.model.scanner import named_views
 
     cat = category(config.category, model.card.symmetry)
     digest = hashlib.sha256(config.pose_model.read_bytes()).hexdigest()[:12]
@@ -157,7 +170,7 @@ def training_runs(
         started = time.perf_counter()
         scans = training_scans(
             config.data, cat, views=config.views, seed=config.seed + 101 + index,
-            scan=scan_config(VIEW_RULES[scanner]), cache=config.cache,
+            scan=named_views(scanner, config.category), cache=config.cache,
         )  # fmt: skip
         runs = pose_runs(model, scans, config.ensemble, config.points, config.seed, up_error)
         config.cache.mkdir(parents=True, exist_ok=True)

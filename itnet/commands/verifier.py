@@ -17,7 +17,11 @@ def verifier_train(
     steps: int = typer.Option(4000, min=1),
     batch: int = typer.Option(128, min=2),
     views: int = typer.Option(8, min=1, help="Scans of each training shape, per view rule."),
-    scanners: str = typer.Option("paper,occluded,surface", help="View rules, comma-separated."),
+    scanners: str = typer.Option(
+        "paper,occluded,surface",
+        help="View rules, comma-separated: RULE, RULE+SENSOR (occluded+kinect_v2: by a depth "
+        "camera, at the category's real sizes), RULE+SENSOR+crop (cut out of a room).",
+    ),
     ensemble: int = typer.Option(8, min=1, max=16, help="Runs per scan, from turned starts."),
     synthetic: float = typer.Option(
         0.5, min=0.0, max=1.0, help="Share of each batch that is the truth knocked off."
@@ -36,6 +40,8 @@ def verifier_train(
     """Run the pose model on the category's training shapes as the engine fuses runs, and
     train a PointNet to tell its right runs (< 15 degrees) from its wrong ones (> 25) by how
     the cloud looks where each run puts it. The validation shapes are not touched."""
+    from pydantic import ValidationError
+
     from itnet.model.verifier import VerifierConfig, train_verifier
     from itnet.pose.runtime import ModelLoadError, load_model
 
@@ -44,11 +50,16 @@ def verifier_train(
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
-    config = VerifierConfig(
-        category=category or card.category, pose_model=pose_model, steps=steps, batch=batch,
-        views=views, scanners=[s for s in scanners.split(",") if s], ensemble=ensemble,
-        synthetic=synthetic, up_error_deg=up_error_deg, threads=threads, data=data, cache=cache,
-    )  # fmt: skip
+    try:
+        config = VerifierConfig(
+            category=category or card.category, pose_model=pose_model, steps=steps, batch=batch,
+            views=views, scanners=[s for s in scanners.split(",") if s], ensemble=ensemble,
+            synthetic=synthetic, up_error_deg=up_error_deg, threads=threads, data=data,
+            cache=cache,
+        )  # fmt: skip
+    except ValidationError as err:
+        typer.echo(f"error: --scanners: {err.errors()[0]['msg']}", err=True)
+        raise typer.Exit(2) from None
     path = train_verifier(config, out, log=lambda line: typer.echo(line, err=True))
     typer.echo(str(path))
 

@@ -22,6 +22,8 @@ from itnet.pose.runtime import LoadedVerifier, ModelLoadError, load_all, load_an
 from itnet.preprocess import pose_from_normalized
 from tests.pose_runs import run_with
 
+SHIPPED = Path(__file__).resolve().parents[2] / "itnet" / "models"
+
 runner = CliRunner()
 
 
@@ -130,7 +132,8 @@ def test_runs_of_a_model_that_requires_up_are_held_upright(make_net, tmp_path, r
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory, make_net):  # type: ignore[no-untyped-def]
-    """A tiny pose model of bathtubs, its verifier trained 30 steps by the command, exported."""
+    """A tiny pose model of bathtubs, its verifier trained 30 steps by the command on clean views
+    and views by a Kinect v2, exported."""
     from modelnet_tree import write_modelnet_tree
     from test_centre_fit_cli import _tub
 
@@ -147,7 +150,7 @@ def trained(tmp_path_factory, make_net):  # type: ignore[no-untyped-def]
     export_step(make_net(), card, models / "tub.onnx")
     args = ["verifier-train", "--pose-model", str(models / "tub.onnx"), "--out",
             str(root / "run"), "--steps", "30", "--batch", "16", "--views", "1", "--scanners",
-            "paper", "--ensemble", "2", "--data", str(data), "--cache", str(root / "cache")]  # fmt: skip
+            "paper,paper+kinect_v2", "--ensemble", "2", "--data", str(data), "--cache", str(root / "cache")]  # fmt: skip
     done = runner.invoke(app, args)
     assert done.exit_code == 0, done.output
     exported = runner.invoke(app, ["verifier-export", str(root / "run" / "verifier.pt"),
@@ -163,17 +166,28 @@ def test_the_command_trains_on_the_runs_and_the_export_scores_as_the_network(tra
     rows = [json.loads(line) for line in (root / "run" / "log.jsonl").read_text().splitlines()]
     assert rows[-1]["step"] == 30 and np.isfinite(rows[-1]["loss"])
     assert list((root / "cache").glob("verifier-runs-*-bathtub-paper-1-2-*.npz"))
+    assert list((root / "cache").glob("verifier-runs-*-bathtub-paper+kinect_v2-1-2-*.npz"))
     loaded = load_any(models / "tub-verifier.onnx", warm_up=True)
     assert isinstance(loaded, LoadedVerifier) and loaded.score_ms > 0
     assert loaded.card.category == "bathtub" and loaded.card.trained_on == "tub.onnx"
     net, config = load_verifier(root / "run" / "verifier.pt")
-    assert config.ensemble == 2 and config.scanners == ["paper"]
+    assert config.ensemble == 2 and config.scanners == ["paper", "paper+kinect_v2"]
     x = np.random.default_rng(0).normal(size=(5, 100, 3)).astype(np.float32)
     with torch.no_grad():
         expected = net(torch.from_numpy(x))[:, 0].numpy()
     assert np.allclose(loaded.scores(x), expected, atol=1e-4)
     refused = runner.invoke(app, ["card", str(models / "tub-verifier.onnx"), "--verify-fused"])
     assert refused.exit_code == 2 and "verifier-export" in refused.stderr
+
+
+def test_an_unknown_view_rule_or_camera_is_refused_before_any_run(tmp_path):
+    for scanners, said in (("paper,sideways", "unknown view rule 'sideways'"),
+                           ("paper+kinect_9", "unknown sensor 'kinect_9'")):  # fmt: skip
+        refused = runner.invoke(app, ["verifier-train", "--pose-model",
+                                      str(SHIPPED / "chair.onnx"), "--out", str(tmp_path / "run"),
+                                      "--scanners", scanners])  # fmt: skip
+        assert refused.exit_code == 2 and said in refused.stderr
+        assert not (tmp_path / "run").exists()
 
 
 def test_verify_anchors_on_the_likeliest_run_without_the_probes(trained, monkeypatch):
