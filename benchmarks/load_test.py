@@ -11,14 +11,14 @@
 Starts a real ``itnet serve`` (uvicorn, the CLI's settings) on a free loopback port, then for
 each client count runs that many closed-loop clients (each sends its next request as soon as its
 last reply is in) for ``--duration-s`` seconds or ``--max-requests`` requests, whichever comes
-first (the rates count the time the row ran). Every request is a JSON cloud of ``--points`` points with ``budget_ms``. The clients run
-in processes of their own, ``--per-process`` to a process (one process's event loop driving 64
-clients on the server's cores counted its own queueing as the server's), keep their
-connections (``--fresh``: a new one per request) and honour ``Retry-After`` after a 503
-(``--retry-s 0.01``: retry after 10 ms instead). ``--clients-kind threads`` runs the clients as
-plain scripts do instead: a thread each with a synchronous ``httpx.Client``, all in one process.
-The machine's busy share and the CPU cores
-the server and the clients used are printed with each row.
+first (the rates count the time the row ran). Every request is a JSON cloud of ``--points``
+points with ``budget_ms``. The clients run in processes of their own, ``--per-process`` to a
+process (one process's event loop driving 64 clients on the server's cores counted its own
+queueing as the server's), keep their connections (``--fresh``: a new one per request) and
+honour ``Retry-After`` after a 503 (``--retry-s 0.01``: retry after 10 ms instead).
+``--clients-kind threads`` runs the clients as plain scripts do instead: a thread each with a
+synchronous ``httpx.Client``, all in one process. The machine's busy share and the CPU cores the
+server and the clients used are printed with each row.
 
 Per row: replies by status (200, 503 = refused by the concurrency gate), throughput, client
 round trip p50/p99, the engine's ``elapsed_ms`` (which starts when the request reaches the app)

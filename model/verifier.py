@@ -87,6 +87,10 @@ class VerifierConfig(BaseModel):
         return scanners
 
 
+UPRIGHT_UP_ERROR_DEG = 2.0
+"""How far off the truth the up is that the runs of a model requiring up are held upright on."""
+
+
 @dataclass
 class PoseRuns:
     """K runs of a pose model on S scans: points (S, K, P, 3) and poses (S, K, 4, 4) in each
@@ -187,7 +191,7 @@ def runs_up_error(model: LoadedModel, config: VerifierConfig) -> float | None:
     the pose model requires up, else None (free runs)."""
     if config.up_error_deg is not None:
         return config.up_error_deg
-    return 2.0 if model.card.requires_up else None
+    return UPRIGHT_UP_ERROR_DEG if model.card.requires_up else None
 
 
 def cube_turns() -> NDArray[np.float64]:

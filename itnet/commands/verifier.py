@@ -58,7 +58,9 @@ def verifier_train(
             cache=cache,
         )  # fmt: skip
     except ValidationError as err:
-        typer.echo(f"error: --scanners: {err.errors()[0]['msg']}", err=True)
+        first = err.errors()[0]
+        option = "--" + str(first["loc"][0]).replace("_", "-")
+        typer.echo(f"error: {option}: {first['msg']}", err=True)
         raise typer.Exit(2) from None
     path = train_verifier(config, out, log=lambda line: typer.echo(line, err=True))
     typer.echo(str(path))

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from itnet.basin import canonical_points
+from itnet.basin import canonical_points, likeliest_run
 from itnet.model.categories import category
 from itnet.model.category_set import validation_scans
 from itnet.model.scanner import named_views
-from itnet.model.verifier import pose_runs
+from itnet.model.verifier import UPRIGHT_UP_ERROR_DEG, pose_runs
 from itnet.pose.runtime import LoadedVerifier, load_any, load_model
 
 MODELS = Path(__file__).resolve().parents[2] / "itnet" / "models"
@@ -34,7 +34,7 @@ def chosen_right(verifier: LoadedVerifier, points: np.ndarray, poses: np.ndarray
                  right: np.ndarray) -> float:  # fmt: skip
     """Share of scans whose runs' points (S, K, N, 3) and poses (S, K, 4, 4) the verifier
     anchors on a right run (``right`` (S, K))."""
-    picks = [int(np.argmax(verifier.scores(canonical_points(p, t)))) for p, t in zip(points, poses)]
+    picks = [likeliest_run(verifier.scores(canonical_points(p, t))) for p, t in zip(points, poses)]
     return float(right[np.arange(len(picks)), picks].mean())
 
 
@@ -55,7 +55,7 @@ def main() -> None:
     if not isinstance(shipped, LoadedVerifier) or not isinstance(other, LoadedVerifier | None):
         parser.error("a verifier is an .onnx of itnet verifier-export")
     cat = category(args.category, model.card.symmetry)
-    up_error = 2.0 if model.card.requires_up else None
+    up_error = UPRIGHT_UP_ERROR_DEG if model.card.requires_up else None
     for rule in args.views:
         scans = validation_scans(args.data, cat, views=args.scans_per_shape,
                                  scan=named_views(rule, args.category), cache=args.cache)  # fmt: skip
