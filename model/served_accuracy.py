@@ -116,7 +116,8 @@ def measure(model_path: Path, scanner: str, ensembles: list[int], budget_ms: flo
                 planned = replace(planned, halving=halving)
             if coarse is not None:  # the first coarse[0] steps on at most coarse[1] points
                 planned = replace(planned, coarse=coarse)
-            run = AnytimeRun(planned, cut_out(cloud, request, Limits())[0])  # as served
+            kept, stripped = cut_out(cloud, request, Limits())  # as served
+            run = AnytimeRun(planned, kept, stripped=stripped)
             last = run.run_to_end()
             result = run.result()
             verified.append(result.get("verified"))
