@@ -7,7 +7,7 @@ The steps::
     composed = inv(T_b) · T_a                   # the prior: the two served poses composed
     composed+icp = ICP(composed)                # with refine=True
     p = probability(evidence)                   # ``itnet.alignment.choice``: calibrated
-    if max p < sure or a rival lands            # in doubt: the rivals
+    if max p < sure or a rival lands            # in doubt (both held upright: always): the rivals
             clearly more of A on B (loosely):
         hypotheses = inv(T_b[j]) · S · T_a[i]   # every run of A and of B, every symmetry turn
         rivals = the distinct ones that overlap best, each refined by ICP
@@ -35,7 +35,7 @@ model, and the tests give it estimators that know the truth.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -98,6 +98,9 @@ class CloudEstimateError(Exception):
 # The composed pose at or above this calibrated probability is answered without scoring rivals
 # (docs/align.md: chosen on validation pairs of every generator).
 SURE = 0.9
+# Pairs whose two poses are held upright are always in doubt: the calibration saw none of them,
+# and a box-like object's runs agree on a quarter turn as readily as on the right pose.
+UPRIGHT_SURE = 2.0
 POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses
 DOUBT_LOOSE = 0.1  # a rival landing this much more of A on B (loosely) puts the composed in doubt
 
@@ -307,6 +310,8 @@ def align_clouds(
     judge = _Judge(a, b, np.array([h.T_b_from_a for h in every if not h.turned]), options)
     composed, costs_ms = _composed(every[0], judge, options.refine)
     t_composed = time.perf_counter()
+    if ups[0] is not None and ups[1] is not None:  # both held upright: always in doubt
+        options = replace(options, sure=UPRIGHT_SURE)
     rivals, considered = _rivals(every, composed, judge, options, start, costs_ms)
     hypotheses = [*composed, *rivals]
     chosen = _chosen(hypotheses, len(composed), judge.scale)

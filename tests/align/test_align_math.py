@@ -292,3 +292,21 @@ def test_each_cloud_is_posed_with_its_own_up(rng):
         align_clouds(a, b, estimate, AlignOptions(), up_a=[0, 0, 0])
     with pytest.raises(ValueError, match="candidates"):
         align_clouds(a, b, estimate, AlignOptions(candidates=0))
+
+
+def test_two_poses_held_upright_are_always_in_doubt(rng):
+    """With each cloud's up given, the rivals are judged even where the composed pose is sure:
+    the calibration saw no pair of poses held upright."""
+    obj = asymmetric_object(rng)
+    t_ca, t_cb = random_pose(rng), random_pose(rng)
+    a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
+    estimate = fake_estimator([(a, t_ca), (b, t_cb)], [])
+    plain = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90"))
+    assert plain.probability >= 0.9 and plain.considered == 0
+    ups = (
+        invert_rigid(t_ca)[:3, :3] @ [0.0, 1.0, 0.0],
+        invert_rigid(t_cb)[:3, :3] @ [0.0, 1.0, 0.0],
+    )
+    held = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90"), up_a=ups[0], up_b=ups[1])
+    assert held.considered > 0 and len(held.hypotheses) > 1
+    assert held.chosen == 0 and np.allclose(held.T_b_from_a, relative_pose(t_ca, t_cb), atol=1e-9)
