@@ -40,8 +40,7 @@ def verifier_train(
     """Run the pose model on the category's training shapes as the engine fuses runs, and
     train a PointNet to tell its right runs (< 15 degrees) from its wrong ones (> 25) by how
     the cloud looks where each run puts it. The validation shapes are not touched."""
-    from pydantic import ValidationError
-
+    from itnet.commands.request_options import build_request
     from itnet.model.verifier import VerifierConfig, train_verifier
     from itnet.pose.runtime import ModelLoadError, load_model
 
@@ -50,18 +49,11 @@ def verifier_train(
     except ModelLoadError as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from None
-    try:
-        config = VerifierConfig(
-            category=category or card.category, pose_model=pose_model, steps=steps, batch=batch,
-            views=views, scanners=[s for s in scanners.split(",") if s], ensemble=ensemble,
-            synthetic=synthetic, up_error_deg=up_error_deg, threads=threads, data=data,
-            cache=cache,
-        )  # fmt: skip
-    except ValidationError as err:
-        first = err.errors()[0]
-        option = "--" + str(first["loc"][0]).replace("_", "-")
-        typer.echo(f"error: {option}: {first['msg']}", err=True)
-        raise typer.Exit(2) from None
+    config = build_request(VerifierConfig, dict(
+        category=category or card.category, pose_model=pose_model, steps=steps, batch=batch,
+        views=views, scanners=[s for s in scanners.split(",") if s], ensemble=ensemble,
+        synthetic=synthetic, up_error_deg=up_error_deg, threads=threads, data=data, cache=cache,
+    ))  # fmt: skip
     path = train_verifier(config, out, log=lambda line: typer.echo(line, err=True))
     typer.echo(str(path))
 
