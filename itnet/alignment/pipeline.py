@@ -35,7 +35,7 @@ model, and the tests give it estimators that know the truth.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -98,9 +98,6 @@ class CloudEstimateError(Exception):
 # The composed pose at or above this calibrated probability is answered without scoring rivals
 # (docs/align.md: chosen on validation pairs of every generator).
 SURE = 0.9
-# Pairs whose two poses are held upright are always in doubt: the calibration saw none of them,
-# and a box-like object's runs agree on a quarter turn as readily as on the right pose.
-UPRIGHT_SURE = 2.0
 POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses
 DOUBT_LOOSE = 0.1  # a rival landing this much more of A on B (loosely) puts the composed in doubt
 
@@ -310,9 +307,8 @@ def align_clouds(
     judge = _Judge(a, b, np.array([h.T_b_from_a for h in every if not h.turned]), options)
     composed, costs_ms = _composed(every[0], judge, options.refine)
     t_composed = time.perf_counter()
-    if ups[0] is not None and ups[1] is not None:  # both held upright: always in doubt
-        options = replace(options, sure=UPRIGHT_SURE)
-    rivals, considered = _rivals(every, composed, judge, options, start, costs_ms)
+    upright = ups[0] is not None and ups[1] is not None
+    rivals, considered = _rivals(every, composed, judge, options, start, costs_ms, upright)
     hypotheses = [*composed, *rivals]
     chosen = _chosen(hypotheses, len(composed), judge.scale)
     done = time.perf_counter()
@@ -371,16 +367,20 @@ def _rivals(
     options: AlignOptions,
     start: float,
     costs_ms: tuple[float, float],
+    upright: bool = False,
 ) -> tuple[list[Hypothesis], int]:
     """(the rivals of the composed pose, refined and judged; the hypotheses considered for them,
     0 where none were): looked for only where the composed pose is in doubt and the budget left
-    since ``start`` holds them. ``costs_ms``: the composed pose's ICP and judging times."""
+    since ``start`` holds them. ``costs_ms``: the composed pose's ICP and judging times;
+    ``upright``: both poses were held upright."""
     icp_ms, judge_ms = costs_ms
     # The composed pose is in doubt where it is not likely right, or where a rival lands more of
-    # A on B at the loose distance (a quick count over every hypothesis, before any ICP).
+    # A on B at the loose distance (a quick count over every hypothesis, before any ICP). Two
+    # poses held upright are always in doubt: the calibration saw no such pair, and a box-like
+    # object's runs agree on a quarter turn as readily as on the right pose.
     rest = every[1:] if options.rivals else []
     loose = judge.loose(np.array([h.T_b_from_a for h in rest])) if rest else np.zeros(0)
-    sure = max(h.probability for h in composed) >= options.sure
+    sure = not upright and max(h.probability for h in composed) >= options.sure
     rivalled = bool(len(loose)) and float(loose.max()) > every[0].loose_fitness + DOUBT_LOOSE
     # The rivals cost about the composed pose's ICP for each finalist and half of it (the coarse
     # stage) for each other candidate, and its judging twice (the ranking, the judging).
