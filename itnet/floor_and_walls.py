@@ -15,7 +15,9 @@ direction at the cut-out's edge, and where they are found they go:
   kept, since an object's own front may hold more points than the wall) at the cut-out's far
   side: each holds at least 5% of what is left, at least 30% of what is left lies off it, and
   at most 2% of that more than 5 cm behind it, seen from the sensor (an object's own face has
-  the rest of the object behind it). Everything less than 2.5 cm before it goes.
+  the rest of the object behind it), and what stands before it reaches at least 0.2 m out from
+  it (furniture is that deep; a monitor's flat back, its casing and stand a few centimetres
+  before it, is no wall). Everything less than 2.5 cm before it goes.
 * Each only where it **runs on past the object** (what lies on no floor or wall found) by more
   than 5 cm: the floor at both ends of one direction along it, a wall at either end of its
   width. A chair's seat, a sofa's back or a cabinet's front ends with the object, and stays.
@@ -52,6 +54,7 @@ BELOW_SHARE = 0.02  # ... and the most below it (beyond twice the tolerance)
 WALL_SHARE = 0.05  # the least share of what is left on a wall ...
 OFF_WALL_SHARE = 0.3  # ... and off it ...
 BEHIND_SHARE = 0.02  # ... and the most of that behind it (beyond twice the tolerance)
+DEPTH_M = 0.2  # what stands before a wall reaches at least this far out from it
 WALLS = 2
 WALL_TRIES = 4  # upright planes tried: an object's own face may hold more points than a wall
 LEFT_SHARE = 0.25  # nothing goes where less than this share of the cloud would be left
@@ -171,7 +174,7 @@ def _planes(
     looked = taken.copy()  # planes already tried: found walls, and faces that are none
     walls: list[tuple[Plane, NDArray[np.bool_], NDArray[np.float64]]] = []
     for _ in range(WALL_TRIES):
-        wall = _wall(cloud, ~taken, ~looked, up, sensor, tolerance, rng)
+        wall = _wall(cloud, ~taken, ~looked, up, sensor, metre, rng)
         if wall is None:
             break
         on, facing, along = wall
@@ -244,12 +247,14 @@ def _wall(
     untried: NDArray[np.bool_],
     up: NDArray,
     sensor: NDArray,
-    tolerance: float,
+    metre: float,
     rng: np.random.Generator,
 ) -> tuple[NDArray[np.bool_], Plane | None, NDArray[np.float64]] | None:
     """The likeliest upright plane through the ``untried`` points (N,) of the cloud (N, 3) ->
     (its points (N,), the plane facing the sensor where it is a wall behind the points ``left``
-    (N,) or else None, its level direction (3,)), or None where there is no plane."""
+    (N,) or else None, its level direction (3,)), or None where there is no plane. ``metre``:
+    the cloud's units in a metre."""
+    tolerance = TOLERANCE_M * metre
     upright = math.sin(math.radians(WALL_TILT_DEG))
     found = ransac_plane(
         cloud[untried], rng, tolerance, lambda normals: np.abs(normals @ up) < upright,
@@ -268,6 +273,8 @@ def _wall(
         or on.sum() < WALL_SHARE * left.sum()
         or off.sum() < OFF_WALL_SHARE * left.sum()
         or (off & (before < -2 * tolerance)).sum() > BEHIND_SHARE * off.sum()
+        or not off.any()
+        or np.percentile(before[off], 98) < DEPTH_M * metre
     ):
         return untried & (np.abs(before) < tolerance), None, along
     return on, facing, along

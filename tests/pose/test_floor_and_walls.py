@@ -89,6 +89,28 @@ def test_an_object_alone_keeps_its_seat_its_back_and_its_base():
         assert strip_floor_and_walls(points, UP, [0.0, 0.0, 0.0], 1.0).taken == 0
 
 
+def _monitor_from_behind() -> tuple[np.ndarray, int]:
+    """What the camera sees of a monitor standing 2 m ahead, its back to it -> (points, how many
+    of them are the screen's flat back): the back (0.54 wide), less what the casing hides, the
+    casing's back 7 cm nearer, the stand's neck and the top of its base, which reaches 15 cm
+    out from the screen."""
+    panel = _grid((-0.27, 0.27), (-0.55, -0.22), lambda u, v: (u, v, np.full_like(u, 2.0)))
+    panel = panel[~((np.abs(panel[:, 0]) < 0.15) & (panel[:, 1] > -0.5) & (panel[:, 1] < -0.3))]
+    casing = _grid((-0.15, 0.15), (-0.5, -0.3), lambda u, v: (u, v, np.full_like(u, 1.93)))
+    neck = _grid((-0.03, 0.03), (-0.75, -0.5), lambda u, v: (u, v, np.full_like(u, 1.95)))
+    base = _grid((-0.1, 0.1), (1.85, 2.05), lambda u, v: (u, np.full_like(u, -0.75), v))
+    return np.concatenate([panel, casing, neck, base]), len(panel)
+
+
+def test_a_flat_back_with_a_shallow_object_before_it_is_not_a_wall():
+    points, panel = _monitor_from_behind()
+    assert strip_floor_and_walls(points, UP, [0.0, 0.0, 0.0], 1.0).taken == 0
+    deep = points.copy()  # the same with what stands before it 0.37 m out: the flat back goes
+    deep[panel:, 2] -= np.where(deep[panel:, 1] > -0.75, 0.3, 0.0)
+    before_it = strip_floor_and_walls(deep, UP, [0.0, 0.0, 0.0], 1.0)
+    assert before_it.walls >= panel and before_it.keep[panel:].mean() > 0.95
+
+
 def test_nothing_goes_where_too_little_would_be_left():
     points, _, _ = _cut_out()
     sliver = _cabinet()[::40]
