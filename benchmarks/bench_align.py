@@ -22,7 +22,8 @@ served poses alone, the prior itnet-align must never be worse than (paired, per 
 "composed served poses" composes the poses ``itnet pose --budget-ms 1000 --no-schedule`` serves
 (the card's fused runs, every step).
 ``--up ERROR_DEG`` adds the itnet-align variants given each scan's up direction, tilted by that
-error as a gravity sensor's would be; a model whose card requires up runs only those. Writes
+error as a gravity sensor's would be; a model whose card requires up runs only those
+(``itnet-align --sweep 0 --up``: without the turns about up tried from the composed pose). Writes
 align_benchmark.{md,png,json} to ``--out`` (runs/align by default; the README's is ``--out docs``).
 """
 
@@ -112,6 +113,8 @@ def itnet_methods(
             refine=False,
         ),
         "itnet-align": AlignRequest(budget_ms=budget_ms, refine=True),
+        # with the ups: no turns about up tried from the composed pose
+        "itnet-align --sweep 0": AlignRequest(budget_ms=budget_ms, refine=True, sweep=0),
     }
 
     def method(request: AlignRequest, up: bool) -> Callable:
@@ -131,7 +134,7 @@ def itnet_methods(
 
     out = {}
     for name, request in variants.items():
-        if not model.card.requires_up:
+        if not model.card.requires_up and request.sweep:  # a sweep needs the ups
             out[name] = method(request, False)
         if with_up or model.card.requires_up:
             out[f"{name} --up"] = method(request, True)

@@ -37,7 +37,7 @@ SET: dict[type[RequestModel], dict] = {
                   "units": "mm", "points_per_run": 128, "schedule": False, "strip": False},
     AlignRequest: {"model": "chair", "budget_ms": 80.0, "max_iterations": 5, "starts": 2,
                    "refine": False, "symmetry": "yaw180", "rivals": False, "candidates": 4,
-                   "finalists": 2, "up_a": [0.0, -1.0, 0.0], "up_b": [0.0, 1.0, 0.0],
+                   "finalists": 2, "sweep": 8, "up_a": [0.0, -1.0, 0.0], "up_b": [0.0, 1.0, 0.0],
                    "viewpoint": [0.0, 0.0, 0.0], "units": "m"},
     SceneRequest: {"budget_ms": 400.0, "depth_scale": 5000.0, "up": [0.0, 0.0, 1.0],
                    "floor_centre": False, "along_floor": False, "recheck": False,

@@ -120,6 +120,44 @@ def build_hypotheses(
     return found
 
 
+def spread_order(count: int) -> list[int]:
+    """The steps 0..count-1 of a circle in the order that keeps each new one farthest from
+    those before it (ties: the lowest): 0, count/2, count/4, 3 count/4, ..."""
+    order = [0] if count else []
+    rest = list(range(1, count))
+    while rest:
+        gaps = [min(min(abs(k - j), count - abs(k - j)) for j in order) for k in rest]
+        order.append(rest.pop(int(np.argmax(gaps))))
+    return order
+
+
+def yaw_sweep(
+    composed: ArrayLike, up_b: ArrayLike, centroid_a: ArrayLike, centroid_b: ArrayLike, turns: int
+) -> list[Hypothesis]:
+    """Starts that do not lean on the networks' yaw, for two clouds whose ups are known: the
+    composed pose's rotation (4x4; it already carries A's up onto B's) turned about B's up
+    (3,, unit) by each of ``turns`` equal steps, each shifted to move A's centroid (3,) onto
+    B's -> ``turns`` hypotheses named "sweep yaw{degrees}", marked turned, in an order whose
+    every prefix spreads evenly round the circle (0, 180, 90, 270, ... degrees), so a sweep cut
+    short by its budget still looks all round. A view seen from another side is often one the
+    networks turn wrongly by a few tens of degrees, which no symmetry turn repairs; one of these
+    starts lies within ICP's reach."""
+    u = np.asarray(up_b, dtype=np.float64)
+    rotation = np.asarray(composed, dtype=np.float64)[:3, :3]
+    ca, cb = np.asarray(centroid_a, np.float64), np.asarray(centroid_b, np.float64)
+    cross = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    found = []
+    for k in spread_order(turns):
+        angle = 2.0 * np.pi * k / turns
+        # Rodrigues: the turn by ``angle`` about u
+        turn = np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+        pose = np.eye(4)
+        pose[:3, :3] = turn @ rotation
+        pose[:3, 3] = cb - pose[:3, :3] @ ca
+        found.append(Hypothesis(pose, f"sweep yaw{round(np.degrees(angle))}", turned=True))
+    return found
+
+
 def distinct(
     hypotheses: list[Hypothesis],
     scores: ArrayLike,

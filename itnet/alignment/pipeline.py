@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,6 +48,7 @@ from itnet.alignment.hypotheses import (
     distinct,
     same_alignment,
     symmetry_rotations,
+    yaw_sweep,
 )
 from itnet.alignment.overlap import Cloud, overlap, sample
 from itnet.geometry import rotation_angle_deg
@@ -97,8 +98,13 @@ class CloudEstimateError(Exception):
 
 # The composed pose at or above this calibrated probability is answered without scoring rivals
 # (docs/align.md: chosen on validation pairs of every generator).
+if TYPE_CHECKING:
+    from itnet.alignment.refine import RefineResult
+
 SURE = 0.9
 POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses
+SWEEP_LEAST = 4  # turns about up the budget must hold for a sweep to start
+SWEEP_MARGIN = 0.05  # of the budget, left when the sweep ends (its ICP's time varies)
 DOUBT_LOOSE = 0.1  # a rival landing this much more of A on B (loosely) puts the composed in doubt
 
 
@@ -116,6 +122,8 @@ class AlignOptions:
     candidates: int = 6  # distinct rivals kept after ranking (and refined, with refine)
     finalists: int = 3  # with refine: rivals that get ICP's fine stage, the best after its
     # coarse one (all of them when finalists >= candidates)
+    sweep: int = 24  # with refine, rivals and both ups: turns about up tried from the composed
+    # pose, each refined by ICP's coarse stage, the best ``finalists`` by its fine one (0: none)
     coarse_points: int | None = 200  # points of A in ICP's coarse stage (None: all)
     distinct_deg: float = 30.0  # hypotheses closer than this (and distinct_shift) count as one
     distinct_shift: float = 0.3
@@ -237,22 +245,33 @@ class _Judge:
         """How much A lands on B at the ranking distance (twice ICP's), on a few points (H,)."""
         return self.overlap(poses, 2 * self.options.icp_distance, self.options.rank_points)[0]
 
-    def refine(self, hypotheses: list[Hypothesis], finalists: int | None = None) -> None:
-        """ICP's coarse stage on each, its fine stage on the ``finalists`` that fit best after it
-        (None: all); each then holds its refined pose, its start in ``initial``."""
+    def refine(self, hypotheses: list[Hypothesis], finalists: int | None = None,
+               deadline: float = np.inf, finish_by: float = np.inf) -> list[int]:  # fmt: skip
+        """ICP's coarse stage on each in turn, its fine stage on the ``finalists`` that fit best
+        after it (None: all); each refined one then holds its refined pose, its start in
+        ``initial``. ``deadline`` (a ``time.perf_counter()`` value): no coarse stage starts
+        after it (the first always runs), and the hypotheses left are not refined;
+        ``finish_by``: no fine stage starts after it (a finalist keeps its coarse pose) -> the
+        indices of the finalists."""
         assert self.refiner is not None
-        coarse = [self.refiner.refine(h.T_b_from_a, slice(1)) for h in hypotheses]
-        fine = set(range(len(hypotheses)))
+        coarse: list[RefineResult] = []
+        for h in hypotheses:
+            if coarse and time.perf_counter() > deadline:
+                break
+            coarse.append(self.refiner.refine(h.T_b_from_a, slice(1)))
+        fine = set(range(len(coarse)))
         if finalists is not None and finalists < len(hypotheses):
             o = self.options
             fit = self.overlap(np.array([r.T_b_from_a for r in coarse]), o.inlier_distance,
                                o.score_points)[0]  # fmt: skip
             fine = set(np.argsort(-fit, kind="stable")[:finalists].tolist())
         for k, (h, first) in enumerate(zip(hypotheses, coarse)):
-            done = self.refiner.refine(first.T_b_from_a, slice(1, None)) if k in fine else first
+            finish = k in fine and time.perf_counter() <= finish_by
+            done = self.refiner.refine(first.T_b_from_a, slice(1, None)) if finish else first
             h.initial, h.T_b_from_a = h.T_b_from_a, done.T_b_from_a
             h.icp = {"fitness": round(done.fitness, 4), "rmse": float(f"{done.rmse:.5g}")}
             h.source += "+icp"
+        return sorted(fine)
 
     def judge(self, hypotheses: list[Hypothesis], composed: bool = False) -> None:
         """Fitness, overlap, support, evidence and probability of each (``composed``: these are
@@ -309,6 +328,9 @@ def align_clouds(
     t_composed = time.perf_counter()
     upright = ups[0] is not None and ups[1] is not None
     rivals, considered = _rivals(every, composed, judge, options, start, costs_ms, upright)
+    unsure = max(h.probability for h in [*composed, *rivals]) < options.sure
+    if upright and rivals and unsure:
+        rivals += _swept(composed[0], a, b, ups[1], judge, options, start, costs_ms)
     hypotheses = [*composed, *rivals]
     chosen = _chosen(hypotheses, len(composed), judge.scale)
     done = time.perf_counter()
@@ -330,6 +352,41 @@ def align_clouds(
         inlier_distance=options.inlier_distance * judge.scale,
         icp_distance=options.icp_distance * judge.scale if options.refine else 0.0,
     )
+
+
+def _swept(
+    composed: Hypothesis,
+    a: NDArray,
+    b: NDArray,
+    up_b: NDArray | None,
+    judge: _Judge,
+    options: AlignOptions,
+    start: float,
+    costs_ms: tuple[float, float],
+) -> list[Hypothesis]:
+    """Where both clouds' ups are known and the rivals judged leave every hypothesis in doubt
+    (under ``options.sure``): the composed pose turned about B's up (``up_b``;
+    ``hypotheses.yaw_sweep``, ``options.sweep`` turns), each given ICP's coarse stage while the
+    budget left since ``start`` allows, the best ``options.finalists`` its fine one, and those
+    judged -> the swept finalists (none where the budget holds too few turns). ``costs_ms``:
+    the composed pose's ICP (coarse and fine) and judging times."""
+    if not (options.refine and options.sweep and up_b is not None):
+        return []
+    icp_ms, judge_ms = costs_ms
+    # each turn's coarse stage costs about half the composed pose's ICP; a finalist's fine
+    # stage, from further off than the composed pose's, up to a whole one; the finalists are
+    # judged as the composed poses were, twice over for safety
+    deadline = finish_by = np.inf
+    if options.budget_ms is not None:
+        end_ms = options.budget_ms * (1.0 - SWEEP_MARGIN)
+        finish_by = start + (end_ms - icp_ms - 2 * judge_ms) / 1e3
+        deadline = finish_by - icp_ms * (options.finalists - 1) / 1e3
+        if deadline - time.perf_counter() < SWEEP_LEAST * icp_ms / 2e3:
+            return []
+    swept = yaw_sweep(composed.T_b_from_a, up_b, a.mean(0), b.mean(0), options.sweep)
+    swept = [swept[k] for k in judge.refine(swept, options.finalists, deadline, finish_by)]
+    judge.judge(swept)
+    return swept
 
 
 def _composed(

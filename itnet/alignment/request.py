@@ -73,6 +73,13 @@ class AlignRequest(RequestModel):
     finalists: int = Field(
         default=3, ge=1, le=64, description="rivals that get ICP's fine stage (with refine)"
     )
+    sweep: int = Field(
+        default=24,
+        ge=0,
+        le=72,
+        description="where both ups are given: turns about up tried from the composed pose, "
+        "each refined by ICP while the budget allows (0: none)",
+    )
     up_a: Xyz = Field(
         default=None,
         description="which way is up in cloud A, [x, y, z] (against gravity): its poses are held "
@@ -112,5 +119,5 @@ class AlignRequest(RequestModel):
             symmetry = rival_turns(card.category, card.symmetry)
         return AlignOptions(symmetry=symmetry, refine=refine, budget_ms=self.budget_ms,
                             rivals=refine if self.rivals is None else self.rivals,
-                            candidates=self.candidates,
-                            finalists=self.finalists)  # fmt: skip
+                            candidates=self.candidates, finalists=self.finalists,
+                            sweep=self.sweep)  # fmt: skip

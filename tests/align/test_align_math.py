@@ -21,6 +21,7 @@ from itnet.alignment.hypotheses import (
     relative_pose,
     same_alignment,
     symmetry_rotations,
+    yaw_sweep,
 )
 from itnet.alignment.overlap import Cloud, overlap, overlap_score
 from itnet.alignment.pipeline import (
@@ -310,3 +311,23 @@ def test_two_poses_held_upright_are_always_in_doubt(rng):
     held = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw90"), up_a=ups[0], up_b=ups[1])
     assert held.considered > 0 and len(held.hypotheses) > 1
     assert held.chosen == 0 and np.allclose(held.T_b_from_a, relative_pose(t_ca, t_cb), atol=1e-9)
+
+
+def test_a_yaw_sweep_turns_the_composed_pose_about_b_up_and_meets_the_centroids(rng):
+    composed = rigid_from_rotation_translation(random_rotation(rng), [0.2, -1.0, 3.0])
+    up_b = random_rotation(rng)[:, 1]
+    ca, cb = rng.normal(size=3), rng.normal(size=3)
+    swept = yaw_sweep(composed, up_b, ca, cb, 8)
+    assert len(swept) == 8 and all(h.turned and not h.served for h in swept)
+    # every prefix spreads round the circle: the half turn second, the quarter turns next
+    assert [h.source for h in swept] == [
+        f"sweep yaw{d}" for d in (0, 180, 90, 270, 45, 135, 225, 315)
+    ]
+    assert np.allclose(swept[0].T_b_from_a[:3, :3], composed[:3, :3])
+    up_a = composed[:3, :3].T @ up_b  # the up the composed pose carries onto B's
+    for h in swept:
+        k = int(h.source.removeprefix("sweep yaw")) // 45
+        rotation = h.T_b_from_a[:3, :3]
+        assert np.allclose(rotation @ up_a, up_b)  # A's up still lands on B's
+        assert np.allclose(rotation @ ca + h.T_b_from_a[:3, 3], cb)
+        assert np.isclose(rotation_error_deg(rotation, composed[:3, :3]), min(45 * k, 360 - 45 * k))

@@ -169,3 +169,46 @@ def test_the_coarse_stage_can_run_on_a_subset_of_a():
     fine = refiner.refine(coarse.T_b_from_a, slice(1, None))
     assert rotation_error_deg(fine.T_b_from_a[:3, :3], b_from_a[:3, :3]) < 0.5
     assert len(IcpRefiner(a, b, 0.1, coarse_points=5000).coarse_source.points) == 1500
+
+
+def test_known_ups_let_a_yaw_sweep_undo_a_turn_no_symmetry_explains(rng):
+    # A's pose read 70 degrees off about up: neither a symmetry turn nor ICP from the composed
+    # pose reaches the truth; with both clouds' ups given, one of the turns about up does.
+    obj = np.concatenate([rng.uniform([-1, -0.1, -0.6], [1, 0.1, 0.6], size=(300, 3)),
+                          rng.uniform([0.6, 0.1, -0.6], [1, 1.2, -0.3], size=(300, 3))])  # fmt: skip
+    t_ca = rigid_from_rotation_translation(random_rotation(rng), [0.3, -0.2, 2.5])
+    t_cb = rigid_from_rotation_translation(random_rotation(rng), [-0.4, 0.1, 3.0])
+    a, b = apply_rigid(invert_rigid(t_ca), obj), apply_rigid(invert_rigid(t_cb), obj)
+    truth = invert_rigid(t_cb) @ t_ca
+    misread = rigid_from_rotation_translation(axis_angle_to_matrix([0, 1, 0], np.radians(70.0)),
+                                              [0.0, 0.0, 0.0]) @ t_ca  # fmt: skip
+
+    def estimate(points, up=None):
+        pose = misread if (a == points[0]).all(axis=1).any() else t_cb
+        return PoseEstimate(pose, 3, 1.0, "max_iterations")
+
+    ups = (t_ca[:3, :3].T @ [0, 1, 0], t_cb[:3, :3].T @ [0, 1, 0])  # canonical +y in each
+    options = AlignOptions(symmetry="yaw180", refine=True)
+    swept = align_clouds(a, b, estimate, options, *ups)
+    assert swept.hypotheses[swept.chosen].source.startswith("sweep yaw")
+    assert rotation_error_deg(swept.T_b_from_a[:3, :3], truth[:3, :3]) < 2.0
+    plain = align_clouds(a, b, estimate, AlignOptions(symmetry="yaw180", refine=True, sweep=0),
+                         *ups)  # fmt: skip
+    assert rotation_error_deg(plain.T_b_from_a[:3, :3], truth[:3, :3]) > 30
+    assert not any(h.source.startswith("sweep") for h in plain.hypotheses)
+    free = align_clouds(a, b, estimate, options)  # no ups: no sweep
+    assert not any(h.source.startswith("sweep") for h in free.hypotheses)
+
+
+def test_a_refine_past_its_deadline_stops_after_the_first_coarse_stage(rng):
+    from itnet.alignment.hypotheses import Hypothesis
+    from itnet.alignment.pipeline import _Judge
+
+    a, b, truth, _ = _misread_lopsided_object(rng)
+    judge = _Judge(a, b, truth[None], AlignOptions(refine=True))
+    starts = [Hypothesis(truth @ small_motion(d, [0, 0, 0]), f"h{d}") for d in (3.0, 6.0, 9.0)]
+    fine = judge.refine(starts, finalists=1, deadline=0.0)  # long past
+    assert fine == [0] and starts[0].initial is not None
+    assert all(h.initial is None and h.icp is None for h in starts[1:])
+    assert judge.refine(starts[1:], finalists=1) in ([0], [1])  # no deadline: both refined
+    assert all(h.initial is not None for h in starts)
