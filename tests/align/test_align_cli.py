@@ -19,6 +19,11 @@ A, B = EXAMPLES / "chair_a.ply", EXAMPLES / "chair_b.ply"
 runner = CliRunner()
 
 
+def _reply(output: str) -> dict:
+    """The JSON reply among a command's output lines (a warning on stderr may follow it)."""
+    return json.loads(next(line for line in reversed(output.splitlines()) if line.startswith("{")))
+
+
 def run(tiny_model_dir, *args, main=False):
     argv = [*(["align"] if main else []), *map(str, args), "--model", "tiny",
             "--model-dir", str(tiny_model_dir)]  # fmt: skip
@@ -209,7 +214,7 @@ def test_the_shipped_table_poses_and_aligns_its_example_within_its_symmetry():
     a = EXAMPLES / "table_a.ply"
     pose = CliRunner().invoke(app, ["pose", str(a), "--model", "table", "--json"])
     assert pose.exit_code == 0, pose.output
-    got = np.array(json.loads(pose.output.strip().splitlines()[-1])["T_canonical_from_input"])
+    got = np.array(_reply(pose.output)["T_canonical_from_input"])
     want = np.array(truth["T_canonical_from_a"])
     assert symmetric_rotation_error_deg(got[:3, :3], want[:3, :3], "yaw180") < 10
     centre_error = np.linalg.norm(got[:3, :3].T @ got[:3, 3] - want[:3, :3].T @ want[:3, 3])
@@ -242,7 +247,7 @@ def test_the_shipped_bed_aligns_its_example_pair_and_auto_finds_the_bed_given_up
     args = [str(a), str(b), "--model", "auto", "--json", "--up-a", ups[0], "--up-b", ups[1]]
     auto = CliRunner().invoke(align_app, args)
     assert auto.exit_code == 0, auto.output
-    assert json.loads(auto.output.strip().splitlines()[-1])["model"] == "bed"
+    assert _reply(auto.output)["model"] == "bed"
 
 
 def test_the_shipped_night_stand_aligns_its_pair_with_each_scans_up_and_not_without():
@@ -295,10 +300,10 @@ def assert_aligns_example_pair(model: str, *extra: str) -> dict:
     args = [str(a), str(b), "--model", model, "--json", "--budget-ms", "1000", *extra]
     aligned = CliRunner().invoke(align_app, args)
     assert aligned.exit_code == 0, aligned.output
-    moved = np.array(json.loads(aligned.output.strip().splitlines()[-1])["T_b_from_a"])
+    moved = np.array(_reply(aligned.output)["T_b_from_a"])
     true_b_from_a = np.array(truth["T_b_from_a"])
     assert rotation_error_deg(moved[:3, :3], true_b_from_a[:3, :3]) < 10
     centroid = read_cloud(a).mean(axis=0)
     shift = apply_rigid(moved, centroid[None]) - apply_rigid(true_b_from_a, centroid[None])
     assert np.linalg.norm(shift) < 0.1 * truth["radius_m"]
-    return json.loads(aligned.output.strip().splitlines()[-1])
+    return _reply(aligned.output)
