@@ -55,6 +55,9 @@ from itnet.geometry import rotation_angle_deg
 from itnet.preprocess import estimate_normalization
 from itnet.upright import unit_up
 
+if TYPE_CHECKING:
+    from itnet.alignment.refine import RefineResult
+
 
 @dataclass(frozen=True)
 class PoseEstimate:
@@ -98,9 +101,6 @@ class CloudEstimateError(Exception):
 
 # The composed pose at or above this calibrated probability is answered without scoring rivals
 # (docs/align.md: chosen on validation pairs of every generator).
-if TYPE_CHECKING:
-    from itnet.alignment.refine import RefineResult
-
 SURE = 0.9
 POSE_SHARE = 0.75  # of the alignment's budget, for the two clouds' poses
 SWEEP_LEAST = 4  # turns about up the budget must hold for a sweep to start
@@ -260,7 +260,7 @@ class _Judge:
                 break
             coarse.append(self.refiner.refine(h.T_b_from_a, slice(1)))
         fine = set(range(len(coarse)))
-        if finalists is not None and finalists < len(hypotheses):
+        if finalists is not None and finalists < len(coarse):
             o = self.options
             fit = self.overlap(np.array([r.T_b_from_a for r in coarse]), o.inlier_distance,
                                o.score_points)[0]  # fmt: skip
