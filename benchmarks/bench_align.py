@@ -134,7 +134,7 @@ def itnet_methods(
 
     out = {}
     for name, request in variants.items():
-        if not model.card.requires_up and request.sweep:  # a sweep needs the ups
+        if not model.card.requires_up and request.sweep:  # without ups, --sweep 0 is itnet-align
             out[name] = method(request, False)
         if with_up or model.card.requires_up:
             out[f"{name} --up"] = method(request, True)

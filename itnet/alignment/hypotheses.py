@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from itnet.geometry import invert_rigid, rotation_error_deg
+from itnet.geometry import axis_angle_to_matrix, invert_rigid, rotation_error_deg
 from itnet.symmetry import symmetry_group
 
 # Hypothesis sets are the symmetry groups of itnet.symmetry ('none', 'yaw180', 'yaw90', 'yaw');
@@ -142,15 +142,12 @@ def yaw_sweep(
     short by its budget still looks all round. A view seen from another side is often one the
     networks turn wrongly by a few tens of degrees, which no symmetry turn repairs; one of these
     starts lies within ICP's reach."""
-    u = np.asarray(up_b, dtype=np.float64)
     rotation = np.asarray(composed, dtype=np.float64)[:3, :3]
     ca, cb = np.asarray(centroid_a, np.float64), np.asarray(centroid_b, np.float64)
-    cross = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    steps = np.array(spread_order(turns))
+    angles = 2.0 * np.pi * steps / turns
     found = []
-    for k in spread_order(turns):
-        angle = 2.0 * np.pi * k / turns
-        # Rodrigues: the turn by ``angle`` about u
-        turn = np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
+    for angle, turn in zip(angles, axis_angle_to_matrix(up_b, angles).reshape(-1, 3, 3)):
         pose = np.eye(4)
         pose[:3, :3] = turn @ rotation
         pose[:3, 3] = cb - pose[:3, :3] @ ca

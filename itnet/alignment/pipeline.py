@@ -328,8 +328,7 @@ def align_clouds(
     t_composed = time.perf_counter()
     upright = ups[0] is not None and ups[1] is not None
     rivals, considered = _rivals(every, composed, judge, options, start, costs_ms, upright)
-    unsure = max(h.probability for h in [*composed, *rivals]) < options.sure
-    if upright and rivals and unsure:
+    if upright and rivals and max(h.probability for h in [*composed, *rivals]) < options.sure:
         rivals += _swept(composed[0], a, b, ups[1], judge, options, start, costs_ms)
     hypotheses = [*composed, *rivals]
     chosen = _chosen(hypotheses, len(composed), judge.scale)
