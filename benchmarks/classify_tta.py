@@ -66,7 +66,7 @@ def main() -> None:
         "--rules",
         default="occluded,paper",
         help="view rules in turn, comma-separated: RULE, RULE+SENSOR (by that depth camera, "
-        "each shape at a real piece's size), RULE+SENSOR+crop (cut out of a room)",
+        "each shape at a real piece's size), RULE+SENSOR+crop (cut out of a room), +clutter",
     )
     args = parser.parse_args()
 

@@ -120,26 +120,32 @@ def sensor_views(sensor: str, radius_m: tuple[float, float]) -> dict[str, object
 
 CROP = "crop"
 """The suffix of a view rule's name for views cut out of a room (``occluded+kinect_v2+crop``)."""
+CLUTTER = "clutter"
+"""The suffix for views cut out of a furnished room (``occluded+kinect_v2+clutter``): a crop
+whose piece most often carries things on its top (a lamp, books, a vase, a mirror)."""
+ROOM_CUTS: dict[str, dict[str, object]] = {CROP: {}, CLUTTER: {"on_top": 0.8}}
+"""The ``Surroundings`` overrides of each cut out of a room, by its suffix."""
 CROP_ELEVATION = (-10.0, 55.0)
 """Where the camera of a crop out of a room stands unless told (degrees over the object's
 horizon): above the floor, which would hide the object from below."""
 
 
-def view_name_parts(name: str) -> tuple[str, str, bool]:
-    """A view rule's name -> (rule, sensor or '', cut out of a room): ``RULE``,
-    ``RULE+SENSOR`` or ``RULE+SENSOR+crop``. Raises ValueError for an unknown rule or camera,
-    or a crop without a camera (its surroundings have sizes in metres)."""
+def view_name_parts(name: str) -> tuple[str, str, str]:
+    """A view rule's name -> (rule, sensor or '', the cut out of a room or ''): ``RULE``,
+    ``RULE+SENSOR``, ``RULE+SENSOR+crop`` or ``RULE+SENSOR+clutter`` (``ROOM_CUTS``). Raises
+    ValueError for an unknown rule or camera, or a crop without a camera (its surroundings have
+    sizes in metres)."""
     from itnet.model.sensor import SENSORS
 
     rule, *rest = name.split("+")
-    crop = rest[-1:] == [CROP]
+    crop = rest[-1] if rest[-1:] and rest[-1] in ROOM_CUTS else ""
     sensor = "+".join(rest[:-1] if crop else rest)
     if rule not in VIEW_RULES:
         raise ValueError(f"unknown view rule {rule!r} (known: {', '.join(VIEW_RULES)})")
     if sensor and sensor not in SENSORS:
         raise ValueError(f"unknown sensor {sensor!r} (known: {', '.join(SENSORS)})")
     if crop and not sensor:
-        raise ValueError(f"{name!r}: a crop out of a room needs a camera (RULE+SENSOR+{CROP})")
+        raise ValueError(f"{name!r}: a crop out of a room needs a camera (RULE+SENSOR+{crop})")
     return rule, sensor, crop
 
 
@@ -147,12 +153,18 @@ def named_overrides(name: str, category: str) -> dict[str, object]:
     """The ScanConfig overrides of a named view rule, seen by a named camera where the name says
     so: ``RULE``, ``RULE+SENSOR`` (``occluded+kinect_v2``: occluded views of a real-sized
     piece of ``category`` by a Kinect v2) or ``RULE+SENSOR+crop`` (the same, cut out of a room
-    by the object's box: ``model.surroundings``)."""
+    by the object's box: ``model.surroundings``; ``+clutter``: things stand on the piece)."""
     from itnet.model.categories import real_radius_m
 
     rule, sensor, crop = view_name_parts(name)
     camera = sensor_views(sensor, real_radius_m(category)) if sensor else {}
-    return {**VIEW_RULES[rule], **camera, **({"surroundings": True} if crop else {})}
+    return {**VIEW_RULES[rule], **camera, **({"surroundings": room_cut(crop)} if crop else {})}
+
+
+def room_cut(suffix: str) -> bool | dict[str, object]:
+    """A cut's ``surroundings`` setting as a JSON config stores it: True (the default
+    ``Surroundings``) or its overrides."""
+    return ROOM_CUTS[suffix] or True
 
 
 def named_views(name: str, category: str) -> ScanConfig:
@@ -163,11 +175,16 @@ def named_views(name: str, category: str) -> ScanConfig:
 def scan_config(*overrides: Mapping[str, Any]) -> ScanConfig:
     """The default ScanConfig with each mapping of ``overrides`` applied in turn. Lists become
     tuples: overrides stored in a JSON config come back as lists; ``surroundings`` may be a
-    bool (True: the default ``Surroundings``), and a view with surroundings is seen from
-    ``CROP_ELEVATION`` unless an elevation is given."""
+    bool (True: the default ``Surroundings``) or a mapping of its overrides, and a view with
+    surroundings is seen from ``CROP_ELEVATION`` unless an elevation is given."""
     merged = {k: tuple(v) if isinstance(v, list) else v for o in overrides for k, v in o.items()}
-    if isinstance(merged.get("surroundings"), bool):  # as a rule's name or a JSON config says it
-        merged["surroundings"] = Surroundings() if merged["surroundings"] else None
+    cut = merged.get("surroundings")
+    if isinstance(cut, bool):  # as a rule's name or a JSON config says it
+        merged["surroundings"] = Surroundings() if cut else None
+    elif isinstance(cut, Mapping):
+        merged["surroundings"] = Surroundings(
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in cut.items()}
+        )
     if merged.get("surroundings") is not None and merged.get("elevation") is None:
         merged["elevation"] = CROP_ELEVATION
     return replace(ScanConfig(), **merged)
@@ -324,7 +341,8 @@ def scan_shape(
         if triangles is not None:
             raise ValueError("surroundings are added to point sets, not to meshes")
         discs = surface_discs(points) if discs is None else discs
-        points, discs = _surrounded(points, discs, config.surroundings, radius_m, rng)
+        points, discs, boxed = _surrounded(points, discs, config.surroundings, radius_m, rng)
+        whole = points[:boxed]  # the shape, and what stands on it where the crop holds that
     if config.splat <= 0 or triangles is not None:
         discs = None
     elif discs is None:
@@ -351,14 +369,19 @@ def scan_shape(
 def _surrounded(
     points: NDArray, discs: tuple[NDArray, NDArray], surroundings: Surroundings,
     radius_m: float, rng: np.random.Generator,
-) -> tuple[NDArray[np.float64], tuple[NDArray, NDArray]]:  # fmt: skip
-    """A shape's points (M, 3) and discs with ``surroundings`` added (the shape's rows first)."""
+) -> tuple[NDArray[np.float64], tuple[NDArray, NDArray], int]:  # fmt: skip
+    """A shape's points (M, 3) and discs with ``surroundings`` added (the shape's rows first),
+    and how many first rows the crop's box is drawn around (``Surroundings.around``)."""
     spacing = float(np.median(discs[1]))
-    surrounded, normals = surroundings.around(points, spacing, radius_m, rng)
+    surrounded, normals, boxed = surroundings.around(points, spacing, radius_m, rng)
     added = len(surrounded) - len(points)
-    return surrounded, (
-        np.concatenate([discs[0], normals]),
-        np.concatenate([discs[1], np.full(added, spacing)]),
+    return (
+        surrounded,
+        (
+            np.concatenate([discs[0], normals]),
+            np.concatenate([discs[1], np.full(added, spacing)]),
+        ),
+        boxed,
     )
 
 

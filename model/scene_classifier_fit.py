@@ -61,13 +61,14 @@ PRECISION = 0.95  # the threshold: the lowest at which this share of the answers
 def scene_samples(
     shapes: dict, scenes: int, seed: int, catalog: Catalog, cut_off: bool = False,
     distractors: int = 0, sensors: tuple[str | None, ...] = (None,), no_one_object: bool = False,
-    name: str = "scenes",
+    name: str = "scenes", on_top: float = 0.0,
 ) -> tuple[NDArray[np.float64], list[str]]:  # fmt: skip
     """``scenes`` scenes of ``shapes`` (``cut_off``: objects' lower parts may lie below the
     view; ``distractors``: up to this many things of no category among the objects;
     ``sensors``: each scene seen by one of these cameras, drawn at random (None: the scenes'
     structured-light noise; ``make_scene``); ``no_one_object``: a cluster half of whose points
-    belong to no one object or thing (a piece of wall, two objects joined) counts as ``OTHER``)
+    belong to no one object or thing (a piece of wall, two objects joined) counts as ``OTHER``;
+    ``on_top``: the chance that an object carries things on its top, ``make_scene``'s)
     -> the features (S, F) of every cluster the segmentation found and matched to a scene
     object or thing, and those objects' categories (``OTHER`` for a thing) (S,). A line on
     stderr every ``PROGRESS_EVERY`` scenes, ``name`` first."""
@@ -80,7 +81,7 @@ def scene_samples(
                   f"{time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)  # fmt: skip
         sensor = sensors[int(rng.integers(len(sensors)))] if len(sensors) > 1 else sensors[0]
         scene = make_scene(shapes, rng, categories=WITH_DESKS, cut_off=cut_off,
-                           distractors=distractors, sensor=sensor)  # fmt: skip
+                           distractors=distractors, sensor=sensor, on_top=on_top)  # fmt: skip
         given = from_depth(scene.depth, scene.intrinsics)
         found = segment(given.points)
         if found.floor is None:
@@ -172,6 +173,13 @@ class SceneClassifierFit(FeatureFitConfig):
         description="clusters half of whose points belong to no one object or thing (a piece "
         "of wall, two objects joined) join the class OTHER, in every kind of scene",
     )
+    on_top: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="the chance that an object in the scenes of the first two kinds carries "
+        "things on its top (a lamp, books, a vase, a plant, a mirror; OTHER where found apart)",
+    )
     hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
 
     @field_validator("sensors")
@@ -208,10 +216,12 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
         mixed = config.no_one_object
         x1, y1 = scene_samples(held_out, config.scenes, config.seed, catalog,
                                distractors=config.distractors, sensors=config.cameras(),
-                               no_one_object=mixed, name="held-out scenes")  # fmt: skip
+                               no_one_object=mixed, name="held-out scenes",
+                               on_top=config.on_top)  # fmt: skip
         x2, y2 = scene_samples(trained, config.train_scenes, config.train_seed, catalog,
                                distractors=config.distractors, sensors=config.cameras(),
-                               no_one_object=mixed, name="training scenes")  # fmt: skip
+                               no_one_object=mixed, name="training scenes",
+                               on_top=config.on_top)  # fmt: skip
         x3, y3 = scene_samples(held_out, config.cut_off_scenes, config.cut_off_seed, catalog, True,
                                no_one_object=mixed, name="cut-off scenes")  # fmt: skip
         return np.concatenate([x1, x2, x3]), y1 + y2 + y3
@@ -242,7 +252,8 @@ def fit_scene_classifier(config: SceneClassifierFit) -> SceneClassifier:
                    FIT_SPLIT: [config.train_scenes, config.train_seed, config.train_shapes],
                    "cut_off": [config.cut_off_scenes, config.cut_off_seed],
                    "distractors": config.distractors, "sensors": config.sensors,
-                   "no_one_object": config.no_one_object},
+                   "no_one_object": config.no_one_object,
+                   **({"on_top": config.on_top} if config.on_top else {})},
         "clusters": {c: labels.count(c) for c in classes},
         "network": {"hidden": config.hidden, "weight_decay": config.weight_decay,
                     "epochs": config.epochs},

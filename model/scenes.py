@@ -39,6 +39,7 @@ from itnet.model.data import load_shapes, split_files
 from itnet.model.distractors import KINDS, distractor, hung
 from itnet.model.sensor import SENSORS, mixed_at_edges
 from itnet.model.shapes import Shape
+from itnet.model.surroundings import on_top_things
 from itnet.scene.camera import Intrinsics, depth_to_cloud
 
 # The development scenes' categories (the default), in the order they are drawn: the desk joins
@@ -52,6 +53,7 @@ SIZES: dict[str, tuple[str, tuple[float, float]]] = {
     if (size := MODELNET10[name].scene_size) is not None
 }
 WITH_DESKS = (*DEVELOPMENT, "desk")
+ON_TOP = "on top"  # the kind (``Scene.others``) of the things standing on an object
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")
 FIT_SPLIT = "train"
@@ -292,7 +294,7 @@ def make_scene(
     height: int = HEIGHT, fov_deg: float = FOV_DEG, touching: bool = False,
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
     most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
-    sensor: str | None = None, against_wall: bool = False,
+    sensor: str | None = None, against_wall: bool = False, on_top: float = 0.0,
 ) -> Scene:  # fmt: skip
     """One random scene (see the module) of ``categories`` from the given shapes of each, of
     one to ``most`` objects, the camera pitched down by ``pitch_deg`` (low, high; (0, 0): a
@@ -309,9 +311,13 @@ def make_scene(
     the default structured-light noise. ``against_wall``: the wall stands 0-4 cm behind the
     farthest object (or thing), as furniture stands in a room, with a skirting board and one to
     three pictures or mirrors hung on it (``model.distractors.hung``; drawn from a child of
-    ``rng``), which are wall in ``labels``."""
+    ``rng``), which are wall in ``labels``. ``on_top``: the chance that an object carries one to
+    three things on its tops (a lamp, books, a vase, a plant, a mirror:
+    ``model.surroundings.on_top_things``; drawn from a child of ``rng``), things of no
+    category among the ``others``."""
     layout = _layout(shapes, rng, Intrinsics.from_fov(width, height, fov_deg), width, height,
-                     touching, categories, pitch_deg, most, cut_off, distractors, against_wall)  # fmt: skip
+                     touching, categories, pitch_deg, most, cut_off, distractors, against_wall,
+                     on_top)  # fmt: skip
     depth, labels = render(layout.rendered, layout.camera, layout.wall, layout.intrinsics,
                            width, height, rng, flying_pixels, sensor)  # fmt: skip
     labels[labels > layout.counted] = 0  # what hangs on the wall is wall
@@ -327,6 +333,7 @@ def make_room(
     categories: tuple[str, ...] = DEVELOPMENT, pitch_deg: tuple[float, float] = (0.0, 25.0),
     most: int = 3, cut_off: bool = False, flying_pixels: float = 0.0, distractors: int = 0,
     sensor: str | None = None, against_wall: bool = False, voxel_m: float = 0.01,
+    on_top: float = 0.0,
 ) -> tuple[NDArray[np.float64], Scene]:  # fmt: skip
     """A room's fused cloud, as a reconstruction (a SLAM map, a room scan) gives it: the scene
     ``make_scene`` lays out (its keywords), seen by ``views`` cameras (its own, then each turned
@@ -337,7 +344,7 @@ def make_room(
     objects' truths are the points', ``depth`` empty)."""
     intrinsics = Intrinsics.from_fov(width, height, fov_deg)
     layout = _layout(shapes, rng, intrinsics, width, height, touching, categories, pitch_deg,
-                     most, cut_off, distractors, against_wall)  # fmt: skip
+                     most, cut_off, distractors, against_wall, on_top)  # fmt: skip
     middle = np.mean([invert_rigid(t.pose)[:3, 3] for t in layout.truths], axis=0)
     ahead = (middle - layout.camera[:3, 3])[[0, 2]]
     reach, heading = float(np.linalg.norm(ahead)), math.atan2(ahead[0], ahead[1])
@@ -395,7 +402,7 @@ def _layout(
     shapes: dict[str, list[Shape]], rng: np.random.Generator, intrinsics: Intrinsics,
     width: int, height: int, touching: bool, categories: tuple[str, ...],
     pitch_deg: tuple[float, float], most: int, cut_off: bool, distractors: int,
-    against_wall: bool,
+    against_wall: bool, on_top: float = 0.0,
 ) -> _Layout:  # fmt: skip
     """Where ``make_scene``'s camera, objects, things and wall stand (its draws, in order)."""
     camera = world_from_camera(rng.uniform(1.1, 1.7), rng.uniform(*pitch_deg), rng.uniform(-3, 3))
@@ -423,11 +430,36 @@ def _layout(
     if against_wall:
         wall_normal_offset, on_wall = _against_wall(rendered, wall_normal, camera, rng.spawn(1)[0])
         rendered += on_wall
+    if on_top > 0:  # drawn last: the scene is otherwise the one drawn without
+        carried = _carried(placed, on_top, rng.spawn(1)[0])
+        rendered[counted:counted] = [(s, k, w) for s, k, w, _, _ in carried]
+        counted += len(carried)
+        others += carried
     # canonical in metres: the unit shape scaled, then placed (T_canonical_from_world)
     truths = [SceneObjectTruth(category, shape.name, invert_rigid(world), scale)
               for shape, scale, world, category, _ in placed]  # fmt: skip
     return _Layout(camera, intrinsics, rendered, counted, (wall_normal, wall_normal_offset),
                    truths, [kind for _, _, _, kind, _ in others])  # fmt: skip
+
+
+def _carried(
+    placed: list[tuple[Shape, float, NDArray, str, float]], chance: float,
+    rng: np.random.Generator,
+) -> list[tuple[Shape, float, NDArray, str, float]]:  # fmt: skip
+    """Things standing on the ``placed`` objects' tops, each object carrying one to three with
+    probability ``chance`` (``model.surroundings.on_top_things``), as (shape, scale, world,
+    kind, footprint): each object's things one shape in its frame, its kind 'on top'."""
+    carried = []
+    for shape, scale, world, _, footprint in placed:
+        if rng.random() >= chance:
+            continue
+        spacing = float(np.median(shape.discs()[1]))
+        things = on_top_things(shape.points, int(rng.integers(1, 4)), spacing, 1.0 / scale, rng)
+        if things:
+            points = np.concatenate([p for p, _ in things])
+            discs = (np.concatenate([n for _, n in things]), np.full(len(points), spacing))
+            carried.append((Shape(ON_TOP, points, _discs=discs), scale, world, ON_TOP, footprint))
+    return carried
 
 
 def _against_wall(
@@ -569,6 +601,14 @@ class SceneKind(BaseModel):
         "skirting board on it",
     )
 
+    on_top: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="the chance that an object carries things on its top (a lamp, books, a "
+        "vase, a plant, a mirror)",
+    )
+
     sensor: str | None = Field(
         default=None,
         description="the depth as this camera returns it: kinect_v1, kinect_v2, realsense_d435 "
@@ -584,7 +624,8 @@ class SceneKind(BaseModel):
 
     def keywords(self, drawn: tuple[str, ...]) -> dict[str, Any]:
         """``make_scene``'s keywords (``categories``, ``pitch_deg``, ``most``, ``cut_off``,
-        ``flying_pixels``, ``distractors``, ``sensor``, ``against_wall``); ``drawn``: the categories without ``draw``. ValueError for a category
+        ``flying_pixels``, ``distractors``, ``sensor``, ``against_wall``, ``on_top``);
+        ``drawn``: the categories without ``draw``. ValueError for a category
         without scenes or a pitch that is not LOW,HIGH."""
         if self.draw is not None:
             drawn = tuple(self.draw.split(","))
@@ -597,7 +638,7 @@ class SceneKind(BaseModel):
         return {"categories": drawn, "pitch_deg": (low, high), "most": self.most,
                 "cut_off": self.cut_off, "flying_pixels": self.flying_pixels,
                 "distractors": self.distractors, "sensor": self.sensor,
-                "against_wall": self.against_wall}  # fmt: skip
+                "against_wall": self.against_wall, "on_top": self.on_top}  # fmt: skip
 
 
 def add_kind_arguments(parser: argparse.ArgumentParser, drawn_default: str) -> None:

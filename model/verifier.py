@@ -55,7 +55,7 @@ class VerifierConfig(BaseModel):
     scanners: list[str] = Field(
         ["paper", "occluded", "surface"],
         description="view rules: RULE, RULE+SENSOR (by a depth camera, at the category's real "
-        "sizes) or RULE+SENSOR+crop (cut out of a room)",
+        "sizes), RULE+SENSOR+crop (cut out of a room) or RULE+SENSOR+clutter (things on it)",
     )
     ensemble: int = Field(8, ge=1, description="runs per scan, from turned starts")
     points: int = Field(256, ge=16, description="points of a run the verifier sees")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from itnet.model.distractors import KINDS, distractor
-from itnet.model.scenes import make_scene
+from itnet.model.scenes import ON_TOP, make_scene
 from itnet.model.shapes import Shape
 
 
@@ -50,6 +50,28 @@ def test_a_scene_holds_things_apart_from_its_objects_which_stay_as_they_were() -
         for j in range(len(busy.others)):
             seen_others += int((busy.labels == count + 1 + j).sum() > 0)
     assert seen_others >= 3  # things in view, labelled after the objects
+
+
+def test_things_on_top_stand_on_the_objects_labelled_apart_and_change_nothing_else() -> None:
+    shapes, carried = _shapes(), 0
+    for seed in range(4):
+        kinds = {"categories": ("chair", "table"), "distractors": 1, "against_wall": True}
+        plain = make_scene(shapes, np.random.default_rng(seed), **kinds)
+        laden = make_scene(shapes, np.random.default_rng(seed), on_top=1.0, **kinds)
+        for a, b in zip(laden.objects, plain.objects, strict=True):
+            np.testing.assert_array_equal(a.pose, b.pose)
+        assert laden.others[: len(plain.others)] == plain.others
+        assert set(laden.others[len(plain.others) :]) == {ON_TOP}  # one a carrying object
+        count = len(laden.objects) + len(plain.others)
+        assert laden.labels.max() <= count + len(laden.others) - len(plain.others)
+        on_top = laden.labels > count
+        carried += int(on_top.sum())
+        # they stand above their objects: their top rows over the objects' (image y down)
+        rows = np.flatnonzero(on_top.any(1))
+        objects = np.flatnonzero(((laden.labels > 0) & (laden.labels <= len(laden.objects))).any(1))
+        if len(rows):
+            assert rows.min() < objects.min() + 5
+    assert carried > 200
 
 
 def test_the_scenes_benchmark_counts_a_named_thing_false() -> None:

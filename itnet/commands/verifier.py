@@ -20,7 +20,7 @@ def verifier_train(
     scanners: str = typer.Option(
         "paper,occluded,surface",
         help="View rules, comma-separated: RULE, RULE+SENSOR (occluded+kinect_v2: by a depth "
-        "camera, at the category's real sizes), RULE+SENSOR+crop (cut out of a room).",
+        "camera, at the category's real sizes), RULE+SENSOR+crop (cut out of a room), +clutter.",
     ),
     ensemble: int = typer.Option(8, min=1, max=16, help="Runs per scan, from turned starts."),
     synthetic: float = typer.Option(

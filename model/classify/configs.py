@@ -98,7 +98,8 @@ class ClassifyTrainConfig(BaseModel):
         "occluded,paper",
         description="view rules of training, validation and test, comma-separated: occluded, "
         "paper, surface, base_hidden, each as rendered or by a depth camera (RULE+SENSOR, e.g. "
-        "occluded+kinect_v2: at real sizes; docs/training.md)",
+        "occluded+kinect_v2: at real sizes), cut out of a room (RULE+SENSOR+crop) or out of a "
+        "furnished one (RULE+SENSOR+clutter; docs/training.md)",
     )
     elevation: str | None = Field(
         None,

@@ -27,7 +27,14 @@ from numpy.typing import NDArray
 
 from itnet.model.categories import real_radius_m
 from itnet.model.data import cached_scan_set, load_shapes, split_files
-from itnet.model.scanner import VIEW_RULES, ScanConfig, scan_config, scan_of, view_name_parts
+from itnet.model.scanner import (
+    VIEW_RULES,
+    ScanConfig,
+    room_cut,
+    scan_config,
+    scan_of,
+    view_name_parts,
+)
 from itnet.model.shapes import Shape, random_stretch, stretched
 from itnet.preprocess import estimate_normalization, resample
 from itnet.upright import levelled, sensed_ups, tilted
@@ -137,13 +144,15 @@ def view_configs(
 ) -> list[ScanConfig]:
     """The scanner settings of named view rules (``VIEW_RULES``; ``RULE+SENSOR``: by that depth
     camera, the size left to ``LabelledShapes.sized``; ``RULE+SENSOR+crop``: cut out of a
-    room), each from any direction or, with ``elevation`` (degrees), from a camera that high
+    room; ``+clutter``: a furnished one), each from any direction or, with ``elevation`` (degrees), from a camera that high
     over the shape's horizon."""
     extra = {} if elevation is None else {"elevation": tuple(elevation)}
     configs = []
     for name in rules:
         rule, sensor, crop = view_name_parts(name)
-        camera = {"sensor": sensor, "surroundings": crop} if sensor else {}
+        camera = (
+            {"sensor": sensor, "surroundings": room_cut(crop) if crop else False} if sensor else {}
+        )
         configs.append(scan_config(VIEW_RULES[rule], camera, extra))
     return configs
 
