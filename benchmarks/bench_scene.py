@@ -286,6 +286,7 @@ def main(argv: list[str] | None = None) -> None:
         "with_desks": args.with_desks, "drawn": list(drawn), "pitch_deg": [low, high],
         "most": args.most, "cut_off": args.cut_off, "flying_pixels": args.flying_pixels,
         "distractors": args.distractors, "sensor": args.sensor, "room_views": args.room_views,
+        "against_wall": args.against_wall, "on_top": args.on_top,
         **{k: sorted(v) if isinstance(v, frozenset) else v for k, v in budget.items()
            if k not in ("catalog", "finishing", "options", "scene_classifier", "centre_table")},
         **({"centre_table": str(args.centre_table)} if args.centre_table is not None else {}),

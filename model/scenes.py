@@ -53,7 +53,6 @@ SIZES: dict[str, tuple[str, tuple[float, float]]] = {
     if (size := MODELNET10[name].scene_size) is not None
 }
 WITH_DESKS = (*DEVELOPMENT, "desk")
-ON_TOP = "on top"  # the kind (``Scene.others``) of the things standing on an object
 WIDTH, HEIGHT, FOV_DEG = 320, 240, 60.0
 SPLITS = ("validation", "test")
 FIT_SPLIT = "train"
@@ -313,8 +312,8 @@ def make_scene(
     three pictures or mirrors hung on it (``model.distractors.hung``; drawn from a child of
     ``rng``), which are wall in ``labels``. ``on_top``: the chance that an object carries one to
     three things on its tops (a lamp, books, a vase, a plant, a mirror:
-    ``model.surroundings.on_top_things``; drawn from a child of ``rng``), things of no
-    category among the ``others``."""
+    ``model.surroundings.on_top_things``; drawn from a child of ``rng``), labelled as part of
+    their object."""
     layout = _layout(shapes, rng, Intrinsics.from_fov(width, height, fov_deg), width, height,
                      touching, categories, pitch_deg, most, cut_off, distractors, against_wall,
                      on_top)  # fmt: skip
@@ -431,10 +430,7 @@ def _layout(
         wall_normal_offset, on_wall = _against_wall(rendered, wall_normal, camera, rng.spawn(1)[0])
         rendered += on_wall
     if on_top > 0:  # drawn last: the scene is otherwise the one drawn without
-        carried = _carried(placed, on_top, rng.spawn(1)[0])
-        rendered[counted:counted] = [(s, k, w) for s, k, w, _, _ in carried]
-        counted += len(carried)
-        others += carried
+        rendered[: len(placed)] = _carrying(rendered[: len(placed)], on_top, rng.spawn(1)[0])
     # canonical in metres: the unit shape scaled, then placed (T_canonical_from_world)
     truths = [SceneObjectTruth(category, shape.name, invert_rigid(world), scale)
               for shape, scale, world, category, _ in placed]  # fmt: skip
@@ -442,24 +438,28 @@ def _layout(
                    truths, [kind for _, _, _, kind, _ in others])  # fmt: skip
 
 
-def _carried(
-    placed: list[tuple[Shape, float, NDArray, str, float]], chance: float,
-    rng: np.random.Generator,
-) -> list[tuple[Shape, float, NDArray, str, float]]:  # fmt: skip
-    """Things standing on the ``placed`` objects' tops, each object carrying one to three with
-    probability ``chance`` (``model.surroundings.on_top_things``), as (shape, scale, world,
-    kind, footprint): each object's things one shape in its frame, its kind 'on top'."""
-    carried = []
-    for shape, scale, world, _, footprint in placed:
-        if rng.random() >= chance:
-            continue
-        spacing = float(np.median(shape.discs()[1]))
-        things = on_top_things(shape.points, int(rng.integers(1, 4)), spacing, 1.0 / scale, rng)
+def _carrying(
+    objects: list[tuple[Shape, float, NDArray]], chance: float, rng: np.random.Generator
+) -> list[tuple[Shape, float, NDArray]]:  # fmt: skip
+    """The rendered ``objects`` (shape, metres per unit, T_world_from_canonical), each carrying
+    one to three things on its tops with probability ``chance``
+    (``model.surroundings.on_top_things``): its shape's points and discs then hold theirs too,
+    so that they render, and are labelled, as part of it (as a box drawn around the piece would
+    hold them)."""
+    out = []
+    for shape, scale, world in objects:
+        things = []
+        if rng.random() < chance:
+            normals, spacing = shape.discs()
+            things = on_top_things(shape.points, int(rng.integers(1, 4)),
+                                   float(np.median(spacing)), 1.0 / scale, rng)  # fmt: skip
         if things:
-            points = np.concatenate([p for p, _ in things])
-            discs = (np.concatenate([n for _, n in things]), np.full(len(points), spacing))
-            carried.append((Shape(ON_TOP, points, _discs=discs), scale, world, ON_TOP, footprint))
-    return carried
+            added = np.concatenate([p for p, _ in things])
+            discs = (np.concatenate([normals, *[n for _, n in things]]),
+                     np.concatenate([spacing, np.full(len(added), np.median(spacing))]))  # fmt: skip
+            shape = Shape(shape.name, np.concatenate([shape.points, added]), _discs=discs)
+        out.append((shape, scale, world))
+    return out
 
 
 def _against_wall(
