@@ -162,9 +162,9 @@ def named_overrides(name: str, category: str) -> dict[str, object]:
 
 
 def room_cut(suffix: str) -> bool | dict[str, object]:
-    """A cut's ``surroundings`` setting as a JSON config stores it: True (the default
-    ``Surroundings``) or its overrides."""
-    return ROOM_CUTS[suffix] or True
+    """A cut's ``surroundings`` setting as a JSON config stores it: False for no cut (''),
+    True (the default ``Surroundings``) or its overrides."""
+    return bool(suffix) and (ROOM_CUTS[suffix] or True)
 
 
 def named_views(name: str, category: str) -> ScanConfig:

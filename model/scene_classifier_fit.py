@@ -178,7 +178,7 @@ class SceneClassifierFit(FeatureFitConfig):
         ge=0.0,
         le=1.0,
         description="the chance that an object in the scenes of the first two kinds carries "
-        "things on its top (a lamp, books, a vase, a plant, a mirror; OTHER where found apart)",
+        "things on its top (a lamp, books, a vase, a plant, a mirror), learned as part of it",
     )
     hidden: int = Field(default=64, ge=1, description="hidden units (chosen on validation scenes)")
 

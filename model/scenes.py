@@ -39,7 +39,7 @@ from itnet.model.data import load_shapes, split_files
 from itnet.model.distractors import KINDS, distractor, hung
 from itnet.model.sensor import SENSORS, mixed_at_edges
 from itnet.model.shapes import Shape
-from itnet.model.surroundings import on_top_things
+from itnet.model.surroundings import ON_TOP_COUNT, on_top_things
 from itnet.scene.camera import Intrinsics, depth_to_cloud
 
 # The development scenes' categories (the default), in the order they are drawn: the desk joins
@@ -451,12 +451,13 @@ def _carrying(
         things = []
         if rng.random() < chance:
             normals, spacing = shape.discs()
-            things = on_top_things(shape.points, int(rng.integers(1, 4)),
-                                   float(np.median(spacing)), 1.0 / scale, rng)  # fmt: skip
+            typical = float(np.median(spacing))
+            count = int(rng.integers(ON_TOP_COUNT[0], ON_TOP_COUNT[1] + 1))
+            things = on_top_things(shape.points, count, typical, 1.0 / scale, rng)
         if things:
             added = np.concatenate([p for p, _ in things])
             discs = (np.concatenate([normals, *[n for _, n in things]]),
-                     np.concatenate([spacing, np.full(len(added), np.median(spacing))]))  # fmt: skip
+                     np.concatenate([spacing, np.full(len(added), typical)]))  # fmt: skip
             shape = Shape(shape.name, np.concatenate([shape.points, added]), _discs=discs)
         out.append((shape, scale, world))
     return out

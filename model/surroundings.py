@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+ON_TOP_COUNT = (1, 3)  # things standing on a piece that carries any (inclusive)
+
 
 @dataclass(frozen=True)
 class Surroundings:
@@ -36,7 +38,7 @@ class Surroundings:
     floor_removed: float = 0.5  # the chance that a segmenter removed the floor's plane ...
     floor_left_m: tuple[float, float] = (0.01, 0.04)  # ... up to this far above it
     on_top: float = 0.0  # the chance that things stand on the piece (``on_top_things``) ...
-    on_top_count: tuple[int, int] = (1, 3)  # ... this many of them (inclusive)
+    on_top_count: tuple[int, int] = ON_TOP_COUNT  # ... this many of them (inclusive)
     on_top_kept: float = 0.5  # the chance that the crop's box holds them whole (a segmenter's)
 
     def around(
@@ -59,7 +61,6 @@ class Surroundings:
         if things:
             grown = np.concatenate([points] + [p for p, _ in things])
             lo, hi = grown.min(0), grown.max(0)  # walls and neighbours beyond the things too
-            lo[1] = points[:, 1].min()
         reach = lo - 0.25 * metre, hi + 0.25 * metre  # beyond any crop's grown box
         added = [*things, _plane(np.array([reach[0][0], lo[1], reach[0][2]]),
                         np.array([reach[1][0] - reach[0][0], 0.0, 0.0]),

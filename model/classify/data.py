@@ -144,15 +144,13 @@ def view_configs(
 ) -> list[ScanConfig]:
     """The scanner settings of named view rules (``VIEW_RULES``; ``RULE+SENSOR``: by that depth
     camera, the size left to ``LabelledShapes.sized``; ``RULE+SENSOR+crop``: cut out of a
-    room; ``+clutter``: a furnished one), each from any direction or, with ``elevation`` (degrees), from a camera that high
-    over the shape's horizon."""
+    room; ``+clutter``: a furnished one), each from any direction or, with ``elevation``
+    (degrees), from a camera that high over the shape's horizon."""
     extra = {} if elevation is None else {"elevation": tuple(elevation)}
     configs = []
     for name in rules:
         rule, sensor, crop = view_name_parts(name)
-        camera = (
-            {"sensor": sensor, "surroundings": room_cut(crop) if crop else False} if sensor else {}
-        )
+        camera = {"sensor": sensor, "surroundings": room_cut(crop)} if sensor else {}
         configs.append(scan_config(VIEW_RULES[rule], camera, extra))
     return configs
 
